@@ -1,0 +1,61 @@
+"""What the firmware prints: Arduino's float printing and the serial output sink."""
+
+from __future__ import annotations
+
+import numpy as np
+
+_F32 = np.float32
+
+
+def format_float(value: float, digits: int = 2) -> str:
+    """Arduino ``Print::printFloat`` in float32 (avr-gcc's double), as Marlin's SERIAL_ECHO prints.
+
+    The rounding constant 0.5/10**digits is added in float32, the integer part printed, then each
+    digit taken from the float32 remainder; this is not always Python's round-half-even.
+    """
+    number = _F32(value)
+    out = ""
+    if number < 0:
+        out = "-"
+        number = -number
+    rounding = _F32(0.5)
+    for _ in range(digits):
+        rounding = _F32(rounding / _F32(10.0))
+    number = _F32(number + rounding)
+    int_part = int(number)
+    out += str(int_part)
+    if digits > 0:
+        out += "."
+    remainder = _F32(number - _F32(int_part))
+    for _ in range(digits):
+        remainder = _F32(remainder * _F32(10.0))
+        digit = int(remainder)
+        out += str(digit)
+        remainder = _F32(remainder - _F32(digit))
+    return out
+
+
+class Console:
+    """The board's serial TX: text exactly as written, newlines included.
+
+    Marlin sometimes writes half a line (M303's bias lines) and finishes it later, so the sink
+    keeps raw text; ``lines()`` splits what has been completed.
+    """
+
+    def __init__(self) -> None:
+        self.text = ""
+
+    def write(self, text: str) -> None:
+        self.text += text
+
+    def writeln(self, text: str = "") -> None:
+        self.write(text + "\n")
+
+    def lines(self) -> list[str]:
+        """Completed lines written so far (a trailing partial line is left out)."""
+        return self.text.split("\n")[:-1]
+
+    def take(self) -> str:
+        """Return and clear everything written so far."""
+        text, self.text = self.text, ""
+        return text

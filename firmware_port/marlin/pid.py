@@ -1,0 +1,191 @@
+"""Marlin's hotend/bed PID law in integer fixed point, as an ATmega328 would run it.
+
+The law is Marlin 2.1's ``PID_t::get_pid_output`` (reference section 1): bang-bang outside
++-PID_FUNCTIONAL_RANGE, a one-sided sum of errors clamped so ``Ki * i_sum <= PID_MAX``,
+derivative on measurement through the ``PID_K1 = 0.95`` filter, output 0..255. Gains come in user
+units (M301) and are scaled by ``PID_dT = 160/977 s`` as Marlin stores them.
+
+Widths and scales (every intermediate is bounded in the comments; tests/test_pid_properties.py
+checks the bounds over the whole documented domain):
+- temperatures: celsius_q5, int16 Q10.5 (1/32 degC); targets int16 whole degC;
+- error ``e_q5``: int32 Q.5 (in band |e| <= 320);
+- terms and output: int32 Q.8 counts of the 0..255 output (1/256 count);
+- products that can exceed 32 bits (integral and derivative) are formed in int64 (avr-gcc's
+  ``long long``) and immediately shifted back into int32.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from fractions import Fraction
+
+from firmware_port.fixed import checked_s32, checked_s64, clamp, div_round, shr_round
+from firmware_port.marlin.constants import (
+    DEFAULT_BED_KD,
+    DEFAULT_BED_KI,
+    DEFAULT_BED_KP,
+    DEFAULT_KD,
+    DEFAULT_KI,
+    DEFAULT_KP,
+    PID_DT_S,
+    PID_FUNCTIONAL_RANGE_C,
+    PID_MAX,
+)
+from firmware_port.thermistor import TEMP_FRAC_BITS
+
+KP_FRAC_BITS = 12  # kp_q12: int32 Q.12, Kp in user units (Kp is not scaled by PID_dT)
+KI_FRAC_BITS = 24  # ki_q24: int32 Q.24, Ki_int = Ki * PID_dT
+KD_FRAC_BITS = 16  # kd_q16: int32 Q.16, Kd_int = Kd / PID_dT (< 2**15 for Kd <= KD_MAX)
+OUT_FRAC_BITS = 8  # terms and output: Q.8 counts
+P_SHIFT = KP_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.17 product -> Q.8
+I_SHIFT = KI_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.29 product -> Q.8
+D_SHIFT = KD_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.21 product -> Q.8
+
+# Documented gain domain (user units). Bounds below are derived for these maxima.
+KP_MAX = 1000.0
+KI_MAX = 100.0
+KD_MAX = 5000.0
+
+FUNCTIONAL_RANGE_Q5 = PID_FUNCTIONAL_RANGE_C << TEMP_FRAC_BITS  # 320
+OUT_MAX_Q8 = PID_MAX << OUT_FRAC_BITS  # 65280
+# Integral sum ceiling when Ki is tiny or zero: keeps i_sum in int32 (Ki*i_sum stays < PID_MAX).
+I_SUM_CAP_Q5 = 1 << 30
+# Derivative input saturation: |Kd_int * dT| <= 2**21 counts, far beyond any output, keeps the
+# filter state and (raw - state) inside int32 in Q.8.
+D_RAW_LIMIT_Q8 = 1 << (21 + OUT_FRAC_BITS)
+D_FILTER_DIVISOR = 20  # 1 - PID_K1 = 0.05 = 1/20 exactly
+
+
+@dataclass(frozen=True)
+class PidGains:
+    """Gains in user units (what M301/M303/EEPROM use)."""
+
+    kp: float
+    ki: float
+    kd: float
+
+    def __post_init__(self) -> None:
+        for name, value, top in (("kp", self.kp, KP_MAX), ("ki", self.ki, KI_MAX), ("kd", self.kd, KD_MAX)):
+            if not 0.0 <= value <= top:
+                raise ValueError(f"PID gain {name}={value} outside the supported range 0..{top}")
+
+
+HOTEND_GAINS = PidGains(DEFAULT_KP, DEFAULT_KI, DEFAULT_KD)
+BED_GAINS = PidGains(DEFAULT_BED_KP, DEFAULT_BED_KI, DEFAULT_BED_KD)
+
+PREV_TEMP_EVERY_SAMPLE = "2.0.x"  # Marlin 2.0.x: previous temperature updated on every call
+PREV_TEMP_IN_BAND = "2.1.x"  # Marlin 2.1.x: only in band, so re-entering the band kicks D
+
+
+def _scaled(value: float, scale: Fraction, frac_bits: int) -> int:
+    """User gain -> internal Q integer: ``round(value * scale * 2**frac_bits)`` from its decimal."""
+    return round(Fraction(repr(float(value))) * scale * (1 << frac_bits))
+
+
+class PidFixed:
+    """Marlin's PID law in integer arithmetic. One instance per heater.
+
+    State (as the C struct, 11 bytes):
+        i_sum_q5:  int32, Q.5 degC*samples, 0..i_max_q5 (one-sided sum of errors)
+        d_term_q8: int32, Q.8 counts, |d| <= 2**29 (filtered derivative term)
+        prev_q5:   int16, Q10.5 degC (previous temperature for the derivative)
+        reset:     uint8 flag (clear i and d on entering the band)
+    Constants per gain set (16 bytes): kp_q12, ki_q24, kd_q16, i_max_q5 (int32 each).
+    """
+
+    check_interval_ms = None
+    STATE_BYTES = 4 + 4 + 2 + 1
+    GAIN_BYTES = 4 * 4
+
+    def __init__(self, gains: PidGains = HOTEND_GAINS, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE):
+        if prev_temp_mode not in (PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND):
+            raise ValueError(f"prev_temp_mode must be {PREV_TEMP_EVERY_SAMPLE!r} or {PREV_TEMP_IN_BAND!r}")
+        self.prev_temp_mode = prev_temp_mode
+        self.set_gains(gains)
+        self.prev_q5 = 0  # Marlin starts temp_dState at 0.0
+        self.reset()
+
+    def set_gains(self, gains: PidGains) -> None:
+        """M301: scale user gains into Q integers (configuration time) and reset the loop."""
+        self.gains = gains
+        self.kp_q12 = _scaled(gains.kp, Fraction(1), KP_FRAC_BITS)  # <= 2**22
+        self.ki_q24 = _scaled(gains.ki, PID_DT_S, KI_FRAC_BITS)  # <= 2**28
+        self.kd_q16 = _scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS)  # < 2**31
+        # Marlin: iState <= MAX_POW / Ki. In Q.5 with Ki in Q.24: floor(255 * 2**29 / ki_q24).
+        full_scale = PID_MAX << (KI_FRAC_BITS + TEMP_FRAC_BITS)
+        self.i_max_q5 = min(full_scale // self.ki_q24, I_SUM_CAP_Q5) if self.ki_q24 else I_SUM_CAP_Q5
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the integral and derivative (Marlin's ``pid_reset``)."""
+        self.i_sum_q5 = 0
+        self.d_term_q8 = 0
+        self.reset_pending = True
+
+    def update(self, temp_q5: int, target_c: int, now_ms: int = 0) -> int:
+        """One step on a fresh reading; returns the output 0..255 (soft PWM gets ``>> 1``)."""
+        out_q8 = self.update_q8(temp_q5, target_c)
+        return out_q8 >> OUT_FRAC_BITS
+
+    def update_q8(self, temp_q5: int, target_c: int) -> int:
+        """The law with its Q.8 output (0..65280), for comparison with the float reference."""
+        e_q5 = checked_s32((target_c << TEMP_FRAC_BITS) - temp_q5)  # |e| < 2**16
+        if target_c == 0 or e_q5 < -FUNCTIONAL_RANGE_Q5:
+            out_q8 = 0
+            self.reset_pending = True
+        elif e_q5 > FUNCTIONAL_RANGE_Q5:
+            out_q8 = OUT_MAX_Q8
+            self.reset_pending = True
+        else:
+            if self.reset_pending:
+                self.reset_pending = False
+                self.i_sum_q5 = 0
+                self.d_term_q8 = 0
+            self.i_sum_q5 = clamp(checked_s32(self.i_sum_q5 + e_q5), 0, self.i_max_q5)
+            # kp_q12 * e_q5 <= 2**22 * 320 < 2**31: int32 product, Q.17 -> Q.8.
+            p_q8 = shr_round(checked_s32(self.kp_q12 * e_q5), P_SHIFT)
+            # ki_q24 * i_sum_q5 <= 255 * 2**29 (int64), Q.29 -> Q.8 <= 65280.
+            i_q8 = shr_round(checked_s64(self.ki_q24 * self.i_sum_q5), I_SHIFT)
+            # kd_q16 * dT_q5 is int64 (< 2**31 * 2**16), Q.21 -> Q.8, saturated to +-2**29.
+            d_prod = checked_s64(self.kd_q16 * checked_s32(self.prev_q5 - temp_q5))
+            d_in_q8 = shr_round(d_prod, D_SHIFT)
+            d_in_q8 = clamp(d_in_q8, -D_RAW_LIMIT_Q8, D_RAW_LIMIT_Q8)
+            # d += (d_in - d) / 20: |d_in - d| <= 2**30 fits int32.
+            self.d_term_q8 += div_round(checked_s32(d_in_q8 - self.d_term_q8), D_FILTER_DIVISOR)
+            # p + i + d: |sum| < 2**27 + 2**16 + 2**29 < 2**31.
+            out_q8 = clamp(checked_s32(p_q8 + i_q8 + self.d_term_q8), 0, OUT_MAX_Q8)
+            if self.prev_temp_mode == PREV_TEMP_IN_BAND:
+                self.prev_q5 = temp_q5
+        if self.prev_temp_mode == PREV_TEMP_EVERY_SAMPLE:
+            self.prev_q5 = temp_q5
+        return out_q8
+
+
+
+def float_error_bound_counts(gains: PidGains, max_dtemp_c: float) -> float:
+    """Worst-case |PidFixed - PidFloat| on the 0..255 output before truncation.
+
+    Derived term by term (docs/firmware.md) for equal temperature inputs, while the derivative
+    input is not saturated; ``max_dtemp_c`` is the largest |T_prev - T| the sequence feeds the
+    derivative (a few degrees normally, large after an excursion in 2.1.x mode).
+    """
+    lsb = 2.0**-OUT_FRAC_BITS / 2  # half a Q.8 step: one rounding
+    f32 = 2.0**-24  # float32 relative rounding
+    ki_int = gains.ki * float(PID_DT_S)
+    kd_int = gains.kd / float(PID_DT_S)
+    # P: Kp quantised to Q.12 over |e| <= 10, one rounding; float32 rounds Kp and the product.
+    bound_p = PID_FUNCTIONAL_RANGE_C * (2.0**-KP_FRAC_BITS / 2 + 2 * f32 * gains.kp) + lsb
+    # I: relative error of Ki (Q.24 vs float32) at full scale, the clamp level floored to the
+    # Q.5 grid (worth Ki_int/32 counts), one rounding, float32 rounding of the product.
+    bound_i = 0.0
+    if ki_int > 0:
+        rel_ki = (2.0**-KI_FRAC_BITS / 2) / ki_int + 3 * f32
+        bound_i = PID_MAX * (rel_ki + f32) + ki_int / (1 << TEMP_FRAC_BITS) + lsb
+    # D: Kd quantised to Q.16 and float32 rounding of the raw input pass through the unity-gain
+    # filter; each step's rounding (fixed: one Q.8 rounding; float32: three roundings of a
+    # value bounded by the input) accumulates at most 1/(1 - K1) = 20 times.
+    raw_d_max = kd_int * max_dtemp_c
+    bound_d = max_dtemp_c * 2.0**-KD_FRAC_BITS / 2 + 2 * f32 * raw_d_max + lsb
+    bound_d += D_FILTER_DIVISOR * (lsb + 4 * f32 * raw_d_max)
+    # The final sum: one float32 rounding per addition.
+    return bound_p + bound_i + bound_d + 3 * f32 * 2 * (PID_MAX + raw_d_max)

@@ -1,0 +1,231 @@
+"""The ATmega328 board: the temperature ISR and Marlin's ``Temperature::task()`` around it.
+
+Only pins cross the boundary: the board pulls 10-bit ADC samples from an ``AdcPort`` when its
+ADC state machine samples a channel, and exposes the heater pin levels, which change only
+inside ``isr()``. ``task()`` is Marlin's main loop: it converts fresh raw readings, runs the
+MIN/MAXTEMP checks, and runs each heater's controller and protection on fresh readings only
+(every 160 ISRs = 0.16384 s). The caller drives the clock: ``isr()`` at 976.5625 Hz and
+``task()`` in between (``step()`` does both).
+"""
+
+from __future__ import annotations
+
+from firmware_port.marlin.adc import AdcPort, AdcSequencer
+from firmware_port.marlin.constants import ticks_to_ms
+from firmware_port.marlin.pid import BED_GAINS, PidFixed
+from firmware_port.marlin.protection import (
+    H_BED,
+    HeaterWatch,
+    RunawayMonitor,
+    TempError,
+    TempRange,
+    heater_on,
+    m112_text,
+    temp_error_text,
+    time_pending,
+)
+from firmware_port.marlin.serial import Console, format_float
+from firmware_port.marlin.softpwm import SoftPwm
+from firmware_port.thermistor import B3950_TABLE, TEMP_ONE, TempTable
+
+HOTEND_CHANNEL = 0
+BED_CHANNEL = 1
+
+
+class Heater:
+    """One heater: sensor channel + controller + soft-PWM slot + protection state."""
+
+    def __init__(self, heater_id: int, controller, table: TempTable, temp_range: TempRange, runaway, watch):
+        self.heater_id = heater_id  # 0 = hotend E0, H_BED = -1
+        self.controller = controller
+        self.table = table
+        self.temp_range = temp_range
+        self.runaway = runaway
+        self.watch = watch
+        self.target_c = 0  # celsius_t, int16
+        self.raw = 0  # uint16, last raw ADC sum
+        self.temp_q5 = 0  # celsius_q5, int16
+        self.next_check_ms = 0  # gate for controllers that run every check_interval_ms
+
+    @property
+    def is_bed(self) -> bool:
+        return self.heater_id == H_BED
+
+
+class MarlinBoard:
+    """A Marlin 2.1 board with a hotend (channel 0) and optionally a bed (channel 1)."""
+
+    def __init__(
+        self,
+        adc_port: AdcPort,
+        hotend_controller=None,
+        bed_controller=None,
+        *,
+        has_bed: bool = True,
+        hotend_table: TempTable = B3950_TABLE,
+        bed_table: TempTable = B3950_TABLE,
+        console: Console | None = None,
+        version: str = "2.1",
+    ):
+        self.console = console if console is not None else Console()
+        self.version = version
+        hotend = Heater(
+            0,
+            hotend_controller if hotend_controller is not None else PidFixed(),
+            hotend_table,
+            TempRange.hotend(hotend_table),
+            RunawayMonitor.hotend(),
+            HeaterWatch.hotend(),
+        )
+        self.heaters = [hotend]
+        if has_bed:
+            bed = Heater(
+                H_BED,
+                bed_controller if bed_controller is not None else PidFixed(BED_GAINS),
+                bed_table,
+                TempRange.bed(bed_table),
+                RunawayMonitor.bed(),
+                HeaterWatch.bed(),
+            )
+            self.heaters.append(bed)
+        self.adc = AdcSequencer(len(self.heaters), adc_port)
+        self.pwm = SoftPwm(len(self.heaters))
+        self.ticks = 0  # ISRs run since reset
+        self.halted = False
+        self.fan_speed = 0  # part fan 0..255 (M106), driven by hardware PWM
+
+    # -- the outside world's view -------------------------------------------------------
+    @property
+    def now_ms(self) -> int:
+        """millis()."""
+        return ticks_to_ms(self.ticks)
+
+    @property
+    def hotend(self) -> Heater:
+        return self.heaters[HOTEND_CHANNEL]
+
+    @property
+    def bed(self) -> Heater | None:
+        return self.heaters[BED_CHANNEL] if len(self.heaters) > 1 else None
+
+    def pin(self, channel: int) -> bool:
+        """Heater output pin level."""
+        return self.pwm.pins[channel]
+
+    def amount(self, channel: int) -> int:
+        """soft_pwm_amount, 0..127 (what M105 prints after @:)."""
+        return self.pwm.amount[channel]
+
+    # -- the clock ------------------------------------------------------------------------
+    def isr(self) -> None:
+        """One temperature ISR (Timer0 compare A): soft PWM, then the ADC state machine."""
+        if self.halted:  # minkill(): interrupts off for good
+            return
+        self.pwm.tick()
+        self.adc.tick()
+        self.ticks += 1
+
+    def task(self) -> None:
+        """Temperature::task(): act on a fresh reading, if there is one."""
+        if self.halted or not self.adc.raw_ready:
+            return
+        self._update_temperatures()
+        if self.halted:
+            return
+        now_ms = self.now_ms
+        self._manage_hotend(self.hotend, now_ms)
+        if not self.halted and self.bed is not None:
+            self._manage_bed(self.bed, now_ms)
+
+    def step(self) -> None:
+        """One ISR followed by the main loop."""
+        self.isr()
+        self.task()
+
+    # -- commands (what G-code handlers call) ---------------------------------------------
+    def set_target(self, channel: int, target_c: int) -> None:
+        """setTargetHotend / setTargetBed: clamp to maxtemp - overshoot and restart the watch."""
+        heater = self.heaters[channel]
+        heater.target_c = heater.temp_range.clamp_target(target_c)
+        heater.watch.restart(heater.temp_q5, heater.target_c, self.now_ms)
+
+    def disable_all_heaters(self) -> None:
+        """Targets to 0, amounts to 0, pins low at once."""
+        for channel in range(len(self.heaters)):
+            self.set_target(channel, 0)
+        self.pwm.all_off()
+
+    def kill_m112(self) -> None:
+        """M112: kill(M112_KILL_STR) and halt."""
+        self.disable_all_heaters()
+        self.console.write(m112_text(version=self.version))
+        self.halted = True
+
+    def heater_states(self) -> str:
+        """print_heater_states(): `` T:cur /target B:cur /target @:amount B@:amount``."""
+        text = ""
+        for heater in self.heaters:
+            letter = "B" if heater.is_bed else "T"
+            text += f" {letter}:{format_float(heater.temp_q5 / TEMP_ONE)} /{format_float(heater.target_c)}"
+        text += f" @:{self.amount(HOTEND_CHANNEL)}"
+        if self.bed is not None:
+            text += f" B@:{self.amount(BED_CHANNEL)}"
+        return text
+
+    # -- Marlin's temperature.cpp ---------------------------------------------------------
+    def temp_error(self, heater: Heater, kind: TempError) -> None:
+        """_temp_error(): print the error, disable all heaters, kill() and halt."""
+        self.disable_all_heaters()
+        self.console.write(temp_error_text(kind, heater.heater_id, version=self.version))
+        self.halted = True
+
+    def _update_temperatures(self) -> None:
+        """updateTemperaturesFromRawValues(): convert, then the raw MAXTEMP/MINTEMP checks."""
+        for channel, heater in enumerate(self.heaters):
+            heater.raw = self.adc.raw[channel]
+            heater.temp_q5 = heater.table.lookup_q5(heater.raw)
+        self.adc.raw_ready = False
+        for channel, heater in enumerate(self.heaters):
+            if heater.temp_range.maxtemp_raw_tripped(heater.raw):
+                return self.temp_error(heater, TempError.MAXTEMP)
+            on = heater_on(heater.target_c, self.amount(channel), version=self._heater_on_version(heater))
+            if heater.temp_range.mintemp_raw_tripped(heater.raw, on):
+                return self.temp_error(heater, TempError.MINTEMP)
+
+    def _heater_on_version(self, heater: Heater) -> str:
+        """The bed's MINTEMP looks at the target only, in every version."""
+        return "2.1" if heater.is_bed else self.version
+
+    def _manage_hotend(self, heater: Heater, now_ms: int) -> None:
+        """manage_hotends(): MAXTEMP, runaway, the controller, then the heating watch."""
+        temp_q5 = heater.temp_q5
+        if heater.temp_range.maxtemp_tripped(temp_q5):
+            return self.temp_error(heater, TempError.MAXTEMP)
+        if heater.runaway.run(temp_q5, heater.target_c, now_ms):
+            return self.temp_error(heater, TempError.THERMAL_RUNAWAY)
+        in_range = heater.temp_range.mintemp_c * TEMP_ONE < temp_q5 < heater.temp_range.maxtemp_c * TEMP_ONE
+        amount = heater.controller.update(temp_q5, heater.target_c, now_ms) >> 1 if in_range else 0
+        self.pwm.set_amount(HOTEND_CHANNEL, amount)
+        if heater.watch.heating_failed(temp_q5, heater.target_c, now_ms):
+            self.temp_error(heater, TempError.HEATING_FAILED)
+
+    def _manage_bed(self, heater: Heater, now_ms: int) -> None:
+        """manage_heated_bed(): MAXTEMP, watch, then (bang-bang: every 5 s) runaway and control."""
+        temp_q5 = heater.temp_q5
+        if heater.temp_range.maxtemp_tripped(temp_q5):
+            return self.temp_error(heater, TempError.MAXTEMP)
+        if heater.watch.heating_failed(temp_q5, heater.target_c, now_ms):
+            return self.temp_error(heater, TempError.HEATING_FAILED)
+        interval_ms = heater.controller.check_interval_ms
+        if interval_ms is not None:
+            if time_pending(now_ms, heater.next_check_ms):
+                return
+            heater.next_check_ms = now_ms + interval_ms
+        if heater.runaway.run(temp_q5, heater.target_c, now_ms):
+            return self.temp_error(heater, TempError.THERMAL_RUNAWAY)
+        limits = heater.temp_range
+        if limits.mintemp_c * TEMP_ONE <= temp_q5 <= limits.maxtemp_c * TEMP_ONE:
+            self.pwm.set_amount(BED_CHANNEL, heater.controller.update(temp_q5, heater.target_c, now_ms) >> 1)
+        else:
+            self.pwm.set_amount(BED_CHANNEL, 0)
+            self.pwm.pins[BED_CHANNEL] = False  # WRITE_HEATER_BED(LOW)

@@ -1,4 +1,7 @@
-"""Hypothesis profiles: 'dev' (default, quick) and 'ci' (derandomised, more examples)."""
+"""Hypothesis profiles: 'dev' (quick, random) and 'ci' (derandomised, more examples).
+
+CI sets CI=true, which selects 'ci'; HYPOTHESIS_PROFILE overrides either way.
+"""
 
 import os
 
@@ -13,4 +16,4 @@ settings.register_profile(
     print_blob=True,
     suppress_health_check=[HealthCheck.too_slow],
 )
-settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE") or ("ci" if os.environ.get("CI") else "dev"))

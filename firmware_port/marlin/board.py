@@ -11,8 +11,9 @@ MIN/MAXTEMP checks, and runs each heater's controller and protection on fresh re
 from __future__ import annotations
 
 from firmware_port.marlin.adc import AdcPort, AdcSequencer
+from firmware_port.marlin.autotune import Autotune
 from firmware_port.marlin.constants import ticks_to_ms
-from firmware_port.marlin.pid import BED_GAINS, PidFixed
+from firmware_port.marlin.pid import BED_GAINS, PidFixed, PidGains
 from firmware_port.marlin.protection import (
     H_BED,
     HeaterWatch,
@@ -93,6 +94,10 @@ class MarlinBoard:
         self.ticks = 0  # ISRs run since reset
         self.halted = False
         self.fan_speed = 0  # part fan 0..255 (M106), driven by hardware PWM
+        self.autotune: Autotune | None = None  # M303 in progress
+        self.autotune_channel = HOTEND_CHANNEL
+        self.autotune_apply = False  # M303 U1
+        self.last_autotune: Autotune | None = None  # the finished run, for M303's caller
 
     # -- the outside world's view -------------------------------------------------------
     @property
@@ -113,7 +118,9 @@ class MarlinBoard:
         return self.pwm.pins[channel]
 
     def amount(self, channel: int) -> int:
-        """soft_pwm_amount, 0..127 (what M105 prints after @:)."""
+        """soft_pwm_amount, 0..127 (what M105 prints after @:); M303 writes it directly."""
+        if self.autotune is not None and channel == self.autotune_channel:
+            return self.autotune.amount
         return self.pwm.amount[channel]
 
     # -- the clock ------------------------------------------------------------------------
@@ -126,11 +133,21 @@ class MarlinBoard:
         self.ticks += 1
 
     def task(self) -> None:
-        """Temperature::task(): act on a fresh reading, if there is one."""
-        if self.halted or not self.adc.raw_ready:
-            return
-        self._update_temperatures()
+        """Temperature::task(): act on a fresh reading, if there is one.
+
+        While M303 runs, Marlin's main loop is its autotune loop instead: it polls every pass,
+        converts fresh readings (with the raw MIN/MAXTEMP checks) and runs no other control.
+        """
         if self.halted:
+            return
+        fresh = self.adc.raw_ready
+        if fresh:
+            self._update_temperatures()
+            if self.halted:
+                return
+        if self.autotune is not None:
+            return self._run_autotune(fresh)
+        if not fresh:
             return
         now_ms = self.now_ms
         self._manage_hotend(self.hotend, now_ms)
@@ -154,6 +171,56 @@ class MarlinBoard:
         for channel in range(len(self.heaters)):
             self.set_target(channel, 0)
         self.pwm.all_off()
+
+    def can_autotune(self, channel: int) -> bool:
+        """M303 needs PIDTEMP (hotend) or PIDTEMPBED (bed): a controller with PID gains."""
+        return channel < len(self.heaters) and hasattr(self.heaters[channel].controller, "set_gains")
+
+    def start_autotune(self, channel: int, target_c: int, ncycles: int, apply: bool = False,
+                       version: str = "2.1") -> Autotune:
+        """M303: Marlin's relay autotune on one heater; the board runs it until it is done."""
+        heater = self.heaters[channel]
+        tune = Autotune(
+            heater.heater_id,
+            target_c,
+            ncycles,
+            heater.is_bed,
+            self.console,
+            self.heater_states,
+            lambda kind: self.temp_error(heater, TempError(kind)),
+            heater.temp_range.maxtemp_c,
+            version,
+        )
+        tune.start(self.now_ms)
+        if tune.done:  # refused before disable_all_heaters()
+            self.last_autotune = tune
+            return tune
+        self.disable_all_heaters()
+        self.autotune, self.autotune_channel, self.autotune_apply = tune, channel, apply
+        self.pwm.set_amount(channel, tune.amount)
+        return tune
+
+    def cancel_autotune(self) -> None:
+        """M108 during M303: the loop ends and the heaters go off."""
+        if self.autotune is not None:
+            self.autotune.cancel()
+            self._end_autotune()
+
+    def _run_autotune(self, fresh: bool) -> None:
+        tune, channel = self.autotune, self.autotune_channel
+        tune.poll(self.now_ms, self.heaters[channel].temp_q5 if fresh else None)
+        if self.halted:  # a temperature error inside M303 killed the board
+            self.autotune = None
+            return
+        self.pwm.set_amount(channel, tune.amount)
+        if tune.done:
+            if tune.succeeded and self.autotune_apply:
+                self.heaters[channel].controller.set_gains(PidGains.clamped(*tune.gains))
+            self._end_autotune()
+
+    def _end_autotune(self) -> None:
+        self.pwm.set_amount(self.autotune_channel, self.autotune.amount)
+        self.last_autotune, self.autotune = self.autotune, None
 
     def kill_m112(self) -> None:
         """M112: kill(M112_KILL_STR) and halt."""

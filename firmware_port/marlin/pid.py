@@ -69,6 +69,11 @@ class PidGains:
             if not 0.0 <= value <= top:
                 raise ValueError(f"PID gain {name}={value} outside the supported range 0..{top}")
 
+    @classmethod
+    def clamped(cls, kp: float, ki: float, kd: float) -> PidGains:
+        """Gains forced into the supported ranges (M303 U1 on a degenerate oscillation)."""
+        return cls(min(max(kp, 0.0), KP_MAX), min(max(ki, 0.0), KI_MAX), min(max(kd, 0.0), KD_MAX))
+
 
 HOTEND_GAINS = PidGains(DEFAULT_KP, DEFAULT_KI, DEFAULT_KD)
 BED_GAINS = PidGains(DEFAULT_BED_KP, DEFAULT_BED_KI, DEFAULT_BED_KD)

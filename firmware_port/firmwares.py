@@ -1,0 +1,48 @@
+"""The firmware builds a board can run: which controller drives the hotend and which the bed."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat
+from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
+from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed
+from firmware_port.marlin.pid_float import PidFloat
+
+# name -> (hotend controller factory, bed controller factory, one-line description)
+FIRMWARES: dict[str, tuple[Callable, Callable, str]] = {
+    "pid": (
+        lambda: PidFixed(HOTEND_GAINS),
+        lambda: PidFixed(BED_GAINS),
+        "Marlin's PID law in integer fixed point (PIDTEMP + PIDTEMPBED)",
+    ),
+    "pid_float": (
+        lambda: PidFloat(HOTEND_GAINS),
+        lambda: PidFloat(BED_GAINS),
+        "Marlin's PID law in float32, as Marlin itself computes it",
+    ),
+    "bangbang": (
+        BangBangHotend,
+        BangBangBed,
+        "Marlin without PIDTEMP/PIDTEMPBED: bang-bang, the bed checked every 5 s",
+    ),
+    "fuzzy_pi": (
+        lambda: FuzzyPi(SEED004_HOTEND),
+        lambda: FuzzyPi(SEED004_BED),
+        "seed 004's fuzzy-like PI in integer arithmetic (hotend and bed presets)",
+    ),
+    "fuzzy_pi_float": (
+        lambda: FuzzyPiFloat(SEED004_HOTEND),
+        lambda: FuzzyPiFloat(SEED004_BED),
+        "seed 004's fuzzy-like PI in float, the oracle of fuzzy_pi",
+    ),
+}
+
+
+def build_controllers(name: str):
+    """Fresh (hotend, bed) controllers of a firmware build; ValueError names the valid ones."""
+    try:
+        hotend, bed, _ = FIRMWARES[name]
+    except KeyError:
+        raise ValueError(f"unknown firmware {name!r}; choose one of: {', '.join(FIRMWARES)}") from None
+    return hotend(), bed()

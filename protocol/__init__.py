@@ -1,0 +1,1 @@
+"""The wire: G-code lines, checksums and resends, Marlin replies, transports."""

@@ -1,0 +1,1 @@
+"""The user-facing tools: CLIs, tuning, identification, log parsers, plots, benchmarks."""

@@ -68,17 +68,19 @@ class SteinhartHart:
         ln_r = math.log(resistance_ohm)
         return 1.0 / (self.c1 + self.c2 * ln_r + self.c3 * ln_r**3) - KELVIN_OFFSET
 
-    def resistance_ohm(self, temp_c: float) -> float:
-        """Resistance of the part at a temperature (closed form for beta, Cardano otherwise)."""
-        inv_t = 1.0 / (temp_c + KELVIN_OFFSET)
+    def resistance_ohm(self, temp_c):
+        """Resistance of the part at a temperature (closed form for beta, Cardano otherwise).
+
+        Accepts a float or a numpy array (the twin converts a run of samples at once).
+        """
+        inv_t = 1.0 / (np.asarray(temp_c, dtype=float) + KELVIN_OFFSET)
         if self.c3 == 0.0:
-            return math.exp((inv_t - self.c1) / self.c2)
+            return np.exp((inv_t - self.c1) / self.c2)
         # c3*x^3 + c2*x + (c1 - 1/T) = 0, one real root since c2, c3 > 0.
         p = self.c2 / self.c3
         q = (self.c1 - inv_t) / self.c3
-        disc = math.sqrt(q * q / 4.0 + p**3 / 27.0)
-        x = math.cbrt(-q / 2.0 + disc) + math.cbrt(-q / 2.0 - disc)
-        return math.exp(x)
+        disc = np.sqrt(q * q / 4.0 + p**3 / 27.0)
+        return np.exp(np.cbrt(-q / 2.0 + disc) + np.cbrt(-q / 2.0 - disc))
 
 
 # Klipper's built-in sensors (klippy/extras/temperature_sensors.cfg): (temp_c, resistance_ohm).

@@ -55,3 +55,45 @@ def test_unconsumed_readings_are_dropped_like_marlin():
     for _ in range(3 * TICKS_PER_READING):
         adc.tick()
     assert adc.raw == [1500]  # still the first reading: later ones were dropped
+
+
+class ListPort:
+    """Returns pre-drawn samples in order, per channel."""
+
+    def __init__(self, samples):
+        self.samples = [list(s) for s in samples]
+
+    def sample(self, channel):
+        return self.samples[channel].pop(0)
+
+
+@given(
+    st.integers(0, 9),
+    st.integers(0, 15),
+    st.booleans(),
+    st.integers(0, 400),
+    st.randoms(use_true_random=False),
+)
+def test_skip_equals_tick_by_tick(phase, temp_count, ready, n_ticks, rnd):
+    """The fast engine's bulk ADC: same raw values, same ready flag, same counters."""
+    samples = [[rnd.randint(0, 1023) for _ in range(n_ticks // 10 + 1)] for _ in range(2)]
+    stepped, fast = AdcSequencer(2, ListPort(samples)), AdcSequencer(2, None)
+    for adc in (stepped, fast):
+        adc.phase, adc.temp_count, adc.raw_ready = phase, temp_count, ready
+        adc.acc = [7, 9]
+    offsets = fast.sample_offsets(n_ticks)
+    for _ in range(n_ticks):
+        stepped.tick()
+    fast.skip(n_ticks, [samples[ch][: len(offsets[ch])] for ch in range(2)])
+    for attr in ("phase", "temp_count", "acc", "raw", "raw_ready"):
+        assert getattr(fast, attr) == getattr(stepped, attr), attr
+
+
+@given(st.integers(0, 9), st.integers(0, 15))
+def test_ticks_to_reading_lands_on_the_ready_isr(phase, temp_count):
+    adc = AdcSequencer(2, RecordingPort([1, 2]))
+    adc.phase, adc.temp_count = phase, temp_count
+    n = adc.ticks_to_reading()
+    for k in range(1, n + 1):
+        adc.tick()
+        assert adc.raw_ready == (k == n)

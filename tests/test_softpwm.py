@@ -64,3 +64,33 @@ def test_all_off_drops_the_pins_at_once():
     assert pwm.pins == [True, True]
     pwm.all_off()
     assert pwm.pins == [False, False] and pwm.amount == [0, 0]
+
+
+state_st = st.tuples(
+    st.integers(1, SOFT_PWM_PERIOD_TICKS),  # pwm_count
+    st.lists(st.integers(0, 127), min_size=2, max_size=2),  # latched counts
+    st.lists(st.integers(0, 127), min_size=2, max_size=2),  # amounts
+    st.lists(st.booleans(), min_size=2, max_size=2),  # pins
+)
+
+
+def _pwm_from(state):
+    pwm = SoftPwm(2)
+    pwm.pwm_count, counts, amounts, pins = state
+    pwm.count, pwm.amount, pwm.pins = list(counts), list(amounts), list(pins)
+    return pwm
+
+
+@given(state_st, st.integers(0, 3 * SOFT_PWM_PERIOD_TICKS))
+def test_waveform_and_skip_equal_tick_by_tick(state, n_ticks):
+    """The fast engine's closed form: same pins at every tick and the same final state."""
+    stepped, fast = _pwm_from(state), _pwm_from(state)
+    expected = [[], []]
+    for _ in range(n_ticks):
+        stepped.tick()
+        for ch in range(2):
+            expected[ch].append(stepped.pins[ch])
+    for ch in range(2):
+        assert fast.waveform(ch, n_ticks).tolist() == expected[ch]
+    fast.skip(n_ticks)
+    assert (fast.pwm_count, fast.count, fast.pins) == (stepped.pwm_count, stepped.count, stepped.pins)

@@ -2,18 +2,21 @@
 
 One round is MIN_ADC_ISR_LOOPS = 10 ISRs: StartSampling, then a Prepare/Measure pair per
 sensor (the conversion starts in Prepare and is read in Measure), then SensorsReady padding.
-Each Measure adds a 10-bit sample to the sensor's accumulator; every OVERSAMPLENR-th
-StartSampling hands the sums over as raw values (``readings_ready``). As in Marlin, the counter
-starts at 0, so the very first reading after reset sums 15 samples, later ones 16.
+Each conversion is added to the sensor's accumulator; every OVERSAMPLENR-th StartSampling hands
+the sums over as raw values (``readings_ready``). As in Marlin, the counter starts at 0, so the
+very first reading after reset sums 15 samples, later ones 16.
+
+The sample-and-hold captures the pin in the Prepare ISR, so that is when the port is asked.
+Every Measure falls in the same round as its Prepare, before the next StartSampling, so adding
+the conversion at Prepare gives the same sums as adding it at Measure; that lets ``skip`` run
+many ISRs at once from samples taken in bulk.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, Sequence
 
 from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, OVERSAMPLENR
-
-ADC_MAX = 1023
 
 
 class AdcPort(Protocol):
@@ -43,23 +46,63 @@ class AdcSequencer:
         self.acc = [0] * n_channels
         self.raw = [0] * n_channels
         self.raw_ready = False
-        self._conversion = 0
 
     def tick(self) -> None:
         """The ADC part of one temperature ISR."""
         phase = self.phase
         if phase == 0:
-            self.temp_count += 1
-            if self.temp_count >= OVERSAMPLENR:
-                self.temp_count = 0
-                self._readings_ready()
-        elif phase <= 2 * self.n_channels:
-            channel = (phase - 1) >> 1
-            if phase & 1:  # Prepare: the sample-and-hold captures the pin now
-                self._conversion = self.port.sample(channel)
-            else:  # Measure: read the finished conversion
-                self.acc[channel] += self._conversion
+            self._start_sampling()
+        elif phase < 2 * self.n_channels and phase & 1:  # Prepare: sample-and-hold now
+            channel = phase >> 1
+            self.acc[channel] += self.port.sample(channel)
         self.phase = phase + 1 if phase + 1 < MIN_ADC_ISR_LOOPS else 0
+
+    def sample_offsets(self, n_ticks: int) -> list[range]:
+        """For each channel, the offsets (0..n_ticks-1) of the next ISRs that sample it."""
+        return [
+            range((2 * channel + 1 - self.phase) % MIN_ADC_ISR_LOOPS, n_ticks, MIN_ADC_ISR_LOOPS)
+            for channel in range(self.n_channels)
+        ]
+
+    def ticks_to_reading(self) -> int:
+        """How many ISRs until (and including) the one that hands over the next reading."""
+        to_start = (MIN_ADC_ISR_LOOPS - self.phase) % MIN_ADC_ISR_LOOPS
+        rounds = OVERSAMPLENR - 1 - self.temp_count  # StartSamplings after the next one
+        return to_start + rounds * MIN_ADC_ISR_LOOPS + 1
+
+    def skip(self, n_ticks: int, samples: Sequence[Sequence[int]]) -> None:
+        """``n_ticks`` ISRs at once, given each channel's conversions at ``sample_offsets``.
+
+        Equivalent to ``n_ticks`` calls of ``tick()`` with a port returning those samples.
+        """
+        offsets = self.sample_offsets(n_ticks)
+        taken = [0] * self.n_channels
+        first_start = (MIN_ADC_ISR_LOOPS - self.phase) % MIN_ADC_ISR_LOOPS
+        n_starts = len(range(first_start, n_ticks, MIN_ADC_ISR_LOOPS))
+        # The j-th StartSampling (from 0) brings temp_count to temp_count + j + 1: a reading
+        # is handed over whenever that reaches OVERSAMPLENR.
+        j = OVERSAMPLENR - 1 - self.temp_count
+        while j < n_starts:
+            self._accumulate(samples, offsets, taken, first_start + j * MIN_ADC_ISR_LOOPS)
+            self._readings_ready()
+            j += OVERSAMPLENR
+        self._accumulate(samples, offsets, taken, n_ticks)
+        self.temp_count = (self.temp_count + n_starts) % OVERSAMPLENR
+        self.phase = (self.phase + n_ticks) % MIN_ADC_ISR_LOOPS
+
+    def _accumulate(self, samples, offsets, taken, before: int) -> None:
+        """Add each channel's samples taken before offset ``before`` that are not added yet."""
+        for channel, offs in enumerate(offsets):
+            count = len(offs[: max(0, before - offs.start + MIN_ADC_ISR_LOOPS - 1) // MIN_ADC_ISR_LOOPS])
+            if count > taken[channel]:
+                self.acc[channel] += sum(samples[channel][taken[channel] : count])
+                taken[channel] = count
+
+    def _start_sampling(self) -> None:
+        self.temp_count += 1
+        if self.temp_count >= OVERSAMPLENR:
+            self.temp_count = 0
+            self._readings_ready()
 
     def _readings_ready(self) -> None:
         """Copy the sums to raw unless the main loop has not taken the last ones (Marlin drops them)."""

@@ -265,6 +265,14 @@ class Autotune:
         if self.cycles > self.ncycles and self.cycles >= self.rules.min_cycles:
             self._finish()
 
+    def next_deadline_ms(self) -> int:
+        """The next time a pass without a fresh reading can act: the 2 s report or the timeout."""
+        if self.rules.timeout_sums_both:  # (now - t1) + (now - t2) > TIMEOUT
+            timeout_ms = (TIMEOUT_MS + self.t1_ms + self.t2_ms) // 2 + 1
+        else:
+            timeout_ms = min(self.t1_ms, self.t2_ms) + TIMEOUT_MS + 1
+        return min(self.next_report_ms, timeout_ms)
+
     def _sample(self, now_ms: int, temp_q5: int) -> None:
         """A fresh reading: track min/max and switch the relay."""
         self.current_q5 = temp_q5

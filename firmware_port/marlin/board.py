@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from firmware_port.marlin.adc import AdcPort, AdcSequencer
 from firmware_port.marlin.autotune import Autotune
-from firmware_port.marlin.constants import ticks_to_ms
+from firmware_port.marlin.constants import ms_to_ticks, ticks_to_ms
 from firmware_port.marlin.pid import BED_GAINS, PidFixed, PidGains
 from firmware_port.marlin.protection import (
     H_BED,
@@ -158,6 +158,24 @@ class MarlinBoard:
         """One ISR followed by the main loop."""
         self.isr()
         self.task()
+
+    def skip(self, n_ticks: int, samples) -> None:
+        """``n_ticks`` ISRs at once (no main loop in between), given each channel's ADC
+        conversions at ``adc.sample_offsets(n_ticks)``; the caller keeps ``n_ticks`` within
+        ``ticks_to_task()`` so no main-loop pass is missed."""
+        if self.halted:
+            return
+        self.pwm.skip(n_ticks)
+        self.adc.skip(n_ticks, samples)
+        self.ticks += n_ticks
+
+    def ticks_to_task(self) -> int:
+        """ISRs until the main loop next has something to do: a fresh reading, or an M303 deadline."""
+        n_ticks = self.adc.ticks_to_reading()
+        if self.autotune is not None:
+            deadline_tick = ms_to_ticks(self.autotune.next_deadline_ms())
+            n_ticks = min(n_ticks, max(1, deadline_tick - self.ticks))
+        return n_ticks
 
     # -- commands (what G-code handlers call) ---------------------------------------------
     def set_target(self, channel: int, target_c: int) -> None:

@@ -58,3 +58,8 @@ PREHEAT_1_TEMP_BED_C = 70
 def ticks_to_ms(ticks: int) -> int:
     """Arduino ``millis()`` after ``ticks`` Timer0 overflows: 1 ms + 3/125 ms per tick."""
     return ticks * 128 // 125
+
+
+def ms_to_ticks(ms: int) -> int:
+    """The first tick count at which ``millis()`` has reached ``ms``."""
+    return (ms * 125 + 127) // 128

@@ -44,9 +44,12 @@ class Console:
 
     def __init__(self) -> None:
         self.text = ""
+        self.listeners = []  # callables(text) told of every write (the twin's trace, a transport)
 
     def write(self, text: str) -> None:
         self.text += text
+        for listener in self.listeners:
+            listener(text)
 
     def writeln(self, text: str = "") -> None:
         self.write(text + "\n")

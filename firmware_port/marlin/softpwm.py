@@ -8,6 +8,8 @@ So the on-time in a period is exactly ``amount`` ISRs, and a new amount waits fo
 
 from __future__ import annotations
 
+import numpy as np
+
 from firmware_port.marlin.constants import SOFT_PWM_MAX, SOFT_PWM_PERIOD_TICKS
 
 
@@ -45,6 +47,32 @@ class SoftPwm:
                 if latched <= tmp:
                     self.pins[ch] = False
         self.pwm_count = tmp + 1
+
+    def waveform(self, channel: int, n_ticks: int) -> np.ndarray:
+        """The pin level after each of the next ``n_ticks`` ISRs (amounts as they are now).
+
+        The counter seen by ISR i is ``(pwm_count + i) % 127``: 0 is the wrap, where the amount
+        is latched; before the first wrap the pin can only fall, at the old latched count.
+        """
+        counter = (self.pwm_count + np.arange(n_ticks)) % SOFT_PWM_PERIOD_TICKS
+        first_wrap = (SOFT_PWM_PERIOD_TICKS - self.pwm_count) % SOFT_PWM_PERIOD_TICKS
+        before = counter < self.count[channel] if self.pins[channel] else np.zeros(n_ticks, bool)
+        after = counter < self.amount[channel]
+        return np.where(np.arange(n_ticks) < first_wrap, before, after)
+
+    def skip(self, n_ticks: int) -> None:
+        """Run ``n_ticks`` ISRs at once: the same state as ``n_ticks`` calls of ``tick()``."""
+        if n_ticks <= 0:
+            return
+        first_wrap = (SOFT_PWM_PERIOD_TICKS - self.pwm_count) % SOFT_PWM_PERIOD_TICKS
+        last = (self.pwm_count + n_ticks - 1) % SOFT_PWM_PERIOD_TICKS  # counter of the last ISR
+        for ch in range(len(self.amount)):
+            if first_wrap < n_ticks:
+                self.count[ch] = self.amount[ch]
+                self.pins[ch] = last < self.amount[ch]
+            elif self.pins[ch]:
+                self.pins[ch] = last < self.count[ch]
+        self.pwm_count = last + 1
 
     def all_off(self) -> None:
         """disable_all_heaters(): amounts 0 and pins written LOW at once."""

@@ -1,0 +1,230 @@
+"""The lockstep engine: the firmware's board and the heaters' plants on one clock of ISR ticks.
+
+Tick k is the k-th temperature ISR, at k x 1.024 ms. During tick k the ISR runs (it may take an
+ADC sample of the sensor node as it is at that instant, and it sets the heater pins), then the
+main loop, then the plant integrates over the tick with the pins as they are now. Nothing reads
+the wall clock; same scenario and seed, same trace, bit for bit.
+
+Two engines drive the same state:
+- ``reference``: tick by tick, calling ``isr()`` and ``task()`` exactly as the MCU would. The
+  oracle.
+- ``fast``: between two main-loop actions (a fresh reading, an M303 deadline) and scenario
+  events the firmware's inputs are known in advance: the pin waveforms follow from the latched
+  soft-PWM amounts, the ADC samples the sensor at fixed ISR phases. So a whole control period
+  is one linear map per plant and one bulk ADC conversion, and the board skips its ISRs in
+  closed form. It feeds the firmware the same samples as the reference engine (tested).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from collections.abc import Callable
+
+import numpy as np
+
+from firmware_port.firmwares import build_controllers
+from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL, MarlinBoard
+from firmware_port.marlin.serial import Console
+from firmware_port.thermistor import TEMP_ONE
+from twin.linear import BLOCK, SENSOR, TICK_S
+from twin.sensor import SensorChain
+from twin.trace import Trace
+
+ENGINES = ("fast", "reference")
+HALTED_RUN_TICKS = 160  # record cadence while the board is dead
+NORMAL, DISCONNECTED, STUCK_ON = "normal", "heater_disconnected", "heater_stuck_on"
+
+
+def ticks_at(t_s: float) -> int:
+    """The first tick at or after ``t_s`` seconds."""
+    return int(np.ceil(round(t_s / TICK_S, 9)))
+
+
+class Twin:
+    """A board running a firmware build, a plant and a sensor chain per heater, and a trace."""
+
+    def __init__(
+        self,
+        plants: list,
+        firmware: str = "pid",
+        *,
+        sensors: list[SensorChain] | None = None,
+        seed: int = 0,
+        noise_lsb: float = 0.0,
+        engine: str = "fast",
+        board_options: dict | None = None,
+    ):
+        if engine not in ENGINES:
+            raise ValueError(f"engine must be one of {ENGINES}, not {engine!r}")
+        self.engine = engine
+        self.plants = plants
+        if sensors is None:
+            streams = np.random.SeedSequence(seed).spawn(len(plants))
+            sensors = [SensorChain(noise_lsb=noise_lsb, rng=np.random.default_rng(s)) for s in streams]
+        self.sensors = sensors
+        hotend_ctrl, bed_ctrl = build_controllers(firmware)
+        self.console = Console()
+        self.board = MarlinBoard(
+            self, hotend_ctrl, bed_ctrl, has_bed=len(plants) > 1, console=self.console, **(board_options or {})
+        )
+        self.tick = 0
+        self.flow_mm_s = 0.0
+        self.ambient_c = float(plants[0].d[0])
+        self.heater_mode = [NORMAL] * len(plants)
+        self.fan_failed = False
+        self._applied_inputs = None
+        self.trace = Trace()
+        self.console.listeners.append(self._console_to_trace)
+        self._partial_line = ""
+        self._events: list = []  # heap of (tick, seq, action)
+        self._seq = itertools.count()
+
+    # -- the outside world ----------------------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        return self.tick * TICK_S
+
+    @property
+    def fan(self) -> float:
+        """Part-fan speed the plant sees, 0..1 (the board's M106 value unless the fan failed)."""
+        return 0.0 if self.fan_failed else self.board.fan_speed / 255
+
+    def schedule(self, at_s: float, action: Callable[[Twin], None]) -> None:
+        """Run ``action(twin)`` at the first tick at or after ``at_s`` (before that tick's ISR)."""
+        heapq.heappush(self._events, (ticks_at(at_s), next(self._seq), action))
+
+    def set_heater_mode(self, channel: int, mode: str) -> None:
+        """Heater wiring faults: normal, heater_disconnected (no power), heater_stuck_on (MOSFET shorted)."""
+        if mode not in (NORMAL, DISCONNECTED, STUCK_ON):
+            raise ValueError(f"not a heater mode: {mode!r}")
+        self.heater_mode[channel] = mode
+
+    def set_thermistor_fault(self, channel: int, fault: str | None) -> None:
+        sensor_c = float(self.plants[channel].temps_c()[SENSOR])
+        self.sensors[channel].set_fault(fault, self.tick, sensor_c, self.ambient_c)
+
+    def set_ambient(self, ambient_c: float) -> None:
+        self.ambient_c = float(ambient_c)
+        for sensor in self.sensors:
+            sensor.set_ambient(self.ambient_c, self.tick)
+
+    # -- AdcPort (reference engine) -----------------------------------------------------------
+    def sample(self, channel: int) -> int:
+        """The ISR samples a sensor node now."""
+        sensor_c = self.plants[channel].outputs(np.zeros(0), (0,))[:, SENSOR]
+        return self.sensors[channel].samples(sensor_c, np.array([self.tick]))[0]
+
+    # -- running ----------------------------------------------------------------------------
+    def run_until(self, t_s: float) -> None:
+        """Advance the clock to ``t_s`` seconds."""
+        self.run_ticks(ticks_at(t_s) - self.tick)
+
+    def run_ticks(self, n_ticks: int) -> None:
+        """Advance the clock by ``n_ticks``, applying scheduled events on their ticks."""
+        end = self.tick + n_ticks
+        while self.tick < end:
+            self._apply_due_events()
+            stop = min(end, self._events[0][0]) if self._events else end
+            if stop <= self.tick:
+                continue
+            if self.engine == "reference":
+                self._run_reference(stop - self.tick)
+            else:
+                self._run_fast(stop - self.tick)
+        self._apply_due_events()
+
+    def _apply_due_events(self) -> None:
+        while self._events and self._events[0][0] <= self.tick:
+            _, _, action = heapq.heappop(self._events)
+            action(self)
+
+    def _update_plant_inputs(self) -> None:
+        inputs = (self.fan, self.flow_mm_s, self.ambient_c)
+        if inputs != self._applied_inputs:
+            for channel, plant in enumerate(self.plants):
+                plant.set_inputs(fan=self.fan, flow_mm_s=self.flow_mm_s if channel == HOTEND_CHANNEL else 0.0,
+                                 ambient_c=self.ambient_c)
+            self._applied_inputs = inputs
+        for plant in self.plants:
+            plant.relinearise()
+
+    def _heater_input(self, channel: int, pins: np.ndarray) -> np.ndarray:
+        """Fraction of full power over each tick, given the pin levels."""
+        mode = self.heater_mode[channel]
+        if mode == DISCONNECTED:
+            return np.zeros(len(pins))
+        if mode == STUCK_ON:
+            return np.ones(len(pins))
+        return pins.astype(float)
+
+    def _run_reference(self, n_ticks: int) -> None:
+        board = self.board
+        for _ in range(n_ticks):
+            self._update_plant_inputs()
+            board.isr()
+            reading = board.adc.raw_ready and not board.halted
+            board.task()
+            for channel, plant in enumerate(self.plants):
+                plant.advance(self._heater_input(channel, np.array([board.pin(channel)])))
+            self.tick += 1
+            if reading or (board.halted and self.tick % HALTED_RUN_TICKS == 0):
+                self._record()
+
+    def _run_fast(self, n_ticks: int) -> None:
+        board = self.board
+        while n_ticks > 0:
+            self._update_plant_inputs()
+            if board.halted:
+                n = min(n_ticks, HALTED_RUN_TICKS - self.tick % HALTED_RUN_TICKS)
+                for channel, plant in enumerate(self.plants):
+                    plant.advance(self._heater_input(channel, np.zeros(n, bool)))
+                self.tick += n
+                if self.tick % HALTED_RUN_TICKS == 0:
+                    self._record()
+            else:
+                n = min(n_ticks, board.ticks_to_task())
+                self._fast_period(n)
+            n_ticks -= n
+
+    def _fast_period(self, n: int) -> None:
+        """n ISRs in closed form, the main loop once, then the plants over the n ticks."""
+        board = self.board
+        offsets = board.adc.sample_offsets(n)
+        inputs, samples = [], []
+        for channel, plant in enumerate(self.plants):
+            u = self._heater_input(channel, board.pwm.waveform(channel, n))
+            offs = tuple(offsets[channel])
+            sensor_c = plant.outputs(u, offs)[:, SENSOR] if offs else np.zeros(0)
+            samples.append(self.sensors[channel].samples(sensor_c, self.tick + np.array(offs, dtype=int)))
+            inputs.append(u)
+        board.skip(n, samples)
+        reading = board.adc.raw_ready
+        board.task()
+        for channel, plant in enumerate(self.plants):
+            u = inputs[channel]
+            u[-1] = self._heater_input(channel, np.array([board.pin(channel)]))[0]  # the main loop may have written the pin
+            plant.advance(u)
+        self.tick += n
+        if reading:
+            self._record()
+
+    # -- recording --------------------------------------------------------------------------
+    def _record(self) -> None:
+        row = [self.time_s]
+        for channel in (HOTEND_CHANNEL, BED_CHANNEL):
+            if channel < len(self.plants):
+                heater = self.board.heaters[channel]
+                temps_c = self.plants[channel].temps_c()
+                row += [heater.target_c, heater.temp_q5 / TEMP_ONE, float(temps_c[BLOCK]), float(temps_c[SENSOR]),
+                        self.board.amount(channel) / 127]
+            else:
+                row += [0, 0.0, 0.0, 0.0, 0.0]
+        row.append(self.fan)
+        self.trace.append(tuple(row))
+
+    def _console_to_trace(self, text: str) -> None:
+        *complete, self._partial_line = (self._partial_line + text).split("\n")
+        for line in complete:
+            self.trace.add_event(self.board.ticks * TICK_S, line)
+

@@ -1,0 +1,76 @@
+"""The sensor chain: true sensor-node temperature -> NTC resistance -> divider -> 10-bit ADC sample.
+
+This is the real part's physics (``firmware_port.thermistor``'s beta / Steinhart-Hart models),
+not the firmware's table: the firmware only ever sees the integer samples made here. A
+conversion is ``floor(1024 R / (R + Rp) + noise)`` clamped to 0..1023 (an ideal 10-bit ADC
+floors), with optional Gaussian noise in LSB from a seeded generator. Faults:
+- open thermistor: R infinite, the ADC reads 1023;
+- shorted thermistor: R = 0, the ADC reads 0;
+- detached thermistor: the bead hangs in air, so it reads its own node relaxing from the
+  temperature it had toward ambient with ``detached_tau_s``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, Divider
+from twin.linear import TICK_S
+
+OPEN, SHORT, DETACHED = "thermistor_open", "thermistor_short", "thermistor_detached"
+DETACHED_TAU_S = 15.0  # a glass-bead thermistor in still air: tens of seconds
+
+
+class SensorChain:
+    """One heater's thermistor, divider and ADC pin."""
+
+    def __init__(
+        self,
+        divider: Divider = Divider(),
+        noise_lsb: float = 0.0,
+        rng: np.random.Generator | None = None,
+        detached_tau_s: float = DETACHED_TAU_S,
+    ):
+        if noise_lsb < 0:
+            raise ValueError("noise_lsb must be >= 0")
+        self.divider = divider
+        self.noise_lsb = noise_lsb
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.detached_tau_s = detached_tau_s
+        self.fault: str | None = None
+        self._detached_c = 0.0  # the loose bead's temperature at _detached_tick
+        self._detached_tick = 0
+        self._ambient_c = 0.0
+
+    def set_fault(self, fault: str | None, tick: int, sensor_c: float, ambient_c: float) -> None:
+        """Schedule-time fault change; a detaching bead starts at the sensor node's temperature."""
+        if fault not in (None, OPEN, SHORT, DETACHED):
+            raise ValueError(f"not a thermistor fault: {fault!r}")
+        if fault == DETACHED and self.fault != DETACHED:
+            self._detached_c, self._detached_tick = sensor_c, tick
+        self.fault = fault
+        self._ambient_c = ambient_c
+
+    def set_ambient(self, ambient_c: float, tick: int) -> None:
+        """Ambient changed: re-anchor a detached bead's relaxation at its current temperature."""
+        if self.fault == DETACHED:
+            self._detached_c = float(self._bead_c(np.array([tick]))[0])
+            self._detached_tick = tick
+        self._ambient_c = ambient_c
+
+    def _bead_c(self, ticks: np.ndarray) -> np.ndarray:
+        age_s = (ticks - self._detached_tick) * TICK_S
+        return self._ambient_c + (self._detached_c - self._ambient_c) * np.exp(-age_s / self.detached_tau_s)
+
+    def samples(self, sensor_c: np.ndarray, ticks: np.ndarray) -> list[int]:
+        """ADC conversions of the sensor node at the given ticks (one noise draw per sample)."""
+        if self.fault == OPEN:
+            return [ADC_MAX] * len(ticks)
+        if self.fault == SHORT:
+            return [0] * len(ticks)
+        temps_c = self._bead_c(ticks) if self.fault == DETACHED else sensor_c
+        r = self.divider.part.resistance_ohm(temps_c)
+        analog = ADC_COUNTS * r / (r + self.divider.pullup_ohm)
+        if self.noise_lsb:
+            analog = analog + self.noise_lsb * self.rng.standard_normal(len(ticks))
+        return np.clip(np.floor(analog), 0, ADC_MAX).astype(int).tolist()

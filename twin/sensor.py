@@ -62,15 +62,23 @@ class SensorChain:
         age_s = (ticks - self._detached_tick) * TICK_S
         return self._ambient_c + (self._detached_c - self._ambient_c) * np.exp(-age_s / self.detached_tau_s)
 
-    def samples(self, sensor_c: np.ndarray, ticks: np.ndarray) -> list[int]:
-        """ADC conversions of the sensor node at the given ticks (one noise draw per sample)."""
+    def convert(self, sensor_c: np.ndarray, ticks: np.ndarray) -> np.ndarray:
+        """ADC conversions (int array, the shape of ``sensor_c``) of the sensor node at the ticks.
+
+        One noise draw per sample, in order; ``ticks`` broadcasts against ``sensor_c``.
+        """
+        sensor_c = np.asarray(sensor_c, dtype=float)
         if self.fault == OPEN:
-            return [ADC_MAX] * len(ticks)
+            return np.full(sensor_c.shape, ADC_MAX)
         if self.fault == SHORT:
-            return [0] * len(ticks)
-        temps_c = self._bead_c(ticks) if self.fault == DETACHED else sensor_c
+            return np.zeros(sensor_c.shape, dtype=int)
+        temps_c = np.broadcast_to(self._bead_c(ticks), sensor_c.shape) if self.fault == DETACHED else sensor_c
         r = self.divider.part.resistance_ohm(temps_c)
         analog = ADC_COUNTS * r / (r + self.divider.pullup_ohm)
         if self.noise_lsb:
-            analog = analog + self.noise_lsb * self.rng.standard_normal(len(ticks))
-        return np.clip(np.floor(analog), 0, ADC_MAX).astype(int).tolist()
+            analog = analog + self.noise_lsb * self.rng.standard_normal(sensor_c.shape)
+        return np.clip(np.floor(analog), 0, ADC_MAX).astype(np.int64)
+
+    def samples(self, sensor_c: np.ndarray, ticks: np.ndarray) -> list[int]:
+        """``convert`` as a list of ints, for a scalar board."""
+        return self.convert(sensor_c, ticks).tolist()

@@ -1,0 +1,221 @@
+"""The integer hotend firmware vectorised over N lanes (numpy int64), for batch twins.
+
+Each lane is one board running ``PidFixed`` on a hotend with its own gains. All lanes share the
+clock, so the ADC schedule and the soft-PWM counter are common (``AdcSequencer`` accumulates
+arrays as happily as ints); amounts, pins, controller and protection state are per lane. numpy's
+int64 shifts are arithmetic like avr-gcc's and every value fits the widths ``PidFixed``
+declares (its property tests prove the bounds), so each lane computes exactly what the scalar
+firmware computes; tests/test_lanes.py keeps them equal. A lane that trips its protection
+(MAXTEMP, MINTEMP, runaway, heating watch) is halted with its heater off, as a killed board.
+``millis()`` is not wrapped: a batch run is far shorter than 49 days.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_port.marlin.adc import AdcSequencer
+from firmware_port.marlin.constants import SOFT_PWM_PERIOD_TICKS, ticks_to_ms
+from firmware_port.marlin.pid import (
+    D_FILTER_DIVISOR,
+    D_RAW_LIMIT_Q8,
+    D_SHIFT,
+    FUNCTIONAL_RANGE_Q5,
+    I_SHIFT,
+    OUT_FRAC_BITS,
+    OUT_MAX_Q8,
+    P_SHIFT,
+    PREV_TEMP_EVERY_SAMPLE,
+    PidFixed,
+    PidGains,
+)
+from firmware_port.marlin.protection import HeaterWatch, RunawayMonitor, TempRange
+from firmware_port.thermistor import B3950_TABLE, TEMP_FRAC_BITS, TempTable
+
+INACTIVE, FIRST_HEATING, STABLE, RUNAWAY = 0, 1, 2, 3
+
+
+def shr_round(x: np.ndarray, n: int) -> np.ndarray:
+    """``fixed.shr_round`` on int64 lanes."""
+    return (x + (1 << (n - 1))) >> n
+
+
+def div_round(a: np.ndarray, b) -> np.ndarray:
+    """``fixed.div_round`` on int64 lanes, positive divisor(s): nearest, halves away from zero."""
+    half = b // 2
+    return np.where(a >= 0, (a + half) // b, -((-a + half) // b))
+
+
+def trunc_c(temp_q5: np.ndarray) -> np.ndarray:
+    """celsius_q5 to celsius_t, truncated toward zero as C converts a float."""
+    return np.where(temp_q5 >= 0, temp_q5 >> TEMP_FRAC_BITS, -((-temp_q5) >> TEMP_FRAC_BITS))
+
+
+def lookup_q5(table: TempTable, raw: np.ndarray) -> np.ndarray:
+    """``TempTable.lookup_q5`` on lanes: any bracket holding raw gives the same value."""
+    raws = np.asarray(table.raw, dtype=np.int64)
+    temps = np.asarray(table.temp_q5, dtype=np.int64)
+    hi = np.clip(np.searchsorted(raws, raw), 1, len(raws) - 1)
+    v0, v1, t0, t1 = raws[hi - 1], raws[hi], temps[hi - 1], temps[hi]
+    value = t0 + div_round((raw - v0) * (t1 - t0), v1 - v0)
+    return np.where(raw <= raws[0], temps[0], np.where(raw >= raws[-1], temps[-1], value))
+
+
+class PidLanes:
+    """``PidFixed.update_q8`` on N lanes; gains scaled by the scalar class itself."""
+
+    def __init__(self, gains: list[PidGains], prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE):
+        scalar = [PidFixed(g, prev_temp_mode) for g in gains]
+        self.every_sample = prev_temp_mode == PREV_TEMP_EVERY_SAMPLE
+        self.kp_q12 = np.array([p.kp_q12 for p in scalar], dtype=np.int64)
+        self.ki_q24 = np.array([p.ki_q24 for p in scalar], dtype=np.int64)
+        self.kd_q16 = np.array([p.kd_q16 for p in scalar], dtype=np.int64)
+        self.i_max_q5 = np.array([p.i_max_q5 for p in scalar], dtype=np.int64)
+        n = len(gains)
+        self.i_sum_q5 = np.zeros(n, np.int64)
+        self.d_term_q8 = np.zeros(n, np.int64)
+        self.prev_q5 = np.zeros(n, np.int64)
+        self.reset_pending = np.ones(n, bool)
+
+    def update_q8(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray) -> np.ndarray:
+        """One step on the ``active`` lanes (others keep their state); Q.8 output, 0 elsewhere."""
+        e = (target_c << TEMP_FRAC_BITS) - temp_q5
+        off = active & ((target_c == 0) | (e < -FUNCTIONAL_RANGE_Q5))
+        full = active & ~off & (e > FUNCTIONAL_RANGE_Q5)
+        band = active & ~off & ~full
+        fresh = band & self.reset_pending
+        self.reset_pending = (self.reset_pending | off | full) & ~band
+        i_sum = np.where(fresh, 0, self.i_sum_q5)
+        d_term = np.where(fresh, 0, self.d_term_q8)
+        i_sum = np.clip(i_sum + e, 0, self.i_max_q5)
+        p = shr_round(self.kp_q12 * e, P_SHIFT)
+        i = shr_round(self.ki_q24 * i_sum, I_SHIFT)
+        d_in = np.clip(shr_round(self.kd_q16 * (self.prev_q5 - temp_q5), D_SHIFT), -D_RAW_LIMIT_Q8, D_RAW_LIMIT_Q8)
+        d_term = d_term + div_round(d_in - d_term, D_FILTER_DIVISOR)
+        self.i_sum_q5 = np.where(band, i_sum, self.i_sum_q5)
+        self.d_term_q8 = np.where(band, d_term, self.d_term_q8)
+        self.prev_q5 = np.where(active if self.every_sample else band, temp_q5, self.prev_q5)
+        in_band = np.clip(p + i + d_term, 0, OUT_MAX_Q8)
+        return np.where(full, OUT_MAX_Q8, np.where(band, in_band, 0))
+
+
+class HotendLanes:
+    """N hotend boards: shared ISR clock, per-lane soft PWM, PID and protection."""
+
+    def __init__(self, gains: list[PidGains], prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE,
+                 table: TempTable = B3950_TABLE):
+        n = len(gains)
+        self.n_lanes = n
+        self.table = table
+        self.pid = PidLanes(gains, prev_temp_mode)
+        self.adc = AdcSequencer(1, port=None)
+        self.temp_range = TempRange.hotend(table)
+        runaway, watch = RunawayMonitor.hotend(), HeaterWatch.hotend()
+        self.runaway_period_ms, self.runaway_hysteresis_c = runaway.period_s * 1000, runaway.hysteresis_c
+        self.watch_increase_c, self.watch_hysteresis_c = watch.increase_c, watch.hysteresis_c
+        self.watch_period_ms = watch.period_s * 1000
+        self.ticks = 0
+        self.pwm_count = 1  # shared soft-PWM counter
+        self.amount = np.zeros(n, np.int64)
+        self.count = np.zeros(n, np.int64)
+        self.pins = np.zeros(n, bool)
+        self.target_c = 0
+        self.temp_q5 = np.zeros(n, np.int64)
+        self.halted = np.zeros(n, bool)
+        self.trip = np.full(n, "", dtype=object)  # the TempError text a lane died of
+        self.runaway_state = np.full(n, INACTIVE)
+        self.runaway_c = 0
+        self.runaway_timer_ms = np.zeros(n, np.int64)
+        self.watch_target_c = np.zeros(n, np.int64)
+        self.watch_next_ms = np.zeros(n, np.int64)
+
+    @property
+    def now_ms(self) -> int:
+        return ticks_to_ms(self.ticks)
+
+    def set_target(self, target_c: int) -> None:
+        """M104 on every lane: clamp, restart the heating watch from each lane's temperature."""
+        self.target_c = self.temp_range.clamp_target(target_c)
+        cur = trunc_c(self.temp_q5) + self.watch_increase_c
+        armed = (self.target_c != 0) & (cur < self.target_c - self.watch_hysteresis_c - 1)
+        self.watch_target_c = np.where(armed, cur, self.watch_target_c)
+        self.watch_next_ms = np.where(armed, self.now_ms + self.watch_period_ms, 0)
+
+    # -- ISR in closed form ---------------------------------------------------------------
+    def waveform(self, n_ticks: int) -> np.ndarray:
+        """Pin levels (N, n_ticks) after each of the next ISRs, as ``SoftPwm.waveform``."""
+        ticks = np.arange(n_ticks)
+        counter = (self.pwm_count + ticks) % SOFT_PWM_PERIOD_TICKS
+        first_wrap = (SOFT_PWM_PERIOD_TICKS - self.pwm_count) % SOFT_PWM_PERIOD_TICKS
+        before = self.pins[:, None] & (counter < self.count[:, None])
+        after = counter < self.amount[:, None]
+        return np.where(ticks < first_wrap, before, after)
+
+    def skip(self, n_ticks: int, samples: np.ndarray) -> None:
+        """n ISRs at once given the hotend samples (J, N) at ``adc.sample_offsets(n)[0]``."""
+        first_wrap = (SOFT_PWM_PERIOD_TICKS - self.pwm_count) % SOFT_PWM_PERIOD_TICKS
+        last = (self.pwm_count + n_ticks - 1) % SOFT_PWM_PERIOD_TICKS
+        if first_wrap < n_ticks:
+            self.count = self.amount.copy()
+            self.pins = last < self.amount
+        else:
+            self.pins = self.pins & (last < self.count)
+        self.pwm_count = last + 1
+        self.adc.skip(n_ticks, [samples])
+        self.ticks += n_ticks
+        self.pins &= ~self.halted
+
+    # -- the main loop on a fresh reading ----------------------------------------------------
+    def task(self) -> None:
+        """updateTemperaturesFromRawValues + manage_hotends on every live lane."""
+        if not self.adc.raw_ready:
+            return
+        raw = np.asarray(self.adc.raw[0], dtype=np.int64)
+        self.adc.raw_ready = False
+        live = ~self.halted
+        self.temp_q5 = np.where(live, lookup_q5(self.table, raw), self.temp_q5)
+        limits, now, temp, target = self.temp_range, self.now_ms, self.temp_q5, self.target_c
+        self._trip(live & (raw < limits.raw_max), "MAXTEMP triggered")
+        self._trip(~self.halted & (target > 0) & (raw > limits.raw_min), "MINTEMP triggered")
+        self._trip(~self.halted & (temp > limits.maxtemp_c << TEMP_FRAC_BITS), "MAXTEMP triggered")
+        self._trip(~self.halted & self._runaway(temp, target, now), "Thermal Runaway")
+        live = ~self.halted
+        in_range = live & (temp > limits.mintemp_c << TEMP_FRAC_BITS) & (temp < limits.maxtemp_c << TEMP_FRAC_BITS)
+        out_q8 = self.pid.update_q8(temp, target, in_range)
+        self.amount = np.where(in_range, (out_q8 >> OUT_FRAC_BITS) >> 1, 0)
+        self._trip(~self.halted & self._heating_failed(temp, target, now), "Heating failed")
+
+    def _trip(self, lanes: np.ndarray, kind: str) -> None:
+        """_temp_error on some lanes: heater off, board halted."""
+        if lanes.any():
+            self.trip = np.where(lanes, kind, self.trip)
+            self.halted |= lanes
+            self.amount = np.where(lanes, 0, self.amount)
+            self.count = np.where(lanes, 0, self.count)
+            self.pins &= ~lanes
+
+    def _runaway(self, temp: np.ndarray, target: int, now: int) -> np.ndarray:
+        """``RunawayMonitor.run`` per lane; the target is common to all lanes."""
+        if self.runaway_c != target:
+            self.runaway_c = target
+            self.runaway_state = np.where(~self.halted, FIRST_HEATING if target > 0 else INACTIVE, self.runaway_state)
+        state = self.runaway_state
+        state = np.where((state == FIRST_HEATING) & (temp >= target << TEMP_FRAC_BITS), STABLE, state)
+        stable = state == STABLE
+        ok = stable & (temp >= (target - self.runaway_hysteresis_c) << TEMP_FRAC_BITS)
+        self.runaway_timer_ms = np.where(ok, now + self.runaway_period_ms, self.runaway_timer_ms)
+        tripped = stable & ~ok & (now >= self.runaway_timer_ms)
+        self.runaway_state = np.where(tripped, RUNAWAY, state)
+        return self.runaway_state == RUNAWAY
+
+    def _heating_failed(self, temp: np.ndarray, target: int, now: int) -> np.ndarray:
+        """``HeaterWatch.heating_failed`` per lane: re-arm from the current temperature if risen enough."""
+        elapsed = (self.watch_next_ms != 0) & (now >= self.watch_next_ms)
+        risen = trunc_c(temp) >= self.watch_target_c
+        rearm = elapsed & risen
+        if rearm.any():
+            cur = trunc_c(temp) + self.watch_increase_c
+            armed = (target != 0) & (cur < target - self.watch_hysteresis_c - 1)
+            self.watch_target_c = np.where(rearm & armed, cur, self.watch_target_c)
+            self.watch_next_ms = np.where(rearm, np.where(armed, now + self.watch_period_ms, 0), self.watch_next_ms)
+        return elapsed & ~risen

@@ -4,7 +4,8 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from firmware_port.marlin.lanes import PidLanes, div_round, lookup_q5, trunc_c
+from firmware_port.marlin.lanes import HotendLanes, PidLanes, div_round, lookup_q5, trunc_c
+from firmware_port.marlin.softpwm import SoftPwm
 from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidFixed, PidGains
 from firmware_port.fixed import div_round as scalar_div_round
 from firmware_port.thermistor import B3950_TABLE, MAX_RAW_THERMISTOR_VALUE
@@ -45,3 +46,25 @@ def test_pid_lanes_equal_scalar_pids(gains, mode, steps, rnd):
             expected = pid.update_q8(temps[k], target) if active[k] else 0
             assert out[k] == expected
             assert (lanes.i_sum_q5[k], lanes.d_term_q8[k], lanes.prev_q5[k]) == (pid.i_sum_q5, pid.d_term_q8, pid.prev_q5)
+
+
+@given(
+    st.integers(1, 127),
+    st.lists(st.tuples(st.integers(0, 127), st.integers(0, 127), st.booleans()), min_size=1, max_size=8),
+    st.integers(1, 300),
+)
+def test_pulses_equal_the_scalar_soft_pwm_waveform(pwm_count, lanes_state, n_ticks):
+    lanes = HotendLanes([PidGains(1, 1, 1)] * len(lanes_state))
+    lanes.pwm_count = pwm_count
+    lanes.count = np.array([c for c, _, _ in lanes_state])
+    lanes.amount = np.array([a for _, a, _ in lanes_state])
+    lanes.pins = np.array([p for _, _, p in lanes_state])
+    pulses = lanes.pulses(n_ticks)
+    for k, (count, amount, pin) in enumerate(lanes_state):
+        pwm = SoftPwm(1)
+        pwm.pwm_count, pwm.count, pwm.amount, pwm.pins = pwm_count, [count], [amount], [pin]
+        expected = pwm.waveform(0, n_ticks)
+        got = np.zeros(n_ticks, bool)
+        for alpha, beta in pulses:
+            got[alpha : np.broadcast_to(beta, len(lanes_state))[k]] = True
+        assert got.tolist() == expected.tolist()

@@ -65,6 +65,18 @@ class TickModel:
             self._d_resp.append(self._d_resp[-1] + p @ self.h)
             self._powers.append(self.phi @ p)
 
+    def u_steps(self, n_ticks: int) -> np.ndarray:
+        """S(k) for k = 0..n_ticks, (n_ticks + 1, n_x): the state k ticks into u = 1 from x = 0.
+
+        A pulse u = 1 on ticks [a, b) adds ``S(s - a) - S(s - b)`` to the state at tick s >= b,
+        which lets batch twins add up PWM pulses without a per-tick input array.
+        """
+        table = self._runs.get(("u_steps", n_ticks))
+        if table is None:
+            self._extend(n_ticks)
+            table = self._runs[("u_steps", n_ticks)] = np.array(self._u_resp[: n_ticks + 1])
+        return table
+
     def run_maps(self, n_ticks: int, offsets: tuple[int, ...]) -> tuple:
         """Maps for a run of n ticks: outputs at ``offsets`` and the final state.
 

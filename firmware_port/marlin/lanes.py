@@ -142,14 +142,18 @@ class HotendLanes:
         self.watch_next_ms = np.where(armed, self.now_ms + self.watch_period_ms, 0)
 
     # -- ISR in closed form ---------------------------------------------------------------
-    def waveform(self, n_ticks: int) -> np.ndarray:
-        """Pin levels (N, n_ticks) after each of the next ISRs, as ``SoftPwm.waveform``."""
-        ticks = np.arange(n_ticks)
-        counter = (self.pwm_count + ticks) % SOFT_PWM_PERIOD_TICKS
+    def pulses(self, n_ticks: int) -> list[tuple]:
+        """``SoftPwm.waveform`` as heater pulses: per lane, high on ticks [alpha, beta) of each pair.
+
+        Before the first wrap a lane can only finish its current pulse (at the old latched
+        count); after each wrap it is high for ``amount`` ticks.
+        """
         first_wrap = (SOFT_PWM_PERIOD_TICKS - self.pwm_count) % SOFT_PWM_PERIOD_TICKS
-        before = self.pins[:, None] & (counter < self.count[:, None])
-        after = counter < self.amount[:, None]
-        return np.where(ticks < first_wrap, before, after)
+        tail_end = np.clip(self.count - self.pwm_count, 0, min(first_wrap, n_ticks))
+        pulses = [(0, np.where(self.pins, tail_end, 0))]
+        for wrap in range(first_wrap, n_ticks, SOFT_PWM_PERIOD_TICKS):
+            pulses.append((wrap, np.minimum(wrap + self.amount, n_ticks)))
+        return pulses
 
     def skip(self, n_ticks: int, samples: np.ndarray) -> None:
         """n ISRs at once given the hotend samples (J, N) at ``adc.sample_offsets(n)[0]``."""

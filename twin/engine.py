@@ -69,6 +69,7 @@ class Twin:
             self, hotend_ctrl, bed_ctrl, has_bed=len(plants) > 1, console=self.console, **(board_options or {})
         )
         self.tick = 0
+        self.origin_tick = 0  # scenario time 0 (after boot)
         self.flow_mm_s = 0.0
         self.ambient_c = float(plants[0].d[0])
         self.heater_mode = [NORMAL] * len(plants)
@@ -83,7 +84,15 @@ class Twin:
     # -- the outside world ----------------------------------------------------------------
     @property
     def time_s(self) -> float:
-        return self.tick * TICK_S
+        """Scenario time: seconds since the end of boot."""
+        return (self.tick - self.origin_tick) * TICK_S
+
+    def boot(self, seconds: float) -> None:
+        """Power the board up ``seconds`` before scenario time 0, as a printer is on before the
+        host talks to it (Marlin's first reading after reset sums 15 samples, not 16)."""
+        self.run_until(seconds)
+        self.origin_tick = self.tick
+        self.trace = Trace()
 
     @property
     def fan(self) -> float:
@@ -92,7 +101,7 @@ class Twin:
 
     def schedule(self, at_s: float, action: Callable[[Twin], None]) -> None:
         """Run ``action(twin)`` at the first tick at or after ``at_s`` (before that tick's ISR)."""
-        heapq.heappush(self._events, (ticks_at(at_s), next(self._seq), action))
+        heapq.heappush(self._events, (self.origin_tick + ticks_at(at_s), next(self._seq), action))
 
     def set_heater_mode(self, channel: int, mode: str) -> None:
         """Heater wiring faults: normal, heater_disconnected (no power), heater_stuck_on (MOSFET shorted)."""
@@ -117,8 +126,8 @@ class Twin:
 
     # -- running ----------------------------------------------------------------------------
     def run_until(self, t_s: float) -> None:
-        """Advance the clock to ``t_s`` seconds."""
-        self.run_ticks(ticks_at(t_s) - self.tick)
+        """Advance the clock to scenario time ``t_s`` seconds."""
+        self.run_ticks(self.origin_tick + ticks_at(t_s) - self.tick)
 
     def run_ticks(self, n_ticks: int) -> None:
         """Advance the clock by ``n_ticks``, applying scheduled events on their ticks."""
@@ -168,7 +177,7 @@ class Twin:
             for channel, plant in enumerate(self.plants):
                 plant.advance(self._heater_input(channel, np.array([board.pin(channel)])))
             self.tick += 1
-            if reading or (board.halted and self.tick % HALTED_RUN_TICKS == 0):
+            if reading or (board.halted and (self.tick - self.origin_tick) % HALTED_RUN_TICKS == 0):
                 self._record()
 
     def _run_fast(self, n_ticks: int) -> None:
@@ -176,11 +185,12 @@ class Twin:
         while n_ticks > 0:
             self._update_plant_inputs()
             if board.halted:
-                n = min(n_ticks, HALTED_RUN_TICKS - self.tick % HALTED_RUN_TICKS)
+                since = (self.tick - self.origin_tick) % HALTED_RUN_TICKS
+                n = min(n_ticks, HALTED_RUN_TICKS - since)
                 for channel, plant in enumerate(self.plants):
                     plant.advance(self._heater_input(channel, np.zeros(n, bool)))
                 self.tick += n
-                if self.tick % HALTED_RUN_TICKS == 0:
+                if since + n == HALTED_RUN_TICKS:
                     self._record()
             else:
                 n = min(n_ticks, board.ticks_to_task())
@@ -226,5 +236,5 @@ class Twin:
     def _console_to_trace(self, text: str) -> None:
         *complete, self._partial_line = (self._partial_line + text).split("\n")
         for line in complete:
-            self.trace.add_event(self.board.ticks * TICK_S, line)
+            self.trace.add_event((self.board.ticks - self.origin_tick) * TICK_S, line)
 

@@ -1,0 +1,74 @@
+"""Assemble a twin from a scenario: plants per heater, the firmware build, the scheduled events."""
+
+from __future__ import annotations
+
+from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
+from twin.engine import Twin
+from twin.plants import make_plant
+from twin.scenario import Event, Scenario
+from twin.sensor import DETACHED, OPEN, SHORT
+
+CHANNELS = {"hotend": HOTEND_CHANNEL, "bed": BED_CHANNEL}
+BOOT_S = 2.0  # the board runs this long before scenario time 0
+DEFAULT_PRESETS = {"hotend": "hotend", "bed": "bed"}
+
+
+def build_twin(
+    scenario: Scenario,
+    firmware: str = "pid",
+    *,
+    with_bed: bool = True,
+    engine: str = "fast",
+    noise_lsb: float = 0.0,
+    board_options: dict | None = None,
+) -> Twin:
+    """A twin ready to run ``scenario``: plants from its [plant] tables, its events scheduled."""
+    heaters = ("hotend", "bed") if with_bed else ("hotend",)
+    plants = []
+    for heater in heaters:
+        params = dict(scenario.plant.get(heater, {}))
+        preset = params.pop("preset", DEFAULT_PRESETS[heater])
+        plants.append(
+            make_plant(str(preset), ambient_c=scenario.ambient_c, initial_c=scenario.initial_c.get(heater), **params)
+        )
+    twin = Twin(
+        plants,
+        firmware,
+        seed=scenario.seed or 0,
+        noise_lsb=noise_lsb,
+        engine=engine,
+        board_options=board_options,
+    )
+    twin.set_ambient(scenario.ambient_c)
+    twin.boot(BOOT_S)
+    for event in scenario.events:
+        if event.heater == "bed" and not with_bed:
+            continue
+        twin.schedule(event.at_s, lambda tw, ev=event: apply_event(tw, ev))
+    return twin
+
+
+def apply_event(twin: Twin, event: Event) -> None:
+    """What a scenario event does to the printer and its world, noted in the trace."""
+    channel = CHANNELS.get(event.heater) if event.heater else None
+    kind, value = event.kind, event.value
+    if kind == "target":
+        twin.board.set_target(channel, int(value))
+    elif kind == "fan":
+        twin.board.fan_speed = round(255 * float(value))
+    elif kind == "flow":
+        twin.flow_mm_s = float(value)
+    elif kind == "ambient":
+        twin.set_ambient(float(value))
+    elif kind == "fault":
+        if value in (OPEN, SHORT, DETACHED):
+            twin.set_thermistor_fault(channel, value)
+        elif value == "fan_failure":
+            twin.fan_failed = True
+        else:
+            twin.set_heater_mode(channel, value)
+    else:
+        raise ValueError(f"unknown scenario event kind {kind!r}")
+    where = f" {event.heater}" if event.heater else ""
+    twin.trace.add_event(twin.time_s, f"scenario: {kind}{where} {value}")
+

@@ -41,7 +41,7 @@ def test_each_firmware_reaches_the_target(capsys, tmp_path, firmware):
 def test_protection_trip_is_reported(capsys, tmp_path):
     code, out, _ = run(capsys, "--scenario", "cartridge_falls_out", "--no-plot", "--out", str(tmp_path))
     assert code == 0
-    assert re.search(r"^protection at \d+\.\d s: Error:Thermal Runaway, system stopped! Heater_ID: E0$", out, re.M)
+    assert re.search(r"^protection at \d+\.\d s: Thermal Runaway on E0; the board halted", out, re.M)
 
 
 def test_klipper_log_and_plant_overrides(capsys, tmp_path):

@@ -40,6 +40,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--bed-target", type=int, help="bed target in C")
     parser.add_argument("--duration", type=float, help="virtual seconds to run (default: the scenario's)")
     parser.add_argument("--ambient", type=float, help="ambient temperature in C")
+    parser.add_argument("--initial", type=float, help="hotend starting temperature in C (default ambient)")
+    parser.add_argument("--bed-initial", type=float, help="bed starting temperature in C (default ambient)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="hotend plant parameter, e.g. --set power_w=50 (repeatable)")
     parser.add_argument("--bed-set", action="append", default=[], metavar="KEY=VALUE", help="bed plant parameter")
@@ -80,8 +82,10 @@ def run(args: argparse.Namespace) -> int:
             params["preset"] = preset
         params.update(parse_settings(items, option))
     targets = {k: v for k, v in (("hotend", args.target), ("bed", args.bed_target)) if v is not None}
+    initial = {k: v for k, v in (("hotend", args.initial), ("bed", args.bed_initial)) if v is not None}
     scenario = with_overrides(
-        scenario, duration_s=args.duration, ambient_c=args.ambient, targets=targets or None, seed=args.seed, plant=plant
+        scenario, duration_s=args.duration, ambient_c=args.ambient, initial_c=initial or None,
+        targets=targets or None, seed=args.seed, plant=plant,
     )
     twin = build_twin(scenario, args.firmware, with_bed=not args.no_bed, engine=args.engine, noise_lsb=args.noise)
     _run_with_progress(twin, scenario.duration_s)
@@ -89,9 +93,8 @@ def run(args: argparse.Namespace) -> int:
     heaters = ("hotend",) if args.no_bed else ("hotend", "bed")
     print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
     print(_metrics_report(twin.trace, scenario, heaters))
-    trips = [(t, text) for t, text in twin.trace.events if text.startswith("Error:")]
-    for t, text in trips:
-        print(f"protection at {t:.1f} s: {text}")
+    for t, what, heater_id in twin.trace.protection_trips():
+        print(f"protection at {t:.1f} s: {what} on {heater_id}; the board halted (heaters off until reset)")
 
     stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
     csv_path = args.csv or os.path.join(args.out, stem + ".csv")
@@ -161,6 +164,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         return run(args)
+    except BrokenPipeError:  # `twin-sim | head`: the reader left, nothing more to say
+        sys.stdout = None
+        return 0
     except (ScenarioError, ValueError, OSError) as exc:
         print(f"twin-sim: error: {exc}", file=sys.stderr)
         return 2

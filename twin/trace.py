@@ -17,6 +17,7 @@ import numpy as np
 
 HEATERS = ("hotend", "bed")
 KLIPPER_NAMES = {"hotend": "extruder", "bed": "heater_bed"}
+TRIP_SUFFIX = ", system stopped! Heater_ID: "  # Marlin's _temp_error line
 COLUMNS = ("t_s",) + tuple(
     f"{h}_{c}" for h in HEATERS for c in ("target_c", "measured_c", "block_c", "sensor_c", "duty")
 ) + ("fan",)
@@ -34,6 +35,15 @@ class Trace:
 
     def add_event(self, t_s: float, text: str) -> None:
         self.events.append((t_s, text))
+
+    def protection_trips(self) -> list[tuple[float, str, str]]:
+        """(time, what, heater id) of each thermal protection error Marlin printed."""
+        found = []
+        for t_s, text in self.events:
+            if text.startswith("Error:") and TRIP_SUFFIX in text:
+                what, heater_id = text[len("Error:") :].split(TRIP_SUFFIX)
+                found.append((t_s, what, heater_id))
+        return found
 
     def column(self, name: str) -> np.ndarray:
         index = COLUMNS.index(name)

@@ -63,11 +63,10 @@ class Twin:
             streams = np.random.SeedSequence(seed).spawn(len(plants))
             sensors = [SensorChain(noise_lsb=noise_lsb, rng=np.random.default_rng(s)) for s in streams]
         self.sensors = sensors
-        hotend_ctrl, bed_ctrl = build_controllers(firmware)
+        self.firmware = firmware
+        self.board_options = board_options or {}
         self.console = Console()
-        self.board = MarlinBoard(
-            self, hotend_ctrl, bed_ctrl, has_bed=len(plants) > 1, console=self.console, **(board_options or {})
-        )
+        self.reset_board()
         self.tick = 0
         self.origin_tick = 0  # scenario time 0 (after boot)
         self.flow_mm_s = 0.0
@@ -78,8 +77,16 @@ class Twin:
         self.trace = Trace()
         self.console.listeners.append(self._console_to_trace)
         self._partial_line = ""
+        self._task_tick: int | None = None  # while the main loop runs: the tick it runs at
         self._events: list = []  # heap of (tick, seq, action)
         self._seq = itertools.count()
+
+    def reset_board(self) -> None:
+        """Power-cycle or reset the MCU: a fresh board and firmware; the plants keep their heat."""
+        hotend_ctrl, bed_ctrl = build_controllers(self.firmware)
+        self.board = MarlinBoard(
+            self, hotend_ctrl, bed_ctrl, has_bed=len(self.plants) > 1, console=self.console, **self.board_options
+        )
 
     # -- the outside world ----------------------------------------------------------------
     @property
@@ -173,7 +180,9 @@ class Twin:
             self._update_plant_inputs()
             board.isr()
             reading = board.adc.raw_ready and not board.halted
+            self._task_tick = self.tick + 1
             board.task()
+            self._task_tick = None
             for channel, plant in enumerate(self.plants):
                 plant.advance(self._heater_input(channel, np.array([board.pin(channel)])))
             self.tick += 1
@@ -210,7 +219,9 @@ class Twin:
             inputs.append(u)
         board.skip(n, samples)
         reading = board.adc.raw_ready
+        self._task_tick = self.tick + n
         board.task()
+        self._task_tick = None
         for channel, plant in enumerate(self.plants):
             u = inputs[channel]
             u[-1] = self._heater_input(channel, np.array([board.pin(channel)]))[0]  # the main loop may have written the pin
@@ -236,5 +247,6 @@ class Twin:
     def _console_to_trace(self, text: str) -> None:
         *complete, self._partial_line = (self._partial_line + text).split("\n")
         for line in complete:
-            self.trace.add_event((self.board.ticks - self.origin_tick) * TICK_S, line)
+            tick = self.tick if self._task_tick is None else self._task_tick
+            self.trace.add_event((tick - self.origin_tick) * TICK_S, line)
 

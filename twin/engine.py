@@ -75,6 +75,7 @@ class Twin:
         self.fan_failed = False
         self._applied_inputs = None
         self.trace = Trace()
+        self.recording = True  # trace rows and events (a serial session turns it off)
         self.console.listeners.append(self._console_to_trace)
         self._partial_line = ""
         self._task_tick: int | None = None  # while the main loop runs: the tick it runs at
@@ -232,6 +233,8 @@ class Twin:
 
     # -- recording --------------------------------------------------------------------------
     def _record(self) -> None:
+        if not self.recording:
+            return
         row = [self.time_s]
         for channel in (HOTEND_CHANNEL, BED_CHANNEL):
             if channel < len(self.plants):
@@ -245,6 +248,8 @@ class Twin:
         self.trace.append(tuple(row))
 
     def _console_to_trace(self, text: str) -> None:
+        if not self.recording:
+            return
         *complete, self._partial_line = (self._partial_line + text).split("\n")
         for line in complete:
             tick = self.tick if self._task_tick is None else self._task_tick

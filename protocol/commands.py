@@ -1,0 +1,400 @@
+"""Marlin 2.1's G-code handlers for a printer whose only hardware is its heaters.
+
+A handler takes the printer and the parsed command. It returns None when done (the printer
+sends ``ok``), ``NO_OK`` when it printed its own ``ok`` (M105), or a generator when the
+command takes time: it yields the tick it wants to be resumed at and returns False to suppress
+the ``ok`` (a kill). Reference: ../shared/reference/marlin_heater.md sections 3, 4, 7.
+"""
+
+from __future__ import annotations
+
+from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
+from firmware_port.marlin.constants import (
+    PREHEAT_1_TEMP_BED_C,
+    PREHEAT_1_TEMP_HOTEND_C,
+    TEMP_BED_HYSTERESIS_C,
+    TEMP_HYSTERESIS_C,
+)
+from firmware_port.marlin.pid import PidGains
+from firmware_port.marlin.serial import format_float
+from firmware_port.thermistor import TEMP_ONE
+from protocol.gcode import Command, unknown_command_text
+from protocol.settings import EEPROM_VERSION, Settings, crc16
+
+NO_OK = object()
+
+SHORT_BUILD_VERSION = "2.1.2.1"
+FIRMWARE_NAME = f"Marlin {SHORT_BUILD_VERSION} (heater-twin digital twin)"
+UUID = "cede2a2f-41a2-4748-9b12-c55c62f367ff"
+# M115 capabilities with the defaults of a Marlin 2.1 build that has heaters and nothing else.
+CAPABILITIES = (
+    ("SERIAL_XON_XOFF", 0), ("BINARY_FILE_TRANSFER", 0), ("EEPROM", 1), ("VOLUMETRIC", 1),
+    ("AUTOREPORT_POS", 0), ("AUTOREPORT_TEMP", 1), ("PROGRESS", 0), ("PRINT_JOB", 1),
+    ("AUTOLEVEL", 0), ("RUNOUT", 0), ("Z_PROBE", 0), ("LEVELING_DATA", 0), ("BUILD_PERCENT", 0),
+    ("SOFTWARE_POWER", 0), ("TOGGLE_LIGHTS", 0), ("CASE_LIGHT_BRIGHTNESS", 0), ("EMERGENCY_PARSER", 0),
+    ("HOST_ACTION_COMMANDS", 0), ("PROMPT_SUPPORT", 0), ("SDCARD", 0), ("REPEAT", 0), ("SD_WRITE", 0),
+    ("AUTOREPORT_SD_STATUS", 0), ("LONG_FILENAME", 0), ("EXTENDED_M20", 0), ("THERMAL_PROTECTION", 1),
+    ("MOTION_MODES", 0), ("ARCS", 0), ("BABYSTEPPING", 0), ("CHAMBER_TEMPERATURE", 0),
+    ("COOLER_TEMPERATURE", 0), ("MEATPACK", 0), ("CONFIG_EXPORT", 0),
+)
+TEMP_RESIDENCY_TIME_MS = 10_000  # TEMP_RESIDENCY_TIME / TEMP_BED_RESIDENCY_TIME
+TEMP_WINDOW_C = 1  # TEMP_WINDOW / TEMP_BED_WINDOW
+MIN_COOLING_SLOPE_C = {HOTEND_CHANNEL: 1.5, BED_CHANNEL: 1.0}  # MIN_COOLING_SLOPE_DEG(_BED)
+MIN_COOLING_SLOPE_MS = 60_000  # MIN_COOLING_SLOPE_TIME(_BED)
+WAIT_HYSTERESIS_C = {HOTEND_CHANNEL: TEMP_HYSTERESIS_C, BED_CHANNEL: TEMP_BED_HYSTERESIS_C}
+AUTOREPORT_MAX_S = 60
+STR_INVALID_EXTRUDER = "Invalid extruder"
+STR_PID_BAD_HEATER_ID = "PID Autotune failed! Bad heater id"
+
+
+def banner(p, power_up: bool) -> str:
+    """setup(): start, the reset reason, the version, memory, then the settings (EEPROM first_load)."""
+    lines = ["start", "PowerUp" if power_up else " External Reset", f"Marlin {SHORT_BUILD_VERSION}",
+             "echo: Last Updated: 2026-11-21 | Author: (heater-twin)",
+             "echo: Free Memory: 1024  PlannerBufferBytes: 1232"]
+    return "\n".join(lines) + "\n" + _load_settings(p) + _settings_report(p)
+
+
+# -- temperatures ---------------------------------------------------------------------------
+def _target_extruder_ok(p, cmd: Command) -> bool:
+    """get_target_extruder_from_command(): only T0 exists."""
+    if cmd.has("T") and cmd.value_int("T", 0) != 0:
+        p.write(f"echo:M{cmd.code} {STR_INVALID_EXTRUDER} {cmd.value_int('T', 0)}\n")
+        return False
+    return True
+
+
+def m104(p, cmd: Command):
+    """Set the hotend target (S or R), clamped by the board to maxtemp - 15."""
+    if _target_extruder_ok(p, cmd) and (cmd.has("S") or cmd.has("R")):
+        p.twin.board.set_target(HOTEND_CHANNEL, cmd.value_celsius("S" if cmd.has("S") else "R", 0))
+
+
+def m109(p, cmd: Command):
+    """Set the hotend target and wait: S waits only when heating, R either way."""
+    if not _target_extruder_ok(p, cmd) or not (cmd.has("S") or cmd.has("R")):
+        return None
+    p.twin.board.set_target(HOTEND_CHANNEL, cmd.value_celsius("S" if cmd.has("S") else "R", 0))
+    return wait_for_heater(p, HOTEND_CHANNEL, no_wait_for_cooling=cmd.has("S"))
+
+
+def m140(p, cmd: Command):
+    """Set the bed target."""
+    if cmd.has("S"):
+        p.twin.board.set_target(BED_CHANNEL, cmd.value_celsius("S", 0))
+
+
+def m190(p, cmd: Command):
+    """Set the bed target and wait (S: only when heating)."""
+    if not (cmd.has("S") or cmd.has("R")):
+        return None
+    p.twin.board.set_target(BED_CHANNEL, cmd.value_celsius("S" if cmd.has("S") else "R", 0))
+    return wait_for_heater(p, BED_CHANNEL, no_wait_for_cooling=cmd.has("S"))
+
+
+def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
+    """wait_for_hotend / wait_for_bed: 1 s reports with W:, residency 10 s within 1 C, M108 breaks."""
+    board = p.twin.board
+    heater = board.heaters[channel]
+    target_c = None
+    wants_to_cool = False
+    residency_start_ms = next_temp_ms = next_cool_check_ms = 0
+    old_temp_c = 9999.0
+    first_loop = True
+    p.wait_for_heatup = True
+    while True:
+        now = board.now_ms
+        temp_c = heater.temp_q5 / TEMP_ONE
+        if target_c != heater.target_c:
+            wants_to_cool = heater.target_c < temp_c
+            target_c = heater.target_c
+            if no_wait_for_cooling and wants_to_cool:
+                break
+        if now >= next_temp_ms:
+            next_temp_ms = now + 1000
+            left = "?" if not residency_start_ms else str((TEMP_RESIDENCY_TIME_MS - (now - residency_start_ms)) // 1000)
+            p.write(f"{board.heater_states()} W:{left}\n")
+        wake = min(p.next_reading_tick(), p.after_ms(next_temp_ms - now))
+        if residency_start_ms:
+            wake = min(wake, p.after_ms(residency_start_ms + TEMP_RESIDENCY_TIME_MS - now))
+        yield wake  # idle(): the clock runs, the board reads and controls
+        if board.halted:
+            return False
+        now = board.now_ms
+        temp_c = heater.temp_q5 / TEMP_ONE
+        diff_c = abs(target_c - temp_c)
+        if not residency_start_ms:
+            if diff_c < TEMP_WINDOW_C:
+                residency_start_ms = now + (TEMP_RESIDENCY_TIME_MS // 3 if first_loop else 0)
+        elif diff_c > WAIT_HYSTERESIS_C[channel]:
+            residency_start_ms = now
+        if wants_to_cool and (not next_cool_check_ms or now >= next_cool_check_ms):
+            if old_temp_c - temp_c < MIN_COOLING_SLOPE_C[channel]:
+                break
+            next_cool_check_ms = now + MIN_COOLING_SLOPE_MS
+            old_temp_c = temp_c
+        first_loop = False
+        residency_pending = not residency_start_ms or now < residency_start_ms + TEMP_RESIDENCY_TIME_MS
+        if not (p.wait_for_heatup and residency_pending):
+            break
+    p.wait_for_heatup = False
+    return None
+
+
+def m105(p, cmd: Command):
+    """Report temperatures: one line that is its own ok."""
+    if _target_extruder_ok(p, cmd):
+        p.write(f"ok{p.twin.board.heater_states()}\n")
+        return NO_OK
+    return None
+
+
+def m155(p, cmd: Command):
+    """Auto-report temperatures every S seconds (S0 off, at most 60)."""
+    if cmd.has("S"):
+        p.autoreport_s = min(max(cmd.value_int("S", 0), 0), AUTOREPORT_MAX_S)
+        p.autoreport_tick = p.after_ms(p.autoreport_s * 1000)
+
+
+def m106(p, cmd: Command):
+    """Part fan speed S0..255 (255 without S); P0 is the only fan."""
+    if cmd.value_int("P", 0) == 0:
+        p.twin.board.fan_speed = min(max(cmd.value_int("S", 255), 0), 255)
+
+
+def m107(p, cmd: Command):
+    """Part fan off."""
+    if cmd.value_int("P", 0) == 0:
+        p.twin.board.fan_speed = 0
+
+
+# -- PID --------------------------------------------------------------------------------------
+def _pid_line(code: str, gains: PidGains) -> str:
+    return f"echo:  {code} P{format_float(gains.kp)} I{format_float(gains.ki)} D{format_float(gains.kd)}\n"
+
+
+def _set_pid(p, channel: int, cmd: Command, code: str):
+    """M301 / M304: set P, I, D (user units) or report them; Unknown without PID on that heater."""
+    board = p.twin.board
+    if not board.can_autotune(channel):
+        p.write(unknown_command_text(cmd))
+        return None
+    controller = board.heaters[channel].controller
+    if not any(cmd.has(k) for k in "PID"):
+        p.write(_pid_line(code, controller.gains))
+        return None
+    g = controller.gains
+    controller.set_gains(PidGains.clamped(cmd.value_float("P", g.kp), cmd.value_float("I", g.ki),
+                                          cmd.value_float("D", g.kd)))
+    return None
+
+
+def m301(p, cmd: Command):
+    """Hotend PID gains."""
+    if cmd.value_int("E", 0) != 0:
+        p.write(f"Error:{STR_INVALID_EXTRUDER}\n")
+        return None
+    return _set_pid(p, HOTEND_CHANNEL, cmd, "M301")
+
+
+def m304(p, cmd: Command):
+    """Bed PID gains."""
+    return _set_pid(p, BED_CHANNEL, cmd, "M304")
+
+
+def m303(p, cmd: Command):
+    """PID autotune: E0 hotend, E-1 bed; S target, C cycles (5), U1 applies the result."""
+    board = p.twin.board
+    heater_id = cmd.value_int("E", 0)
+    channel = {0: HOTEND_CHANNEL, -1: BED_CHANNEL}.get(heater_id)
+    if channel is None or not board.can_autotune(channel):
+        p.write(STR_PID_BAD_HEATER_ID + "\n")
+        return None
+    default_c = PREHEAT_1_TEMP_BED_C if channel == BED_CHANNEL else PREHEAT_1_TEMP_HOTEND_C
+    board.start_autotune(channel, cmd.value_celsius("S", default_c), cmd.value_int("C", 5), apply=cmd.value_bool("U"))
+    if board.autotune is None:  # refused: too high
+        return None
+    return _autotune_wait(p)
+
+
+def _autotune_wait(p):
+    """M303's loop is its own: no idle(), so no busy lines or auto-reports meanwhile."""
+    board = p.twin.board
+    p.idle_calls = False
+    while board.autotune is not None and not board.halted:
+        yield p.next_reading_tick()
+    p.idle_calls = True
+    return False if board.halted else None
+
+
+# -- settings -----------------------------------------------------------------------------------
+def _current_settings(p) -> Settings:
+    board = p.twin.board
+    pids = [h.controller.gains if board.can_autotune(c) else None for c, h in enumerate(board.heaters)]
+    defaults = Settings()
+    return Settings(pids[0] or defaults.hotend, (pids[1] if len(pids) > 1 else None) or defaults.bed)
+
+
+def _apply_settings(p, settings: Settings) -> None:
+    board = p.twin.board
+    for channel, gains in ((HOTEND_CHANNEL, settings.hotend), (BED_CHANNEL, settings.bed)):
+        if board.can_autotune(channel):
+            board.heaters[channel].controller.set_gains(gains)
+
+
+def _load_settings(p) -> str:
+    """settings.load(): the stored image if it is valid, else the defaults."""
+    data = p.eeprom.read()
+    if data is None:
+        _apply_settings(p, Settings())
+        return "echo:Hardcoded Default Settings Loaded\n"
+    try:
+        _apply_settings(p, Settings.from_bytes(data))
+    except ValueError:
+        _apply_settings(p, Settings())
+        return f"echo:EEPROM version mismatch (EEPROM=? Marlin={EEPROM_VERSION})\necho:Hardcoded Default Settings Loaded\n"
+    return f"echo:{EEPROM_VERSION} stored settings retrieved ({len(data)} bytes; crc {crc16(data)})\n"
+
+
+def _settings_report(p) -> str:
+    """M503: the PID sections of Marlin's settings report."""
+    board = p.twin.board
+    text = ""
+    for channel, code, title in ((HOTEND_CHANNEL, "M301", "Hotend PID"), (BED_CHANNEL, "M304", "Bed PID")):
+        if board.can_autotune(channel):
+            text += f"echo:; {title}:\n" + _pid_line(code, board.heaters[channel].controller.gains)
+    return text
+
+
+def m500(p, cmd: Command):
+    data = _current_settings(p).to_bytes()
+    p.eeprom.write(data)
+    p.write(f"echo:Settings Stored ({len(data)} bytes; crc {crc16(data)})\n")
+
+
+def m501(p, cmd: Command):
+    p.write(_load_settings(p))
+
+
+def m502(p, cmd: Command):
+    _apply_settings(p, Settings())
+    p.write("echo:Hardcoded Default Settings Loaded\n")
+
+
+def m503(p, cmd: Command):
+    p.write(_settings_report(p))
+
+
+# -- host protocol -------------------------------------------------------------------------------
+def m108(p, cmd: Command):
+    """Break a heat wait: already acted on when the line arrived."""
+
+
+def m113(p, cmd: Command):
+    """Host keepalive interval (S0 off, at most 60); report it without S."""
+    if cmd.has("S"):
+        p.keepalive_s = min(max(cmd.value_int("S", 0), 0), 60)
+    else:
+        p.write(f"echo:M113 S{p.keepalive_s}\n")
+
+
+def m115(p, cmd: Command):
+    """Firmware name and capabilities."""
+    p.write(f"FIRMWARE_NAME:{FIRMWARE_NAME} SOURCE_CODE_URL:github.com/MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 "
+            f"MACHINE_TYPE:heater-twin EXTRUDER_COUNT:1 UUID:{UUID}\n")
+    p.write("".join(f"Cap:{name}:{value}\n" for name, value in CAPABILITIES))
+
+
+def m110(p, cmd: Command):
+    """Set the line number (the line layer already took an N'd M110)."""
+    if cmd.has("N"):
+        p.reader.last_n = cmd.value_long("N", 0)
+
+
+def m999(p, cmd: Command):
+    """Restart after a stop(): clear it and ask for the next line (a kill needs a reset)."""
+    p.reader.stopped = False
+    p.write(f"Resend: {p.reader.last_n + 1}\n")
+
+
+# -- motion ----------------------------------------------------------------------------------------
+def _axes(cmd: Command) -> dict[str, float]:
+    return {k: cmd.value_float(k, 0.0) for k in "XYZEF" if cmd.has(k)}
+
+
+def g0_g1(p, cmd: Command):
+    """A move: queued in the planner, waiting for a free block first (that is when time runs)."""
+    if not p.planner.full:
+        p.planner.move(_axes(cmd))
+        return None
+    return _move_when_free(p, _axes(cmd))
+
+
+def _move_when_free(p, axes: dict[str, float]):
+    while p.planner.full:
+        yield p.now_tick + 1
+    p.planner.move(axes)
+
+
+def g4(p, cmd: Command):
+    """Dwell P milliseconds or S seconds, after the moves in the planner."""
+    ms = cmd.value_int("P", 0) if cmd.has("P") else round(cmd.value_float("S", 0.0) * 1000)
+    return _dwell(p, ms)
+
+
+def _dwell(p, ms: int):
+    yield from _synchronize(p)
+    end = p.after_ms(ms)
+    while p.now_tick < end:
+        yield end
+
+
+def _synchronize(p):
+    """planner.synchronize(): idle until every block has run."""
+    while p.planner.blocks:
+        yield p.now_tick + 1
+
+
+def m400(p, cmd: Command):
+    """Wait for the moves to finish."""
+    return _synchronize(p) if p.planner.blocks else None
+
+
+def g92(p, cmd: Command):
+    p.planner.set_position(_axes(cmd))
+
+
+def g28(p, cmd: Command):
+    """Home: no axes to move, the positions become 0."""
+    p.planner.set_position({axis: 0.0 for axis in "XYZ"})
+
+
+def _mode(attr: str, value: bool):
+    def handler(p, cmd: Command):
+        setattr(p.planner, attr, value)
+
+    return handler
+
+
+def m114(p, cmd: Command):
+    pos = p.planner.position
+    p.write(f"X:{format_float(pos['X'])} Y:{format_float(pos['Y'])} Z:{format_float(pos['Z'])} "
+            f"E:{format_float(pos['E'])} Count X:0 Y:0 Z:0\n")
+
+
+def accepted(p, cmd: Command):
+    """Known to Marlin, nothing to do without steppers, a display or a card."""
+
+
+HANDLERS = {
+    ("M", 104): m104, ("M", 109): m109, ("M", 140): m140, ("M", 190): m190, ("M", 105): m105,
+    ("M", 155): m155, ("M", 106): m106, ("M", 107): m107, ("M", 301): m301, ("M", 304): m304,
+    ("M", 303): m303, ("M", 500): m500, ("M", 501): m501, ("M", 502): m502, ("M", 503): m503,
+    ("M", 108): m108, ("M", 113): m113, ("M", 115): m115, ("M", 110): m110, ("M", 999): m999,
+    ("M", 400): m400, ("M", 114): m114,
+    ("G", 0): g0_g1, ("G", 1): g0_g1, ("G", 4): g4, ("G", 92): g92, ("G", 28): g28,
+    ("G", 90): _mode("absolute_xyz", True), ("G", 91): _mode("absolute_xyz", False),
+    ("M", 82): _mode("absolute_e", True), ("M", 83): _mode("absolute_e", False),
+}
+HANDLERS.update({("G", code): accepted for code in (20, 21, 29)})
+HANDLERS.update({("M", code): accepted for code in (17, 18, 73, 84, 92, 111, 117, 201, 203, 204, 205, 220, 221, 302)})

@@ -1,0 +1,71 @@
+"""The printer's EEPROM: PID gains kept in a file the user names (M500/M501/M502/M503).
+
+The file is JSON (readable, diffable); what Marlin prints about it (byte count, CRC16) is
+computed over the stored bytes as Marlin computes it over its EEPROM image.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidGains
+
+EEPROM_VERSION = "V87"  # Marlin 2.1's settings version string
+
+
+def crc16(data: bytes) -> int:
+    """Marlin's crc16 (CCITT polynomial 0x1021, starting at 0), as settings.cpp uses it."""
+    crc = 0
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else crc << 1
+            crc &= 0xFFFF
+    return crc
+
+
+@dataclass
+class Settings:
+    """What M500 stores: the hotend and bed PID gains in user units."""
+
+    hotend: PidGains = HOTEND_GAINS
+    bed: PidGains = BED_GAINS
+
+    def to_bytes(self) -> bytes:
+        data = {"version": EEPROM_VERSION, "hotend_pid": vars(self.hotend), "bed_pid": vars(self.bed)}
+        return json.dumps(data, indent=1, sort_keys=True).encode()
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> Settings:
+        """Parse a stored image; ValueError says what is wrong with it."""
+        try:
+            doc = json.loads(data.decode())
+            if doc.get("version") != EEPROM_VERSION:
+                raise ValueError(f"version {doc.get('version')!r}, expected {EEPROM_VERSION}")
+            return cls(PidGains(**doc["hotend_pid"]), PidGains(**doc["bed_pid"]))
+        except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"unreadable settings: {exc}") from exc
+
+
+class Eeprom:
+    """A settings file; without a path the EEPROM is lost when the program ends."""
+
+    def __init__(self, path: str | Path | None = None):
+        self.path = Path(path) if path is not None else None
+        self._memory: bytes | None = None
+
+    def read(self) -> bytes | None:
+        if self.path is None:
+            return self._memory
+        try:
+            return self.path.read_bytes()
+        except FileNotFoundError:
+            return None
+
+    def write(self, data: bytes) -> None:
+        if self.path is None:
+            self._memory = data
+        else:
+            self.path.write_bytes(data)

@@ -1,0 +1,474 @@
+"""Transports: a VirtualPrinter on a pseudo-terminal or a TCP port, paced to the wall clock.
+
+One thread and one poll() loop: bytes from the host go to the printer, the printer's virtual
+clock advances as the speed says, its output goes back. Speed N runs the clock at N x wall
+time; ``max`` runs it free while a command executes (M109, M190, M303, G4) and stops it while
+the printer waits for the host (DESIGN.md, the clock). A host opening the port (pty) or
+connecting (TCP) resets the board, as a USB printer's DTR auto-reset does, so every connection
+starts with Marlin's ``start`` banner; output nobody is connected to read is dropped. There is
+no thread: a command that runs at ``max`` is served a virtual second at a time, so the host's
+input (M108) and the printer's output flow while it runs.
+
+Transcript (``--log FILE``): a ``#`` header line, then one line per chunk on the wire::
+
+    <dir> <virtual_s> <wall_s> <data>
+
+``dir`` is ``>`` host to printer, ``<`` printer to host, ``*`` an event ("host connected",
+"board reset", "host left"). ``virtual_s``
+is the printer's clock (scenario seconds) when the chunk passed, ``wall_s`` the seconds since
+the transcript was opened. ``data`` is a Python literal: the bytes' repr, or the event's text
+as a str repr; ``line.split(" ", 3)`` and ``ast.literal_eval`` read a line back.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import math
+import os
+import select
+import socket
+import struct
+import time
+import tty
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from datetime import datetime
+from pathlib import Path
+from typing import Literal
+
+from firmware_port.firmwares import FIRMWARES
+from protocol.printer import VirtualPrinter
+from protocol.settings import Eeprom
+from twin.build import build_twin
+from twin.linear import TICK_S
+from twin.plants import PRESETS as PLANT_PRESETS
+from twin.scenario import parse_scenario, scenario_for, with_overrides
+
+MAX: Literal["max"] = "max"
+Speed = float | Literal["max"]
+
+PACE_S = 0.01  # speed N: wall seconds between clock updates, the timing resolution a host sees
+CATCH_UP_S = 0.05  # speed N: one update runs at most this much wall time's worth of virtual time
+FREE_STEP_S = 1.0  # speed max: virtual seconds per update (M109 reports once a second)
+BOOT_DELAY_S = 0.2  # host connects -> board reset, unless its first bytes come sooner (a bootloader: ~1 s)
+READ_SIZE = 4096
+
+# A serial printer has no setpoints of its own: the host sets them.
+SERIAL_SCENARIO = parse_scenario('name = "serial"\nduration_s = 86400\n', "serial")
+
+
+def parse_speed(text: str) -> Speed:
+    """``max``, or a positive factor of real time (``1`` is real time)."""
+    if text == MAX:
+        return MAX
+    try:
+        speed = float(text)
+    except ValueError:
+        speed = math.nan
+    if not (math.isfinite(speed) and speed > 0):
+        raise ValueError(f"speed must be 'max' or a positive number (1 = real time), not {text!r}")
+    return speed
+
+
+def build_printer(*, firmware: str = "pid", plant: str | None = None, bed_plant: str | None = None,
+                  with_bed: bool = True, scenario: str | None = None, settings: str | None = None,
+                  ok_after_resend: bool = False) -> VirtualPrinter:
+    """The printer twin-serial and twin:// serve; ValueError names a bad option.
+
+    ``scenario`` (a preset name or TOML file) brings faults, ambient and plant overrides;
+    ``settings`` is the file M500 writes (the EEPROM), by default kept in memory only.
+    """
+    if firmware not in FIRMWARES:
+        raise ValueError(f"unknown firmware {firmware!r}; choose from {', '.join(FIRMWARES)}")
+    chosen = scenario_for(scenario) if scenario else SERIAL_SCENARIO
+    presets: dict[str, dict[str, float | str]] = {}
+    for heater, name in (("hotend", plant), ("bed", bed_plant)):
+        if name is None:
+            continue
+        if name not in PLANT_PRESETS:
+            raise ValueError(f"unknown plant {name!r}; choose from {', '.join(PLANT_PRESETS)}")
+        presets[heater] = {"preset": name}
+    if presets:
+        chosen = with_overrides(chosen, plant=presets)
+    if settings and not Path(settings).resolve().parent.is_dir():
+        raise ValueError(f"settings file {settings}: its directory does not exist")
+    eeprom = Eeprom(settings) if settings else None
+    return VirtualPrinter(lambda: build_twin(chosen, firmware, with_bed=with_bed, engine="fast"),
+                          eeprom=eeprom, ok_after_resend=ok_after_resend)
+
+
+class Pacer:
+    """Turns wall time into the printer's virtual time at one speed.
+
+    Speed N keeps the clock at N x the wall time since the Pacer was made, in steps of at most
+    CATCH_UP_S of wall time's worth, so a twin slower than N still serves its host in between.
+    """
+
+    def __init__(self, printer: VirtualPrinter, speed: Speed, clock: Callable[[], float] = time.monotonic):
+        self.printer = printer
+        self.speed = speed
+        self.clock = clock
+        self._wall0_s = clock()
+        self._virtual0_s = printer.time_s
+
+    def advance(self) -> float | None:
+        """Run the clock as far as the speed allows now.
+
+        Returns how long the caller may wait for the host before the next call: 0 when there
+        is more to run at once, None when nothing happens until the host sends something.
+        """
+        printer = self.printer
+        if self.speed == MAX:
+            start_s = printer.time_s
+            printer.run_until_idle(FREE_STEP_S)
+            # It returns early once the printer waits for the host; a halted board runs nothing.
+            still_busy = printer.time_s - start_s > FREE_STEP_S - TICK_S / 2 and not printer.halted
+            return 0.0 if still_busy else None
+        due_s = self._virtual0_s + (self.clock() - self._wall0_s) * self.speed - printer.time_s
+        step_s = min(due_s, CATCH_UP_S * self.speed)
+        if step_s > 0:
+            printer.run_for(step_s)
+        return 0.0 if due_s > step_s else PACE_S
+
+
+class Transcript:
+    """The ``--log`` file: both directions of the wire with virtual and wall times (see above)."""
+
+    def __init__(self, path: str | Path, clock: Callable[[], float] = time.monotonic):
+        self._file = open(path, "w", encoding="utf-8", buffering=1)  # a line at a time: tail -f works
+        self._clock = clock
+        self._wall0_s = clock()
+        started = datetime.now().astimezone().isoformat(timespec="seconds")
+        self._file.write(f"# heater-twin transcript started {started}: dir virtual_s wall_s data "
+                         "(> host to printer, < printer to host, * event)\n")
+
+    def record(self, direction: str, virtual_s: float, data: bytes | str) -> None:
+        self._file.write(f"{direction} {virtual_s:.6f} {self._clock() - self._wall0_s:.6f} {data!r}\n")
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class _Server(ABC):
+    """Serves one printer to one host at a time; subclasses own the file descriptors.
+
+    A host's arrival resets the board when its first bytes come, or BOOT_DELAY_S after it
+    connected for a host that waits for ``start`` (sooner, its own open() could discard the
+    banner: pyserial flushes its input when it opens a port). Output the host has not taken
+    yet stops the printer's clock until it drains, as Marlin waits on a full TX buffer.
+    """
+
+    def __init__(self, printer: VirtualPrinter, speed: Speed, transcript: Transcript | None):
+        self.printer = printer
+        self.pacer = Pacer(printer, speed)
+        self.transcript = transcript
+        self._unsent = bytearray()
+        self._connected_at: float | None = None  # monotonic time a host came, until its reset
+        self._ready = False  # a host is there and its board was reset: output goes to it
+
+    def serve_forever(self) -> None:
+        """Serve until interrupted (KeyboardInterrupt, or SystemExit from a SIGTERM handler)."""
+        while True:
+            wait_s = None if self._unsent else self.pacer.advance()
+            output = self.printer.take_output()
+            if self._ready:
+                self._unsent += output
+                self._flush()
+            if self._connected_at is not None:
+                boot_left_s = self._connected_at + BOOT_DELAY_S - time.monotonic()
+                if boot_left_s <= 0:
+                    self._reset_for_host()
+                    continue
+                wait_s = boot_left_s if wait_s is None else min(wait_s, boot_left_s)
+            self._wait(wait_s)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    # -- what subclasses provide --------------------------------------------------------------
+    @property
+    @abstractmethod
+    def address(self) -> str:
+        """Where a host connects: the pty's path, or HOST:PORT."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the port (fds, link)."""
+
+    @abstractmethod
+    def _write(self, data: bytes | bytearray) -> int:
+        """Write without blocking; the count written (BlockingIOError when none fits)."""
+
+    @abstractmethod
+    def _wait(self, wait_s: float | None) -> None:
+        """Wait up to ``wait_s`` (None: indefinitely) for the host, and serve what it does."""
+
+    @abstractmethod
+    def _drop_host(self) -> None:
+        """The host went away: stop watching it, then ``_host_left()``."""
+
+    # -- shared by the subclasses -------------------------------------------------------------
+    def _host_came(self) -> None:
+        self._connected_at = time.monotonic()
+        self._record("*", "host connected")
+
+    def _reset_for_host(self) -> None:
+        self._connected_at = None
+        self._ready = True
+        self.printer.reset()
+        self._record("*", "board reset")
+
+    def _host_left(self) -> None:
+        self._connected_at = None
+        self._ready = False
+        self._unsent.clear()
+        self._record("*", "host left")
+
+    def _from_host(self, data: bytes) -> None:
+        if self._connected_at is not None:
+            self._reset_for_host()
+        self._record(">", data)
+        self.printer.receive(data)
+
+    def _flush(self) -> None:
+        """Write what the host takes now; the rest waits for POLLOUT."""
+        if not self._unsent:
+            return
+        try:
+            n = self._write(self._unsent)
+        except BlockingIOError:
+            return
+        except ConnectionError:  # a TCP client gone
+            self._drop_host()
+            return
+        self._record("<", bytes(self._unsent[:n]))
+        del self._unsent[:n]
+
+    def _record(self, direction: str, data: bytes | str) -> None:
+        if self.transcript is not None:
+            self.transcript.record(direction, self.printer.time_s, data)
+
+
+class PtyServer(_Server):
+    """The printer on a pseudo-terminal: a host opens ``path`` (or ``link``) like a USB port.
+
+    Who holds the port open is counted from inotify's open and close events on the slave
+    device. They queue up, so a host closing and at once reopening is still seen; the
+    master's POLLHUP (EIO on read) only shows a hang-up that lasts until the loop looks.
+    """
+
+    def __init__(self, printer: VirtualPrinter, speed: Speed, *, link: str | None = None,
+                 transcript: Transcript | None = None):
+        super().__init__(printer, speed, transcript)
+        self._master, slave = os.openpty()
+        try:
+            tty.setraw(slave)  # no echo, no CR/LF translation, 8 bits; the setting outlives the fd
+            self.path = os.ttyname(slave)
+        finally:
+            os.close(slave)  # before the watch starts: from now on only hosts hold it
+        os.set_blocking(self._master, False)
+        self._watch: _OpenWatch | None = None
+        self.link = None
+        try:
+            self._watch = _OpenWatch(self.path)
+            if link:
+                _make_link(self.path, link)
+                self.link = link
+        except OSError:
+            self.close()
+            raise
+        self._poller = select.poll()
+        self._poller.register(self._watch.fd, select.POLLIN)
+        self._holders = 0  # open file descriptions of the slave: hosts (usually one)
+
+    @property
+    def address(self) -> str:
+        return self.path
+
+    def close(self) -> None:
+        """Close the pty and the watch; remove the link if it still points at the pty."""
+        if self.link and os.path.islink(self.link) and os.readlink(self.link) == self.path:
+            os.remove(self.link)
+        self.link = None
+        if self._watch is not None:
+            self._watch.close()
+            self._watch = None
+        if self._master >= 0:
+            os.close(self._master)
+            self._master = -1
+
+    def _write(self, data: bytes | bytearray) -> int:
+        return os.write(self._master, data)
+
+    def _wait(self, wait_s: float | None) -> None:
+        if self._holders:
+            self._poller.modify(self._master, select.POLLIN | (select.POLLOUT if self._unsent else 0))
+        events = dict(self._poller.poll(_poll_ms(wait_s)))
+        if self._watch.fd in events:  # first: after a close and a reopen, the data is the new host's
+            for change in self._watch.changes():
+                self._holders += change
+                if change > 0 and self._holders == 1:
+                    self._poller.register(self._master, select.POLLIN)
+                    self._host_came()
+                elif change < 0 and self._holders == 0:
+                    self._read()  # the last bytes it sent are still there
+                    self._drop_host()
+        revents = events.get(self._master, 0) if self._holders else 0
+        if revents & select.POLLOUT:
+            self._flush()
+        if revents & (select.POLLIN | select.POLLHUP | select.POLLERR):
+            self._read()
+
+    def _read(self) -> None:
+        """Everything the host sent, until EAGAIN (or EIO once nobody holds the port)."""
+        while True:
+            try:
+                data = os.read(self._master, READ_SIZE)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                if exc.errno == errno.EIO:
+                    return
+                raise
+            self._from_host(data)
+
+    def _drop_host(self) -> None:
+        """The last holder closed the port (the master would report POLLHUP at every poll)."""
+        self._poller.unregister(self._master)
+        self._host_left()
+
+
+class TcpServer(_Server):
+    """The printer on a TCP port (pyserial's ``socket://``, Pronterface's host:port).
+
+    One client at a time; others wait in the listen backlog. Each connection resets the board.
+    """
+
+    def __init__(self, printer: VirtualPrinter, speed: Speed, host: str = "127.0.0.1", port: int = 0, *,
+                 transcript: Transcript | None = None):
+        super().__init__(printer, speed, transcript)
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        self._listener = socket.create_server((host, port), family=family)
+        self._listener.setblocking(False)
+        self._client: socket.socket | None = None
+        self._poller = select.poll()
+        self._poller.register(self._listener, select.POLLIN)
+
+    @property
+    def address(self) -> str:
+        host, port = self._listener.getsockname()[:2]
+        return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        self._listener.close()
+
+    def _write(self, data: bytes | bytearray) -> int:
+        return self._client.send(data)
+
+    def _wait(self, wait_s: float | None) -> None:
+        if self._client is not None:
+            self._poller.modify(self._client, select.POLLIN | (select.POLLOUT if self._unsent else 0))
+        for fd, revents in self._poller.poll(_poll_ms(wait_s)):
+            if fd == self._listener.fileno():
+                self._accept()
+            elif self._client is not None:
+                if revents & select.POLLOUT:
+                    self._flush()
+                if revents & (select.POLLIN | select.POLLHUP | select.POLLERR):
+                    self._read()
+
+    def _accept(self) -> None:
+        try:
+            client, _ = self._listener.accept()
+        except BlockingIOError:  # the client gave up before we took it
+            return
+        client.setblocking(False)
+        client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # replies are short lines
+        self._poller.unregister(self._listener)
+        self._poller.register(client, select.POLLIN)
+        self._client = client
+        self._host_came()
+
+    def _read(self) -> None:
+        try:
+            data = self._client.recv(READ_SIZE)
+        except BlockingIOError:
+            return
+        except ConnectionError:
+            data = b""
+        if data:
+            self._from_host(data)
+        else:
+            self._drop_host()
+
+    def _drop_host(self) -> None:
+        if self._client is not None:
+            self._poller.unregister(self._client)
+            self._client.close()
+            self._client = None
+            self._poller.register(self._listener, select.POLLIN)
+            self._host_left()
+
+
+def _poll_ms(wait_s: float | None) -> float | None:
+    """poll()'s timeout: milliseconds, never negative (which would mean forever)."""
+    return None if wait_s is None else max(0.0, wait_s) * 1000
+
+
+class _OpenWatch:
+    """Open and close events of one file, from Linux's inotify (via libc: no stdlib binding)."""
+
+    IN_OPEN, IN_CLOSE_WRITE, IN_CLOSE_NOWRITE = 0x20, 0x08, 0x10  # <sys/inotify.h>
+    EVENT = struct.Struct("iIII")  # struct inotify_event: wd, mask, cookie, len (+ name, empty here)
+
+    def __init__(self, path: str):
+        libc = ctypes.CDLL(None, use_errno=True)
+        if not hasattr(libc, "inotify_init1"):
+            raise OSError(errno.ENOSYS, "the pty transport needs Linux (inotify); use --tcp")
+        self.fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+        if self.fd < 0:
+            raise OSError(ctypes.get_errno(), "inotify_init1: " + os.strerror(ctypes.get_errno()))
+        mask = self.IN_OPEN | self.IN_CLOSE_WRITE | self.IN_CLOSE_NOWRITE
+        if libc.inotify_add_watch(self.fd, os.fsencode(path), mask) < 0:
+            err = ctypes.get_errno()
+            os.close(self.fd)
+            raise OSError(err, "inotify_add_watch: " + os.strerror(err), path)
+
+    def changes(self) -> list[int]:
+        """+1 per open and -1 per close since the last call, in the order they happened."""
+        changes: list[int] = []
+        while True:
+            try:
+                data = os.read(self.fd, READ_SIZE)
+            except BlockingIOError:
+                return changes
+            offset = 0
+            while offset < len(data):
+                _, mask, _, name_len = self.EVENT.unpack_from(data, offset)
+                offset += self.EVENT.size + name_len
+                if mask & self.IN_OPEN:
+                    changes.append(1)
+                elif mask & (self.IN_CLOSE_WRITE | self.IN_CLOSE_NOWRITE):
+                    changes.append(-1)
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+def _make_link(target: str, link: str) -> None:
+    """Point ``link`` at ``target``, replacing an older symlink but never any other file."""
+    if os.path.lexists(link) and not os.path.islink(link):
+        raise FileExistsError(errno.EEXIST, "exists and is not a symlink; not replacing it", link)
+    temporary = f"{link}.{os.getpid()}.tmp"
+    try:
+        os.symlink(target, temporary)
+        os.replace(temporary, link)
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot make the link: {exc.strerror}", link) from None

@@ -1,0 +1,115 @@
+"""twin-serial: a virtual Marlin printer on a pseudo-terminal (or TCP port) for a real host.
+
+Prints the port's path (with --tcp, HOST:PORT) on stdout, one line, then serves until Ctrl-C or
+SIGTERM. Point Printrun, OctoPrint or pyserial at it, at any baud rate; opening the port resets
+the board like a USB printer's DTR auto-reset. In-process, without a pty:
+``import protocol; serial.serial_for_url("twin://?firmware=pid&speed=max")``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+
+from firmware_port.firmwares import FIRMWARES
+from protocol.transport import MAX, PtyServer, TcpServer, Transcript, build_printer, parse_speed
+from twin.plants import PRESETS as PLANT_PRESETS
+
+DEFAULT_TCP_HOST = "127.0.0.1"
+
+
+def _speed(text: str):
+    try:
+        return parse_speed(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _tcp_address(text: str) -> tuple[str, int]:
+    """HOST:PORT, [IPv6]:PORT or :PORT (loopback); port 0 picks a free one."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or int(port) > 65535:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, e.g. 127.0.0.1:8250, not {text!r}")
+    return host.strip("[]") or DEFAULT_TCP_HOST, int(port)
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="twin-serial",
+        description=__doc__.split("\n\n")[0].replace("\n", " "),
+        epilog=(
+            "speed: 'max' runs the virtual clock free while a command executes (M109, M190, M303, G4) "
+            "and stops it while the printer waits for the host; N runs it at N x real time (1 = real time). "
+            "firmwares: " + ", ".join(FIRMWARES) + ". plants: " + ", ".join(PLANT_PRESETS) + ". "
+            "--log writes one line per chunk: DIR VIRTUAL_S WALL_S DATA, DIR '>' host to printer, "
+            "'<' printer to host, '*' connect/reset; DATA a Python literal."
+        ),
+    )
+    parser.add_argument("--firmware", choices=list(FIRMWARES), default="pid", help="firmware build (default pid)")
+    parser.add_argument("--plant", choices=list(PLANT_PRESETS), help="hotend plant preset (default hotend)")
+    parser.add_argument("--bed-plant", choices=list(PLANT_PRESETS), help="bed plant preset (default bed)")
+    parser.add_argument("--no-bed", action="store_true", help="a board with a hotend only")
+    parser.add_argument("--scenario", metavar="NAME|FILE",
+                        help="scenario preset or TOML file for faults, ambient and plant overrides "
+                             "(default: none; the host sets every target)")
+    parser.add_argument("--speed", type=_speed, default=MAX, metavar="{1,N,max}",
+                        help="virtual clock speed (default max)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--link", metavar="PATH",
+                       help="also make PATH a symlink to the pty (replaced if it is one; removed on exit)")
+    where.add_argument("--tcp", type=_tcp_address, metavar="HOST:PORT",
+                       help="serve on TCP instead of a pty, one client at a time (port 0: any free port)")
+    parser.add_argument("--settings", metavar="FILE", help="EEPROM file that M500 writes and M501 reads "
+                        "(default: in memory, lost on exit)")
+    parser.add_argument("--log", metavar="FILE", help="transcript of both directions with virtual and wall times")
+    parser.add_argument("--ok-after-resend", action="store_true",
+                        help="answer a line error with 'ok' after 'Resend:' (off: no 'ok' there, as Marlin 2.0.8)")
+    parser.add_argument("--baud", type=int, metavar="N", help="accepted and ignored: any baud rate works")
+    return parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    printer = build_printer(
+        firmware=args.firmware, plant=args.plant, bed_plant=args.bed_plant, with_bed=not args.no_bed,
+        scenario=args.scenario, settings=args.settings, ok_after_resend=args.ok_after_resend,
+    )
+    transcript = Transcript(args.log) if args.log else None
+    try:
+        if args.tcp:
+            host, port = args.tcp
+            try:
+                server = TcpServer(printer, args.speed, host, port, transcript=transcript)
+            except OSError as exc:
+                raise OSError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+        else:
+            server = PtyServer(printer, args.speed, link=args.link, transcript=transcript)
+        with server:
+            print(server.address, flush=True)
+            link = f" (link {args.link})" if args.link else ""
+            print(f"twin-serial: {server.address}{link}, firmware {args.firmware}, speed {args.speed}; "
+                  "Ctrl-C stops", file=sys.stderr, flush=True)
+            server.serve_forever()
+    finally:
+        if transcript is not None:
+            transcript.close()
+    return 0
+
+
+def _stop(signum: int, frame) -> None:
+    raise SystemExit(0)  # unwinds through the server's context manager: link removed, fds closed
+
+
+def main(argv: list[str] | None = None) -> int:
+    for signum in (signal.SIGINT, signal.SIGTERM):  # SIGINT too: a background job starts with it ignored
+        signal.signal(signum, _stop)
+    args = parse_args(argv)
+    try:
+        return run(args)
+    except (ValueError, OSError) as exc:
+        print(f"twin-serial: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

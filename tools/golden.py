@@ -1,0 +1,67 @@
+"""The golden serial session: a scripted exchange with the default virtual printer.
+
+``python -m tools.golden --write`` records it into tests/golden/marlin_session.txt; the test
+replays the same script and compares the transcript line by line. Regenerate only on purpose,
+after a deliberate change of behaviour, and review the diff.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from protocol.lines import with_checksum
+from protocol.printer import VirtualPrinter
+from twin.build import build_twin
+from twin.scenario import parse_scenario
+
+GOLDEN_PATH = Path(__file__).resolve().parent.parent / "tests" / "golden" / "marlin_session.txt"
+SERIAL_SCENARIO = 'duration_s = 86400\nname = "golden"\n'
+
+
+def _bad_checksum(line: str) -> str:
+    head, cs = line.rsplit("*", 1)
+    return f"{head}*{(int(cs) + 1) % 256}"
+
+
+SCRIPT = (
+    "M115",
+    "M105",
+    with_checksum("M110 N0", 0),
+    with_checksum("M104 S200", 1),
+    with_checksum("M109 S200", 2),
+    with_checksum("M303 E0 S210 C8", 3),
+    _bad_checksum(with_checksum("M105", 4)),
+    with_checksum("M105", 4),
+    "M112",
+    "M105",
+)
+
+
+def record_session() -> list[str]:
+    """Run SCRIPT at --speed max; ``< `` lines are the printer's, ``> `` lines the host's."""
+    printer = VirtualPrinter(lambda: build_twin(parse_scenario(SERIAL_SCENARIO, "golden"), "pid"))
+    transcript = [f"< {line}" for line in printer.take_output().decode().splitlines()]
+    for line in SCRIPT:
+        transcript.append(f"> {line}")
+        printer.receive(line.encode() + b"\n")
+        printer.run_until_idle()
+        transcript += [f"< {reply}" for reply in printer.take_output().decode().splitlines()]
+    return transcript
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tools.golden", description=__doc__.splitlines()[0])
+    parser.add_argument("--write", action="store_true", help=f"rewrite {GOLDEN_PATH}")
+    args = parser.parse_args(argv)
+    text = "\n".join(record_session()) + "\n"
+    if args.write:
+        GOLDEN_PATH.write_text(text)
+        print(f"wrote {GOLDEN_PATH} ({text.count(chr(10))} lines)")
+    else:
+        print(text, end="")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,588 @@
+"""The Klipper profile of the twin: Klipper's host heater control, the MCU's ADC and soft PWM, and
+the plants on one clock, so a Klipper printer can be replayed and its klippy.log reproduced.
+
+Time is Klipper's: host eventtime, print_time and estimated print_time are all the twin's time in
+seconds. The plants step on their 1.024 ms tick; a time maps to the nearest tick. Per heater:
+
+- the MCU sums SAMPLE_COUNT conversions SAMPLE_TIME apart every REPORT_TIME (src/adccmds.c) of
+  the plant's sensor node through the thermistor divider, floor(2^bits R / (R + pullup)) each;
+  the host gets the sum normalised by SAMPLE_COUNT * ADC_MAX at ``read_time = first sample +
+  8 ms`` and converts it with Klipper's calc_temp (klippy/extras/thermistor.py);
+- ``KlipperHeater.temperature_callback`` runs on that report; the PWM it sends takes effect on the
+  pin at ``read_time + pwm_delay`` (0.3 s later): the actuation delay;
+- the pin is the MCU's soft PWM (src/gpiocmds.c), exactly: each queued value restarts the cycle,
+  pin on for ``int(value * cycle_ticks + 0.5)`` MCU clock ticks then off for the rest of
+  ``cycle_ticks``, until the next value. The plant gets each tick's on-fraction (the energy is
+  exact; edges are resolved to the tick's average);
+- the MCU's ADC range check shuts everything down after RANGE_CHECK_COUNT summed readings in a row
+  outside [min_temp, max_temp] ("ADC out of range");
+- ``stats()`` every second (the Stats line and the main-thread watchdog) and ``VerifyHeater``
+  every second; a runaway shuts the printer down: pins off from then on, no more reports.
+
+The plant's heater input is only known 0.3 s ahead, which is all the plants need: each is
+advanced in one run from one ADC window to the next (a LinearPlant run is one matrix product
+however the pin switches), and reads its 8 samples from the same run's output map.
+
+Not modelled: the MCU's max_duration check on the heater pin (the host's resend rule keeps it
+from firing while reports flow), MCU clock quantisation of event times (14 ns at 72 MHz), serial
+latency, and the toolhead (``print_time`` in the Stats line is the twin's time).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+from collections.abc import Callable, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from firmware_port.klipper import (
+    CommandError,
+    HeaterConfig,
+    HeaterFault,
+    KlipperHeater,
+    PidCalibrate,
+    VerifyHeater,
+    invert_calibration,
+)
+from firmware_port.klipper.heater import REPORT_TIME, SAMPLE_COUNT, SAMPLE_TIME
+from firmware_port.thermistor import KLIPPER_SENSORS, SteinhartHart
+from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
+from twin.linear import BLOCK, SENSOR, TICK_S
+from twin.plants import make_plant
+
+# klippy/extras/adc_temperature.py and klippy/mcu.py
+RANGE_CHECK_COUNT = 4  # summed readings in a row outside the limits before "ADC out of range"
+ADC_FIRST_SAMPLE_S = 1.0  # get_query_slot: int(estimated print_time + 1.5) at connect ...
+QUERY_SLOT_S = 0.01  # ... + oid * 10 ms (here: the heater's index, real oids differ)
+ADC_SUM_LIMIT = 1 << 16  # mcu.py: "ADC sample_count=%d too large for MCU" at sample_count*ADC_MAX >= this
+# klippy/extras/thermistor.py
+PULLUP_OHM = 4700.0
+ADC_CLAMP = (0.00001, 0.99999)  # calc_temp clamps the normalised reading
+DEFAULT_SENSOR = "EPCOS 100K B57560G104F"  # config/example-cartesian.cfg, extruder and bed
+# klippy/extras/heaters.py
+PWM_CYCLE_TIME_S = 0.100  # pwm_cycle_time default; must be <= pwm_delay
+# klippy/extras/statistics.py
+STATS_INTERVAL_S = 1.0
+# klippy/extras/heaters.py _wait_for_temperature: M109-style waits report once a second
+WAIT_REPORT_S = 1.0
+PID_CALIBRATE_TIMEOUT_S = 7200.0  # the twin's guard; Klipper waits until cancelled
+
+# klippy/extras/error_mcu.py: how klippy words an MCU shutdown (message, clarification, hint)
+MCU_SHUTDOWN = "MCU shutdown"
+MCU_NAME = "mcu"  # the main [mcu]
+ADC_OUT_OF_RANGE = "ADC out of range"
+ADC_RANGE_HINT = """
+This generally occurs when a heater temperature exceeds
+its configured min_temp or max_temp."""
+SHUTDOWN_STATE = "Transition to shutdown state: "  # klippy.py invoke_shutdown's log line
+
+# Events due at the same time run in this order.
+PRIO_USER, PRIO_ADC, PRIO_MCU_SHUTDOWN, PRIO_REPORT, PRIO_STATS, PRIO_VERIFY = range(6)
+
+
+@dataclass(frozen=True)
+class Mcu:
+    """The board the heaters hang on: its clock (soft-PWM resolution) and ADC width."""
+
+    name: str
+    clock_hz: float
+    adc_bits: int
+
+    @property
+    def adc_max(self) -> int:
+        return (1 << self.adc_bits) - 1
+
+
+STM32F103 = Mcu("stm32f103", 72e6, 12)  # 12-bit ADC: the default, as on most 32-bit boards
+ATMEGA2560 = Mcu("atmega2560", 16e6, 10)  # AVR boards: 10-bit ADC
+
+
+def calc_temp(part: SteinhartHart, pullup_ohm: float, adc: float) -> float:
+    """Klipper's thermistor calc_temp: a normalised reading (0..1) to degC (no inline resistor)."""
+    adc = max(ADC_CLAMP[0], min(ADC_CLAMP[1], adc))
+    return part.temp_c(pullup_ohm * adc / (1.0 - adc))
+
+
+def calc_adc(part: SteinhartHart, pullup_ohm: float, temp_c):
+    """Klipper's thermistor calc_adc: the normalised reading R / (pullup + R) at temp_c (array ok)."""
+    r = part.resistance_ohm(temp_c)
+    return r / (pullup_ohm + r)
+
+
+@dataclass(frozen=True)
+class HeaterSetup:
+    """One heater of the printer: Klipper's config section, the plant it heats, its thermistor."""
+
+    config: HeaterConfig
+    plant: Any  # the LinearPlant API: outputs(u, offsets), advance(u), temps_c()
+    sensor: str | SteinhartHart = DEFAULT_SENSOR  # a KLIPPER_SENSORS name, or e.g. SteinhartHart.from_beta
+    pullup_ohm: float = PULLUP_OHM
+    pwm_cycle_time_s: float = PWM_CYCLE_TIME_S
+    verify: dict | None = field(default_factory=dict)  # VerifyHeater options; None: no check
+
+    def __post_init__(self):
+        if isinstance(self.sensor, str) and self.sensor not in KLIPPER_SENSORS:
+            raise ValueError(f"unknown sensor_type {self.sensor!r}; valid: {', '.join(KLIPPER_SENSORS)}")
+        if not 0.0 < self.pwm_cycle_time_s <= self.config.pwm_delay_s:
+            raise ValueError(f"[{self.config.name}] pwm_cycle_time must be in (0, pwm_delay]")
+
+    @property
+    def part(self) -> SteinhartHart:
+        return KLIPPER_SENSORS[self.sensor] if isinstance(self.sensor, str) else self.sensor
+
+
+def extruder_setup(plant=None, **config) -> HeaterSetup:
+    """[extruder] of Klipper's config/example-cartesian.cfg (pid_Kp 22.2, pid_Ki 1.08, pid_Kd 114,
+    EPCOS 100K) with max_temp 250, on the default hotend plant; config overrides HeaterConfig fields."""
+    options = {"pid_kp": 22.2, "pid_ki": 1.08, "pid_kd": 114.0, **config}
+    limits = options.pop("min_temp_c", 0.0), options.pop("max_temp_c", 250.0)
+    return HeaterSetup(HeaterConfig("extruder", *limits, **options),
+                       make_plant("hotend") if plant is None else plant)
+
+
+def bed_setup(plant=None, **config) -> HeaterSetup:
+    """[heater_bed] of config/example-cartesian.cfg (control: watermark, EPCOS 100K) with max_temp
+    130, on the bed plant; config overrides HeaterConfig fields."""
+    options = {"control": "watermark", **config}
+    limits = options.pop("min_temp_c", 0.0), options.pop("max_temp_c", 130.0)
+    return HeaterSetup(HeaterConfig("heater_bed", *limits, **options),
+                       make_plant("bed") if plant is None else plant)
+
+
+class SoftPwm:
+    """A heater pin driven by the MCU's soft PWM (src/gpiocmds.c digital_out with a cycle time).
+
+    Each queued value restarts the cycle at its time: on for on_s, off for cycle_s - on_s, again
+    and again until the next value. From time 0 the pin is off."""
+
+    def __init__(self, cycle_time_s: float, clock_hz: float):
+        self.cycle_ticks = int(cycle_time_s * clock_hz)  # mcu.py seconds_to_clock
+        self.clock_hz = clock_hz
+        self.cycle_s = self.cycle_ticks / clock_hz
+        self.times_s = [0.0]  # event times, non-decreasing
+        self.on_s = [0.0]  # on time per cycle of each event
+
+    def queue(self, time_s: float, value: float) -> None:
+        """A queue_digital_out: MCU_pwm.set_pwm quantises the duty to whole clock ticks."""
+        on_ticks = int(max(0.0, min(1.0, value)) * self.cycle_ticks + 0.5)
+        self.times_s.append(time_s)
+        self.on_s.append(min(on_ticks, self.cycle_ticks) / self.clock_hz)
+
+    def cut(self, time_s: float) -> None:
+        """MCU shutdown: queued values are dropped and the pin is off from time_s."""
+        keep = int(np.searchsorted(self.times_s, time_s, side="right"))
+        del self.times_s[keep:], self.on_s[keep:]
+        self.queue(time_s, 0.0)
+
+    def prune(self, time_s: float) -> None:
+        """Forget the values that ended before time_s."""
+        first = int(np.searchsorted(self.times_s, time_s, side="right")) - 1
+        if first > 0:
+            del self.times_s[:first], self.on_s[:first]
+
+    def duty_at(self, time_s: float) -> float:
+        """The duty (on fraction of a cycle) in force at time_s."""
+        return self.on_s[int(np.searchsorted(self.times_s, time_s, side="right")) - 1] / self.cycle_s
+
+    def tick_duties(self, start_tick: int, n_ticks: int) -> np.ndarray:
+        """The pin's on-fraction over each of n_ticks plant ticks from start_tick."""
+        times, on = np.array(self.times_s), np.array(self.on_s)
+        first, last = np.searchsorted(times, (start_tick * TICK_S, (start_tick + n_ticks) * TICK_S), side="right") - 1
+        if first == last and on[first] in (0.0, self.cycle_s):  # one value, pin steady off or on
+            return np.full(n_ticks, on[first] / self.cycle_s)
+        edges = (start_tick + np.arange(n_ticks + 1)) * TICK_S
+        # the on-time accumulated since times[0] at each tick edge, differenced
+        base = np.concatenate(([0.0], np.cumsum(self._on_time(np.diff(times), on[:-1]))))
+        seg = np.maximum(np.searchsorted(times, edges, side="right") - 1, 0)
+        cumulative = base[seg] + self._on_time(np.maximum(edges - times[seg], 0.0), on[seg])
+        return np.diff(cumulative) / TICK_S
+
+    def _on_time(self, since_s: np.ndarray, on_s: np.ndarray) -> np.ndarray:
+        """On-time within since_s of a value's start: whole cycles plus the part of the current one."""
+        cycles = np.floor(since_s / self.cycle_s)
+        # the remainder from the same quotient: np.mod can disagree with floor at a cycle's edge
+        into_cycle_s = np.minimum(np.maximum(since_s - cycles * self.cycle_s, 0.0), self.cycle_s)
+        return cycles * on_s + np.minimum(into_cycle_s, on_s)
+
+
+class ReportRow(NamedTuple):
+    """One sensor report of one heater, after the host handled it."""
+
+    t_s: float  # read_time: first sample + 8 ms
+    target_c: float
+    temp_c: float  # last_temp: the raw report (what Stats prints)
+    smoothed_c: float  # smoothed_temp: what M105, waits and verify_heater use
+    pwm: float  # last_pwm_value: the last value sent (what Stats prints)
+    duty: float  # the heater's duty in force at t_s (after the 0.3 s delay and any wiring fault)
+    sensor_c: float  # true sensor node at t_s
+    block_c: float  # true heater block at t_s
+
+
+@dataclass(frozen=True)
+class PidCalibrateResult:
+    """What PID_CALIBRATE answered and what its relay test saw."""
+
+    lines: list[str]  # the G-code reply, as pid_calibrate.py words it (a terminal shows "// ...")
+    kp: float  # as saved by SAVE_CONFIG (3 decimals)
+    ki: float
+    kd: float
+    peaks: list[tuple[float, float]]  # (temp_c, read_time_s); peaks[0] is Klipper's dummy (0, 0)
+    tu_s: float  # 8 Kd / Kp: the period of the cycle Klipper picked
+    ku: float  # Kp / (0.6 * 255), Klipper's (full-swing) relay Ku
+    peak_to_peak_c: float
+    started_s: float
+    finished_s: float
+    heattest: str  # what WRITE_FILE=1 writes to /tmp/heattest.txt
+
+
+class _Channel:
+    """A heater's runtime: host heater, verify check, plant, ADC and pin state."""
+
+    def __init__(self, index: int, setup: HeaterSetup, mcu: Mcu):
+        self.heater = KlipperHeater(setup.config)
+        self.name = self.heater.short_name
+        self.plant = setup.plant
+        self.part = setup.part
+        self.pullup_ohm = setup.pullup_ohm
+        self.verify = None if setup.verify is None else VerifyHeater(self.heater, **setup.verify)
+        self.pwm = SoftPwm(setup.pwm_cycle_time_s, mcu.clock_hz)
+        self.mode = NORMAL
+        self.plant_tick = 0  # the plant's state is at this tick
+        self.first_sample_s = ADC_FIRST_SAMPLE_S + index * QUERY_SLOT_S
+        self.adc_scale = float(1 << mcu.adc_bits)  # an ideal converter: floor(2^bits * ratio)
+        self.adc_max = mcu.adc_max
+        max_sum = SAMPLE_COUNT * mcu.adc_max
+        self.inv_max_adc = 1.0 / max_sum
+        # adc_temperature.setup_minmax -> MCU_adc._build_config: the range check limits of the sum
+        limits = (calc_adc(self.part, self.pullup_ohm, t) for t in (self.heater.min_temp, self.heater.max_temp))
+        low, high = sorted(limits)
+        self.min_sum = max(0, min(0xFFFF, int(low * max_sum)))
+        self.max_sum = max(0, min(0xFFFF, math.ceil(high * max_sum)))
+        self.invalid_count = 0
+        self.reports: list[ReportRow] = []
+        self.sends: list[tuple[float, float, float]] = []  # (read_time, pwm_time, value) of each value sent
+
+    def heater_input(self, start_tick: int, n_ticks: int) -> np.ndarray:
+        """The plant's input over n ticks: the pin's on-fractions unless the wiring is faulty."""
+        if self.mode == DISCONNECTED:
+            return np.zeros(n_ticks)
+        if self.mode == STUCK_ON:
+            return np.ones(n_ticks)
+        return self.pwm.tick_duties(start_tick, n_ticks)
+
+    def advance_plant(self, tick: int, u: np.ndarray | None = None) -> None:
+        """Run the plant up to ``tick`` in one run (u: its input, if already known)."""
+        n = tick - self.plant_tick
+        if n <= 0:
+            return
+        relinearise = getattr(self.plant, "relinearise", None)
+        if relinearise is not None:
+            relinearise()
+        self.plant.advance(self.heater_input(self.plant_tick, n) if u is None else u)
+        self.plant_tick = tick
+        self.pwm.prune(tick * TICK_S)
+
+
+def tick_near(t_s: float) -> int:
+    """The plant tick nearest to a time."""
+    return round(t_s / TICK_S)
+
+
+class _LogList(logging.Handler):
+    """Collects the Klipper port's log messages as klippy.log lines."""
+
+    def __init__(self, twin: KlipperTwin):
+        super().__init__(logging.INFO)
+        self.twin = twin
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.twin.log.append((self.twin.time_s, record.getMessage()))
+
+
+class KlipperTwin:
+    """A Klipper printer's heaters on one clock: host control, MCU ADC and soft PWM, plants."""
+
+    def __init__(self, heaters: Sequence[HeaterSetup], mcu: Mcu = STM32F103):
+        if SAMPLE_COUNT * mcu.adc_max >= ADC_SUM_LIMIT:
+            raise ValueError(f"ADC sample_count={SAMPLE_COUNT} too large for MCU")
+        self.mcu = mcu
+        self.time_s = 0.0
+        self.log: list[tuple[float, str]] = []  # (time, klippy.log line): Stats lines and the port's messages
+        self.replies: list[tuple[float, str]] = []  # (time, G-code response) of the commands run here
+        self.halted = False
+        self.shutdown_message: str | None = None
+        self.shutdown_time_s: float | None = None
+        self._events: list = []
+        self._seq = itertools.count()
+        with self._klippy_logging():
+            self.channels = {}
+            for index, setup in enumerate(heaters):
+                channel = _Channel(index, setup, mcu)
+                if channel.name in self.channels:
+                    raise ValueError(f"Heater {channel.name} already registered")
+                self.channels[channel.name] = channel
+        for channel in self.channels.values():
+            self._push(channel.first_sample_s, PRIO_ADC, self._adc_sample, channel, 0)
+            if channel.verify is not None:
+                self._push(0.0, PRIO_VERIFY, self._verify, channel)
+        self._push(0.0, PRIO_STATS, self._stats, 0)
+
+    # -- the outside world ----------------------------------------------------------------------
+    def heater(self, name: str) -> KlipperHeater:
+        """The host heater by its short name ("extruder", "heater_bed")."""
+        return self._channel(name).heater
+
+    def schedule(self, at_s: float, action: Callable[[KlipperTwin], None]) -> None:
+        """Run ``action(twin)`` at time at_s (before the sensor reports due then)."""
+        if at_s < self.time_s:
+            raise ValueError(f"cannot schedule at {at_s} s: the twin is at {self.time_s} s")
+        self._push(at_s, PRIO_USER, action, self)
+
+    def set_target(self, name: str, temp_c: float, at_s: float | None = None) -> None:
+        """SET_HEATER_TEMPERATURE HEATER=<name> TARGET=<temp_c>, now or at at_s."""
+        heater = self.heater(name)
+        if at_s is None:
+            heater.set_target(temp_c)
+            return
+        if temp_c and not heater.min_temp <= temp_c <= heater.max_temp:
+            heater.set_target(temp_c)  # raises Klipper's "Requested temperature ... out of range"
+        self.schedule(at_s, lambda twin: heater.set_target(temp_c))
+
+    def schedule_targets(self, name: str, times_s: Sequence[float], targets_c: Sequence[float]) -> None:
+        """Replay a logged target sequence: set_target at the first sample and at every change."""
+        last = None
+        for t_s, target_c in zip(times_s, targets_c):
+            if target_c != last:
+                self.set_target(name, float(target_c), at_s=float(t_s))
+                last = target_c
+
+    def set_heater_mode(self, name: str, mode: str, at_s: float | None = None) -> None:
+        """Wiring faults: normal, heater_disconnected (no power) or heater_stuck_on (MOSFET shorted)."""
+        if mode not in (NORMAL, DISCONNECTED, STUCK_ON):
+            raise ValueError(f"not a heater mode: {mode!r}")
+        channel = self._channel(name)
+
+        def apply(twin):
+            channel.advance_plant(tick_near(twin.time_s))
+            channel.mode = mode
+
+        if at_s is None:
+            apply(self)
+        else:
+            self.schedule(at_s, apply)
+
+    def set_plant_inputs(self, name: str, fan: float, flow_mm_s: float, ambient_c: float,
+                         at_s: float | None = None) -> None:
+        """The plant's part fan (0..1), filament flow (mm/s) and ambient (degC), now or at at_s."""
+        channel = self._channel(name)
+
+        def apply(twin):
+            channel.advance_plant(tick_near(twin.time_s))
+            channel.plant.set_inputs(fan, flow_mm_s, ambient_c)
+
+        if at_s is None:
+            apply(self)
+        else:
+            self.schedule(at_s, apply)
+
+    def run_until(self, t_s: float) -> None:
+        """Advance the clock to t_s seconds, running every event due up to and including it."""
+        if t_s < self.time_s:
+            raise ValueError(f"cannot run back to {t_s} s from {self.time_s} s")
+        with self._klippy_logging():
+            while self._events and self._events[0][0] <= t_s:
+                time_s, _, _, action, args = heapq.heappop(self._events)
+                self.time_s = time_s
+                action(*args)
+        self.time_s = t_s
+
+    def plant_temps_c(self, name: str) -> tuple[float, float]:
+        """True (sensor, block) temperatures now."""
+        channel = self._channel(name)
+        n = tick_near(self.time_s) - channel.plant_tick
+        if n <= 0:
+            temps = channel.plant.temps_c()
+        else:
+            temps = channel.plant.outputs(channel.heater_input(channel.plant_tick, n), (n,))[0]
+        return float(temps[SENSOR]), float(temps[BLOCK])
+
+    def pid_calibrate(self, name: str, target_c: float,
+                      timeout_s: float = PID_CALIBRATE_TIMEOUT_S) -> PidCalibrateResult:
+        """PID_CALIBRATE HEATER=<name> TARGET=<target_c>: run the relay test until it finishes.
+
+        Waits as Klipper does (a check and an M105-style reply every second). Raises CommandError
+        ("pid_calibrate interrupted") on a shutdown or after timeout_s."""
+        heater = self.heater(name)
+        started_s = self.time_s
+        with self._klippy_logging():
+            calibrate = PidCalibrate(heater, target_c)
+        eventtime = self.time_s
+        while not self.halted and calibrate.check_busy(eventtime) and eventtime - started_s < timeout_s:
+            self.replies.append((eventtime, self.m105(eventtime)))
+            eventtime += WAIT_REPORT_S
+            self.run_until(eventtime)
+        with self._klippy_logging():
+            try:
+                lines = calibrate.finish()
+            except CommandError as error:
+                self.replies.append((self.time_s, f"!! {error}"))
+                raise
+        self.replies.append((self.time_s, "// " + "\n// ".join(lines)))
+        options = calibrate.saved_options
+        kp, ki, kd = (float(options[key]) for key in ("pid_Kp", "pid_Ki", "pid_Kd"))
+        # 8 Kd / Kp: Kd's 3 saved decimals keep Tu far closer than Ki's do in 2 Kp / Ki
+        _, tu_s, ku, peak_to_peak_c = invert_calibration(kp, ki, kd, heater.max_power)
+        return PidCalibrateResult(lines, kp, ki, kd, list(calibrate.tune.peaks), tu_s, ku, peak_to_peak_c,
+                                  started_s, self.time_s, calibrate.tune.heattest_text())
+
+    def m105(self, eventtime: float) -> str:
+        """Klipper's M105 reply: "T0:<smoothed> /<target> B:..." for the heaters with a G-code id."""
+        out = []
+        for gcode_id, name in sorted((_gcode_id(name), name) for name in self.channels if _gcode_id(name)):
+            cur, target = self.channels[name].heater.get_temp(eventtime)
+            out.append(f"{gcode_id}:{cur:.1f} /{target:.1f}")
+        return " ".join(out) if out else "T:0"
+
+    # -- what it recorded ---------------------------------------------------------------------
+    @property
+    def stats_lines(self) -> list[str]:
+        return [text for _, text in self.log if text.startswith("Stats ")]
+
+    def klippy_log(self) -> str:
+        """The log as klippy.log would have it (tools.logs.parse_klippy_log reads it)."""
+        return "".join(text + "\n" for _, text in self.log)
+
+    def reports(self, name: str) -> list[ReportRow]:
+        return self._channel(name).reports
+
+    def column(self, name: str, field_name: str) -> np.ndarray:
+        """One ReportRow field of a heater's reports as an array."""
+        index = ReportRow._fields.index(field_name)
+        return np.array([row[index] for row in self._channel(name).reports], dtype=float)
+
+    def sends(self, name: str) -> list[tuple[float, float, float]]:
+        """(read_time, pwm_time, value) of every PWM value the host sent to the MCU."""
+        return self._channel(name).sends
+
+    # -- events ---------------------------------------------------------------------------------
+    def _channel(self, name: str) -> _Channel:
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise ValueError(f"unknown heater {name!r}; valid: {', '.join(self.channels)}") from None
+
+    def _push(self, time_s: float, prio: int, action: Callable, *args) -> None:
+        heapq.heappush(self._events, (time_s, prio, next(self._seq), action, args))
+
+    def _adc_sample(self, channel: _Channel, k: int) -> None:
+        """The MCU's k-th summed reading: 8 conversions from the first sample time on."""
+        if self.halted:
+            return
+        first_s = channel.first_sample_s + k * REPORT_TIME
+        read_time = first_s + SAMPLE_COUNT * SAMPLE_TIME
+        start = tick_near(first_s)
+        offsets = tuple(tick_near(first_s + i * SAMPLE_TIME) - start for i in range(SAMPLE_COUNT))
+        offsets += (tick_near(read_time) - start,)
+        # one input array: the run up to the first sample, then the window the samples see
+        run = start - channel.plant_tick
+        u = channel.heater_input(channel.plant_tick, run + offsets[-1])
+        channel.advance_plant(start, u[:run])
+        temps = channel.plant.outputs(u[run:], offsets)
+        ratio = calc_adc(channel.part, channel.pullup_ohm, temps[:-1, SENSOR])
+        value = int(np.minimum(np.floor(ratio * channel.adc_scale), channel.adc_max).sum())  # ratio >= 0
+        self._push(channel.first_sample_s + (k + 1) * REPORT_TIME, PRIO_ADC, self._adc_sample, channel, k + 1)
+        if channel.min_sum <= value <= channel.max_sum:
+            channel.invalid_count = 0
+        else:
+            channel.invalid_count += 1
+            if channel.invalid_count >= RANGE_CHECK_COUNT:
+                last_s = first_s + (SAMPLE_COUNT - 1) * SAMPLE_TIME
+                self._push(last_s, PRIO_MCU_SHUTDOWN, self._adc_out_of_range, channel)
+        self._push(read_time, PRIO_REPORT, self._report, channel, value, temps[-1])
+
+    def _report(self, channel: _Channel, value: int, true_c: np.ndarray) -> None:
+        """analog_in_state reaches the host: calc_temp, then the heater's control."""
+        if self.halted:
+            return
+        read_time = self.time_s
+        heater = channel.heater
+        event = heater.temperature_callback(read_time, calc_temp(channel.part, channel.pullup_ohm,
+                                                                 value * channel.inv_max_adc))
+        if event is not None:
+            channel.pwm.queue(event.time_s, event.value)
+            channel.sends.append((read_time, event.time_s, event.value))
+        duty = {DISCONNECTED: 0.0, STUCK_ON: 1.0}.get(channel.mode, channel.pwm.duty_at(read_time))
+        channel.reports.append(ReportRow(read_time, heater.target_temp, heater.last_temp, heater.smoothed_temp,
+                                         heater.last_pwm_value, duty, float(true_c[SENSOR]), float(true_c[BLOCK])))
+
+    def _adc_out_of_range(self, channel: _Channel) -> None:
+        heater = channel.heater
+        clarify = (f"Sensor '{heater.name}' temperature {heater.last_temp:.3f} not in range "
+                   f"{heater.min_temp:.3f}:{heater.max_temp:.3f}")
+        message = f"MCU '{MCU_NAME}' shutdown: {ADC_OUT_OF_RANGE}\n\n{clarify}\n{ADC_RANGE_HINT}"
+        self._shutdown(MCU_SHUTDOWN, message)
+
+    def _verify(self, channel: _Channel) -> None:
+        if self.halted:
+            return
+        try:
+            next_s = channel.verify.check_event(self.time_s)
+        except HeaterFault as fault:
+            self._shutdown(str(fault), str(fault))
+            return
+        self._push(next_s, PRIO_VERIFY, self._verify, channel)
+
+    def _stats(self, k: int) -> None:
+        """statistics.py: every heater's stats() (it feeds the watchdog); a line if one is active."""
+        eventtime = k * STATS_INTERVAL_S
+        stats = [channel.heater.stats(eventtime) for channel in self.channels.values()]
+        if any(active for active, _ in stats):
+            fragments = " ".join(fragment for _, fragment in stats)
+            toolhead = f"print_time={eventtime:.3f} buffer_time=0.000 print_stall=0"
+            self.log.append((eventtime, f"Stats {eventtime:.1f}: {fragments} {toolhead}"))
+        self._push((k + 1) * STATS_INTERVAL_S, PRIO_STATS, self._stats, k + 1)
+
+    def _shutdown(self, log_message: str, message: str) -> None:
+        """klippy's invoke_shutdown: every heater off from now on; no more reports or checks."""
+        if self.halted:
+            return
+        self.halted = True
+        self.shutdown_time_s = self.time_s
+        self.shutdown_message = message
+        self.log.append((self.time_s, SHUTDOWN_STATE + log_message))
+        for channel in self.channels.values():
+            channel.heater.handle_shutdown()
+            channel.pwm.cut(self.time_s)
+
+    @contextmanager
+    def _klippy_logging(self):
+        """Collect the Klipper port's log lines into self.log; if INFO was off for them, turn it on
+        for the twin only (no propagation), so a caller's log is not flooded."""
+        logger = logging.getLogger("firmware_port.klipper")
+        handler = _LogList(self)
+        saved = logger.level, logger.propagate
+        if not logger.isEnabledFor(logging.INFO):
+            logger.setLevel(logging.INFO)
+            logger.propagate = False
+        logger.addHandler(handler)
+        try:
+            yield
+        finally:
+            logger.removeHandler(handler)
+            logger.setLevel(saved[0])
+            logger.propagate = saved[1]
+
+
+def _gcode_id(short_name: str) -> str | None:
+    """heaters.py: extruder -> T0, extruderN -> TN, heater_bed -> B; others have none by default."""
+    if short_name == "heater_bed":
+        return "B"
+    if short_name.startswith("extruder"):
+        return f"T{short_name[len('extruder'):] or 0}"
+    return None

@@ -18,6 +18,13 @@ Transcript (``--log FILE``): a ``#`` header line, then one line per chunk on the
 is the printer's clock (scenario seconds) when the chunk passed, ``wall_s`` the seconds since
 the transcript was opened. ``data`` is a Python literal: the bytes' repr, or the event's text
 as a str repr; ``line.split(" ", 3)`` and ``ast.literal_eval`` read a line back.
+
+Injected corruption (``--corrupt-rx P``, ``RxCorruptor``): a noisy wire on the printer's receive
+side, so a host's resend handling gets exercised. Each line the host sends has, with probability
+P, one random bit of one random byte flipped before the printer reads it: any bit of any byte,
+the line's end included, as on a real wire, and Marlin's line-number and checksum checks catch
+what they catch. The transcript shows what the printer received, each flip announced by a ``*``
+event naming the byte (in the ``>`` chunk that follows) and the bit.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ import ctypes
 import errno
 import math
 import os
+import random
 import select
 import socket
 import struct
@@ -150,6 +158,56 @@ class Transcript:
         self._file.close()
 
 
+class RxCorruptor:
+    """Flips one random bit of one random byte in a fraction of the host's lines (``--corrupt-rx``).
+
+    Lines are cut at every CR or LF (the end of line belongs to its line and may be hit too);
+    bytes after the last one wait for the rest of their line, which changes nothing the printer
+    does, as Marlin acts on a line only at its end. The draws come from ``random.Random(seed)``'s
+    ``random()`` only, whose sequence Python keeps across versions, and restart at ``reset()``
+    (a host's arrival): a host that sends the same lines gets the same flips, every run.
+
+    No flip makes the printer raise or hang, but some stop a host as they would on a real
+    printer. A flipped end of line leaves its line open until the host sends more, and a line
+    number flipped to the last one is dropped silently as a duplicate: a host that sends the
+    next line only after an ``ok`` and has no timeout (Printrun's printcore) waits forever. An
+    unnumbered ``M110`` or ``M113`` can become ``M112``, which kills the board; a numbered line
+    cannot (Marlin looks for emergency commands only at the start of a line).
+    """
+
+    def __init__(self, probability: float, seed: int = 0):
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError(f"the rx corruption probability (--corrupt-rx) must be within 0..1, "
+                             f"not {probability!r}")
+        self.probability = probability
+        self.seed = seed
+        self.reset()
+
+    def reset(self) -> None:
+        """Start the draws over and forget a partial line (a new host, a board reset)."""
+        self._rng = random.Random(self.seed)
+        self._partial = bytearray()
+
+    def feed(self, data: bytes) -> tuple[bytes, list[tuple[int, int]]]:
+        """The complete lines in ``data`` (after what waited), some corrupted, and the flips
+        made as (index of the byte in the returned bytes, bit 0..7)."""
+        self._partial += data
+        end = max(self._partial.rfind(b"\n"), self._partial.rfind(b"\r")) + 1
+        lines = self._partial[:end]
+        del self._partial[:end]
+        flips = []
+        start = 0
+        for i in range(end):
+            if lines[i] in b"\r\n":
+                if self._rng.random() < self.probability:
+                    index = start + int(self._rng.random() * (i + 1 - start))
+                    bit = int(self._rng.random() * 8)
+                    lines[index] ^= 1 << bit
+                    flips.append((index, bit))
+                start = i + 1
+        return bytes(lines), flips
+
+
 class _Server(ABC):
     """Serves one printer to one host at a time; subclasses own the file descriptors.
 
@@ -159,10 +217,12 @@ class _Server(ABC):
     yet stops the printer's clock until it drains, as Marlin waits on a full TX buffer.
     """
 
-    def __init__(self, printer: VirtualPrinter, speed: Speed, transcript: Transcript | None):
+    def __init__(self, printer: VirtualPrinter, speed: Speed, transcript: Transcript | None,
+                 corruptor: RxCorruptor | None):
         self.printer = printer
         self.pacer = Pacer(printer, speed)
         self.transcript = transcript
+        self.corruptor = corruptor
         self._unsent = bytearray()
         self._connected_at: float | None = None  # monotonic time a host came, until its reset
         self._ready = False  # a host is there and its board was reset: output goes to it
@@ -220,6 +280,8 @@ class _Server(ABC):
         self._connected_at = None
         self._ready = True
         self.printer.reset()
+        if self.corruptor is not None:
+            self.corruptor.reset()
         self._record("*", "board reset")
 
     def _host_left(self) -> None:
@@ -231,6 +293,12 @@ class _Server(ABC):
     def _from_host(self, data: bytes) -> None:
         if self._connected_at is not None:
             self._reset_for_host()
+        if self.corruptor is not None:
+            data, flips = self.corruptor.feed(data)
+            for index, bit in flips:
+                self._record("*", f"rx corrupted: byte {index} of the next chunk, bit {bit}")
+            if not data:
+                return
         self._record(">", data)
         self.printer.receive(data)
 
@@ -262,8 +330,8 @@ class PtyServer(_Server):
     """
 
     def __init__(self, printer: VirtualPrinter, speed: Speed, *, link: str | None = None,
-                 transcript: Transcript | None = None):
-        super().__init__(printer, speed, transcript)
+                 transcript: Transcript | None = None, corruptor: RxCorruptor | None = None):
+        super().__init__(printer, speed, transcript, corruptor)
         self._master, slave = os.openpty()
         try:
             tty.setraw(slave)  # no echo, no CR/LF translation, 8 bits; the setting outlives the fd
@@ -309,13 +377,15 @@ class PtyServer(_Server):
             self._poller.modify(self._master, select.POLLIN | (select.POLLOUT if self._unsent else 0))
         events = dict(self._poller.poll(_poll_ms(wait_s)))
         if self._watch.fd in events:  # first: after a close and a reopen, the data is the new host's
-            for change in self._watch.changes():
+            changes = self._watch.changes()
+            for k, change in enumerate(changes):
                 self._holders += change
                 if change > 0 and self._holders == 1:
                     self._poller.register(self._master, select.POLLIN)
                     self._host_came()
                 elif change < 0 and self._holders == 0:
-                    self._read()  # the last bytes it sent are still there
+                    if 1 not in changes[k + 1 :]:  # else a host already reopened it: the bytes are its
+                        self._read()  # the last bytes it sent are still there
                     self._drop_host()
         revents = events.get(self._master, 0) if self._holders else 0
         if revents & select.POLLOUT:
@@ -349,8 +419,8 @@ class TcpServer(_Server):
     """
 
     def __init__(self, printer: VirtualPrinter, speed: Speed, host: str = "127.0.0.1", port: int = 0, *,
-                 transcript: Transcript | None = None):
-        super().__init__(printer, speed, transcript)
+                 transcript: Transcript | None = None, corruptor: RxCorruptor | None = None):
+        super().__init__(printer, speed, transcript, corruptor)
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         self._listener = socket.create_server((host, port), family=family)
         self._listener.setblocking(False)

@@ -1,23 +1,38 @@
-"""Benchmarks (not tests): ``python -m tools.bench twin``. Ratios measured in one run.
+"""Benchmarks (not tests): ``python -m tools.bench twin|protocol``. Ratios measured in one run.
 
+``twin``:
 - single twin, hotend + bed, fixed-point PID, full ISR fidelity, 600 s heat-and-hold: real-time
   factor of the fast engine, of the tick-by-tick reference engine, and their ratio;
 - a batch of 1000 hotend twins x 600 s with different gains: wall time and firmware control
   periods per second;
 - the same linear plant open loop on a PWM input: the engine's exact tick maps vs
   scipy.signal.lsim on the same 1.024 ms grid, time ratio and largest difference.
+
+``protocol``: twin-serial ``--speed max`` in its own process, pyserial on its pty, as a host:
+- M105 round trip, wall milliseconds, median and 99th percentile;
+- numbered, checksummed G1 lines streamed with 1 and with BUFSIZE (4) lines awaiting their ok:
+  lines per second, oks and resends (none expected: a clean wire loses nothing);
+- the wall time of ``M303 E0 S210 C8`` on the default hotend.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import select
+import statistics
+import subprocess
+import sys
 import time
 
 import numpy as np
 import scipy.signal
+import serial
 
 from firmware_port.marlin.constants import SOFT_PWM_PERIOD_TICKS, TICKS_PER_READING
 from firmware_port.marlin.pid import PidGains
+from protocol.lines import with_checksum
+from protocol.printer import BUFSIZE
 from twin.batch import BatchTwin
 from twin.build import build_twin
 from twin.linear import SENSOR, TICK_S
@@ -92,15 +107,113 @@ def bench_open_loop(duration_s: float) -> list[str]:
     ]
 
 
+SERIAL_CLI = [sys.executable, "-m", "tools.serial_cli", "--speed", "max"]
+START_TIMEOUT_S = 30  # twin-serial's start: interpreter and imports
+REPLY_TIMEOUT_S = 30  # any one answer, M303 included
+
+
+@contextlib.contextmanager
+def _twin_serial_port():
+    """twin-serial in its own process and pyserial on its pty, the banner read; both closed after."""
+    proc = subprocess.Popen(SERIAL_CLI, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        path = proc.stdout.readline().strip() if select.select([proc.stdout], [], [], START_TIMEOUT_S)[0] else ""
+        if not path:
+            proc.terminate()
+            raise RuntimeError(f"twin-serial printed no pty path: {proc.communicate()[1].strip()}")
+        with serial.Serial(path, 115200, timeout=REPLY_TIMEOUT_S) as port:
+            _read_until(port, b"echo:  M304 ")  # the banner's last line
+            yield port
+    finally:
+        proc.terminate()
+        proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+def _read_until(port: serial.Serial, start: bytes) -> list[bytes]:
+    """The lines up to the first that starts with ``start``, that one included."""
+    lines = []
+    while not lines or not lines[-1].startswith(start):
+        lines.append(port.readline())
+        if not lines[-1].endswith(b"\n"):
+            raise RuntimeError(f"no line starting with {start!r} within {REPLY_TIMEOUT_S} s")
+    return lines
+
+
+def _round_trips_ms(port: serial.Serial, n: int) -> list[float]:
+    times = []
+    for _ in range(n):
+        start = time.perf_counter()
+        port.write(b"M105\n")
+        _read_until(port, b"ok")
+        times.append((time.perf_counter() - start) * 1000)
+    return times
+
+
+def _stream(port: serial.Serial, n_lines: int, window: int) -> tuple[float, int, int]:
+    """Send N1..N<n_lines> (short G1 moves) keeping ``window`` lines unanswered at most;
+    the wall time, oks and resends. Numbering starts over with M110 first."""
+    port.write(b"M110 N0\n")
+    _read_until(port, b"ok")
+    lines = [(with_checksum(f"G1 X{100 + n % 2 * 0.5:.1f} Y100 F6000", n) + "\n").encode()
+             for n in range(1, n_lines + 1)]
+    sent = answered = oks = resends = 0
+    start = time.perf_counter()
+    while answered < n_lines:
+        while sent < n_lines and sent - answered < window:
+            port.write(lines[sent])
+            sent += 1
+        reply = port.readline()
+        if not reply.endswith(b"\n"):
+            raise RuntimeError(f"no answer within {REPLY_TIMEOUT_S} s after {answered} lines")
+        if reply.startswith(b"ok"):
+            oks += 1
+        elif reply.startswith(b"Resend:"):
+            resends += 1
+        else:
+            continue
+        answered += 1
+    return time.perf_counter() - start, oks, resends
+
+
+def bench_protocol(n_requests: int, n_lines: int) -> list[str]:
+    with _twin_serial_port() as port:
+        trips = _round_trips_ms(port, n_requests)
+        streams = {window: _stream(port, n_lines, window) for window in (1, BUFSIZE)}
+        start = time.perf_counter()
+        port.write(b"M303 E0 S210 C8\n")
+        m303 = _read_until(port, b"ok")
+        m303_s = time.perf_counter() - start
+    gains = [line.decode().split()[-1] for line in m303 if line.startswith(b"#define DEFAULT_K")]
+    lines = [
+        f"twin-serial on a pty ({' '.join(['python', *SERIAL_CLI[1:]])}), pyserial at 115200 baud:",
+        (f"  M105 round trip, {n_requests} requests: median {statistics.median(trips):.3f} ms, "
+         f"p99 {statistics.quantiles(trips, n=100)[98]:.3f} ms"),
+    ]
+    for window, (wall_s, oks, resends) in streams.items():
+        lines.append(f"  {n_lines} checksummed G1 lines, {window} awaiting ok at most: {n_lines / wall_s:6,.0f} "
+                     f"lines/s, {oks} ok, {resends} resends")
+    outcome = f"Kp {gains[0]} Ki {gains[1]} Kd {gains[2]}" if gains else m303[-2].decode().strip()
+    lines.append(f"  M303 E0 S210 C8 (default hotend): {m303_s:.3f} s wall, {len(m303)} lines, {outcome}")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=["twin"], help="what to benchmark")
-    parser.add_argument("--duration", type=float, default=600.0, help="virtual seconds (default 600)")
-    parser.add_argument("--lanes", type=int, default=1000, help="batch lanes (default 1000)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the batch's random gains (default 1)")
+    parser.add_argument("what", choices=["twin", "protocol"], help="what to benchmark")
+    parser.add_argument("--duration", type=float, default=600.0, help="twin: virtual seconds (default 600)")
+    parser.add_argument("--lanes", type=int, default=1000, help="twin: batch lanes (default 1000)")
+    parser.add_argument("--seed", type=int, default=1, help="twin: seed of the batch's random gains (default 1)")
+    parser.add_argument("--requests", type=int, default=500, help="protocol: M105 round trips (default 500)")
+    parser.add_argument("--lines", type=int, default=5000, help="protocol: G1 lines per stream (default 5000)")
     args = parser.parse_args(argv)
-    lines = bench_single(args.duration) + bench_batch(args.lanes, args.duration, args.seed)
-    lines += bench_open_loop(args.duration)
+    if args.what == "twin":
+        lines = bench_single(args.duration) + bench_batch(args.lanes, args.duration, args.seed)
+        lines += bench_open_loop(args.duration)
+    else:
+        lines = [f"python -m tools.bench protocol --requests {args.requests} --lines {args.lines}"]
+        lines += bench_protocol(args.requests, args.lines)
     print("\n".join(lines))
     return 0
 

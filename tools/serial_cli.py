@@ -13,7 +13,7 @@ import signal
 import sys
 
 from firmware_port.firmwares import FIRMWARES
-from protocol.transport import MAX, PtyServer, TcpServer, Transcript, build_printer, parse_speed
+from protocol.transport import MAX, PtyServer, RxCorruptor, TcpServer, Transcript, build_printer, parse_speed
 from twin.plants import PRESETS as PLANT_PRESETS
 
 DEFAULT_TCP_HOST = "127.0.0.1"
@@ -43,7 +43,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             "and stops it while the printer waits for the host; N runs it at N x real time (1 = real time). "
             "firmwares: " + ", ".join(FIRMWARES) + ". plants: " + ", ".join(PLANT_PRESETS) + ". "
             "--log writes one line per chunk: DIR VIRTUAL_S WALL_S DATA, DIR '>' host to printer, "
-            "'<' printer to host, '*' connect/reset; DATA a Python literal."
+            "'<' printer to host, '*' connect/reset/corruption; DATA a Python literal. "
+            "--corrupt-rx flips, in that fraction of the host's lines, one random bit of one random byte "
+            "(the end of line included) before the printer reads it: Marlin's checksum and line-number "
+            "checks answer with Resend. A flipped end of line leaves the line open until the host sends "
+            "more, and a line number flipped to the last one is dropped silently: a host that waits for "
+            "'ok' without a timeout stalls there, as on a real printer."
         ),
     )
     parser.add_argument("--firmware", choices=list(FIRMWARES), default="pid", help="firmware build (default pid)")
@@ -64,7 +69,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "(default: in memory, lost on exit)")
     parser.add_argument("--log", metavar="FILE", help="transcript of both directions with virtual and wall times")
     parser.add_argument("--ok-after-resend", action="store_true",
-                        help="answer a line error with 'ok' after 'Resend:' (off: no 'ok' there, as Marlin 2.0.8)")
+                        help="answer a line error with 'ok' after 'Resend:' (Marlin 1.1, and bugfix-2.1.x's source; "
+                             "default: no 'ok' there, as the reference notes give for 2.1)")
+    parser.add_argument("--corrupt-rx", type=float, default=0.0, metavar="P",
+                        help="probability per received line of one flipped bit (default 0: a clean wire)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N",
+                        help="seed of --corrupt-rx's draws: a host sending the same lines gets the same "
+                             "flips (default 0)")
     parser.add_argument("--baud", type=int, metavar="N", help="accepted and ignored: any baud rate works")
     return parser.parse_args(argv)
 
@@ -75,19 +86,21 @@ def run(args: argparse.Namespace) -> int:
         scenario=args.scenario, settings=args.settings, ok_after_resend=args.ok_after_resend,
     )
     transcript = Transcript(args.log) if args.log else None
+    corruptor = RxCorruptor(args.corrupt_rx, args.seed) if args.corrupt_rx else None
     try:
         if args.tcp:
             host, port = args.tcp
             try:
-                server = TcpServer(printer, args.speed, host, port, transcript=transcript)
+                server = TcpServer(printer, args.speed, host, port, transcript=transcript, corruptor=corruptor)
             except OSError as exc:
                 raise OSError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         else:
-            server = PtyServer(printer, args.speed, link=args.link, transcript=transcript)
+            server = PtyServer(printer, args.speed, link=args.link, transcript=transcript, corruptor=corruptor)
         with server:
             print(server.address, flush=True)
             link = f" (link {args.link})" if args.link else ""
-            print(f"twin-serial: {server.address}{link}, firmware {args.firmware}, speed {args.speed}; "
+            noise = f", rx corruption {args.corrupt_rx:g} (seed {args.seed})" if corruptor else ""
+            print(f"twin-serial: {server.address}{link}, firmware {args.firmware}, speed {args.speed}{noise}; "
                   "Ctrl-C stops", file=sys.stderr, flush=True)
             server.serve_forever()
     finally:

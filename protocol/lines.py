@@ -59,12 +59,13 @@ class Line:
 class LineReader:
     """One serial port's line buffer and line-number state (queue.cpp SerialState).
 
-    ``ok_after_resend``: Marlin 2.1.x answers a line error with ``Error:...``, ``Resend: <n>``
-    and an unconditional ``ok`` (queue.cpp flush_and_request_resend), as 1.1.x did; False gives
-    Marlin 2.0.8, which sent no ``ok`` there.
+    ``ok_after_resend``: the default (False) sends no ``ok`` after ``Resend: <n>``, as the
+    project's reference notes give for Marlin 2.1 (their queue.cpp behaves like 2.0.8). True sends
+    one, as Marlin 1.1 did and as bugfix-2.1.x's flush_and_request_resend() does
+    (``SERIAL_ECHOLNPGM(STR_OK)`` after the Resend line); see docs/serial.md.
     """
 
-    def __init__(self, *, ok_after_resend: bool = True) -> None:
+    def __init__(self, *, ok_after_resend: bool = False) -> None:
         self.ok_after_resend = ok_after_resend
         self.last_n = 0  # serial.last_N, int32; M110's handler sets it too
         self.stopped = False  # IsStopped(), set and cleared by the firmware (M999)

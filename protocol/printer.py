@@ -36,7 +36,7 @@ Task = Generator[int, None, None]  # yields the absolute tick to be resumed at
 class VirtualPrinter:
     """Marlin's serial front end and command loop over a twin."""
 
-    def __init__(self, make_twin: Callable[[], Twin], *, eeprom: Eeprom | None = None, ok_after_resend: bool = True):
+    def __init__(self, make_twin: Callable[[], Twin], *, eeprom: Eeprom | None = None, ok_after_resend: bool = False):
         self.twin = make_twin()
         self.twin.recording = False  # a serial session can run for days: no trace rows
         self.eeprom = eeprom if eeprom is not None else Eeprom()

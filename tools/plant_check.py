@@ -6,27 +6,24 @@ ticks between the logs' sample instants), and prints the log's numbers next to t
   heating rate near 100 C, overshoot after cut-off and its time, RMSE over the pulse and its
   cooling; hotend_cartridge also on the other pulse runs, with the log's own heater input;
 - bed: the chesleavens Klipper Stats heat-up (README section A); bed_mk3: seed 004's numbers.
-``--fit`` reruns the least-squares fits (and the MK3 solve) whose results twin/plants.py holds.
-The logs are read from $HEATER_TWIN_HARDWARE_LOGS (default: <repo>/../shared/hardware_logs).
+``--fit`` reruns the least-squares fits (tools/identify.py, and the MK3 solve) whose results
+twin/plants.py holds. The logs are read by tools/logs.py from $HEATER_TWIN_HARDWARE_LOGS (default:
+<repo>/../shared/hardware_logs).
 The numbers in docs/plants.md come from this command.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import os
-from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import scipy.optimize
 
+from tools.identify import Segment, fit_plants, zoh_response
+from tools.logs import _csv_rows, parse_heattest, parse_klipper_stats_csv
+from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
 from twin.plants import MK3_POWER_W, make_plant
-
-LOGS_ENV = "HEATER_TWIN_HARDWARE_LOGS"
-DEFAULT_LOGS = Path(__file__).resolve().parents[2] / "shared" / "hardware_logs"
 
 # Onionheater pulse tests (README section B; the author's notes in the files' headers).
 ONION_LOG = "klipper_heattest_onionheater_{}.csv"
@@ -52,34 +49,27 @@ MK3_AMBIENT_C = 25.0  # not stated
 MK3_TIME_TO_100_S = 600.0
 
 
-def logs_dir() -> Path:
-    path = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)
-    if not path.is_dir():
-        raise FileNotFoundError(f"hardware logs not found at {path}: set {LOGS_ENV} to the hardware_logs folder")
-    return path
-
-
 def read_log(name: str) -> dict[str, np.ndarray]:
-    """A hardware-log CSV (comment lines start with '#') as columns of floats; empty cells are NaN."""
-    with open(logs_dir() / name, newline="") as f:
-        rows = list(csv.reader(line for line in f if not line.startswith("#")))
-    return {h: np.array([float(r[i]) if r[i] else np.nan for r in rows[1:]]) for i, h in enumerate(rows[0])}
+    """A hardware-log CSV as columns of floats, read (and checked) by tools/logs.py; empty cells are NaN."""
+    _, rows = _csv_rows(logs_dir() / name)
+    (_, header), data = rows[0], rows[1:]
+    return {h: np.array([float(r[i]) if r[i] else np.nan for _, r in data]) for i, h in enumerate(header)}
 
 
 def replay(plant, t_s: np.ndarray, pwm: np.ndarray | None = None, cut_c: float | None = None) -> np.ndarray:
     """The plant's sensor at the instants t_s (from t_s[0]), its heater at the log's pwm (held from
     each instant to the next) or, without pwm, at full power until the sensor reads cut_c."""
+    if pwm is not None:
+        return zoh_response(plant, t_s, pwm)
     ticks = np.rint((t_s - t_s[0]) / TICK_S).astype(int)
     out = np.empty(len(t_s))
     out[0] = plant.temps_c()[SENSOR]
-    u = 1.0 if pwm is None else pwm[0]
+    u = 1.0
     for i, n in enumerate(np.diff(ticks)):
         plant.advance(np.full(n, u))
         plant.relinearise()
         out[i + 1] = plant.temps_c()[SENSOR]
-        if pwm is not None:
-            u = pwm[i + 1]
-        elif out[i + 1] >= cut_c:
+        if out[i + 1] >= cut_c:
             u = 0.0
     return out
 
@@ -112,25 +102,15 @@ def rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
-class Run(NamedTuple):
-    """A logged open-loop run: sample instants, sensor readings, heater duty, part fan."""
-
-    name: str
-    t_s: np.ndarray
-    temp_c: np.ndarray
-    pwm: np.ndarray
-    fan: float
-
-
-def onion_run(name: str, fan: float = 0.0, t_min_s: float = 0.0, t_max_s: float = np.inf) -> Run:
+def onion_run(name: str, fan: float = 0.0, t_min_s: float = 0.0, t_max_s: float = np.inf) -> Segment:
     """An onionheater run from its first heater-on sample at or after t_min_s, up to t_max_s."""
-    log = read_log(ONION_LOG.format(name))
-    t_s, pwm = log["t_s"], log["pwm"]
+    log = parse_heattest(logs_dir() / ONION_LOG.format(name))
+    t_s, pwm = log.t_s, log.pwm
     keep = (t_s >= t_s[np.argmax((pwm > 0) & (t_s >= t_min_s))]) & (t_s < t_max_s)
-    return Run(name, t_s[keep], log["temp_c"][keep], pwm[keep], fan)
+    return Segment(name, t_s[keep], log.temp_c[keep], pwm[keep], fan)
 
 
-def onion_runs() -> list[tuple[str, Run]]:
+def onion_runs() -> list[tuple[str, Segment]]:
     """The first no-fan pulse (the fit's data) and the runs that check it, with a note each."""
     return [
         ("no fan, first pulse (fit)", onion_run("heattest_200", t_max_s=ONION_PULSE_END_S)),
@@ -141,7 +121,7 @@ def onion_runs() -> list[tuple[str, Run]]:
     ]
 
 
-def onion_plant(run: Run, preset: str = "hotend_cartridge", **params):
+def onion_plant(run: Segment, preset: str = "hotend_cartridge", **params):
     """A hotend preset at the onionheater's ambient, every node at the run's first reading, its fan set."""
     plant = make_plant(preset, ambient_c=ONION_AMBIENT_C, initial_c=run.temp_c[0], **params)
     plant.set_inputs(fan=run.fan, flow_mm_s=0.0, ambient_c=ONION_AMBIENT_C)
@@ -156,7 +136,7 @@ def hotend_report() -> list[str]:
         model_c = replay(onion_plant(run, preset), run.t_s, cut_c=ONION_CUT_C)
         rows[preset] = (pulse_numbers(run.t_s, model_c, ONION_CUT_C), model_c - run.temp_c)
     lines = [
-        f"Hotend: onionheater no-fan pulse ({ONION_LOG.format(run.name)}, {run.t_s[0]:.2f}..{run.t_s[-1]:.2f} s)",
+        f"Hotend: onionheater no-fan pulse ({ONION_LOG.format(run.label)}, {run.t_s[0]:.2f}..{run.t_s[-1]:.2f} s)",
         f"  open loop: ambient {ONION_AMBIENT_C} C, every node at the log's first reading {run.temp_c[0]:.2f} C,",
         f"  full power until the sensor reads >= {ONION_CUT_C} C at a sample instant (0.3 s), then off",
         f"  {'':36}" + "".join(f"{name:>18}" for name in rows),
@@ -173,25 +153,23 @@ def hotend_report() -> list[str]:
         lines.append(f"  {label:36}{'-':>18}" + "".join(f"{stat(err):>18.2f}" for _, err in list(rows.values())[1:]))
     lines.append("  hotend_cartridge with each run's logged heater input (ambient 21.4 C, fan runs at fan = 1):")
     for note, run in onion_runs():
-        err = replay(onion_plant(run), run.t_s, run.pwm) - run.temp_c
+        err = replay(onion_plant(run), run.t_s, run.duty) - run.temp_c
         loss_name = "fan_ambient_xfer_w_k" if run.fan else "ambient_xfer_w_k"
-        loss, _ = _fit(onion_plant, {loss_name: 0.09}, [run])
-        lines.append(f"    {run.name:19}{run.t_s[0]:7.1f}..{run.t_s[-1]:6.1f} s  RMSE {rms(err):5.2f} C"
+        loss = fit_plants(onion_plant, {loss_name: 0.09}, [run]).values
+        lines.append(f"    {run.label:19}{run.t_s[0]:7.1f}..{run.t_s[-1]:6.1f} s  RMSE {rms(err):5.2f} C"
                      f"  max {np.max(np.abs(err)):5.2f} C  {loss_name} alone: {loss[loss_name]:.4f} W/K  {note}")
     return lines
 
 
-def bed_run() -> tuple[Run, dict[str, np.ndarray]]:
-    """The chesleavens bed heat-up window, and the whole log."""
-    log = read_log(BED_LOG)
-    session = log["session"] == 0
-    t_s, temp_c, pwm = log["t_host_s"][session], log["heater_bed_temp"][session], log["heater_bed_pwm"][session]
-    start_s = t_s[np.argmax(pwm > 0)]
-    keep = (t_s >= start_s) & (t_s <= start_s + BED_WINDOW_S)
-    return Run("chesleavens bed", t_s[keep], temp_c[keep], pwm[keep], 0.0), log
+def bed_run() -> Segment:
+    """The chesleavens bed heat-up window: its first session, from the heater's first line."""
+    bed = parse_klipper_stats_csv(logs_dir() / BED_LOG).sessions[0]["heater_bed"]
+    start_s = bed.t_s[np.argmax(bed.pwm > 0)]
+    keep = (bed.t_s >= start_s) & (bed.t_s <= start_s + BED_WINDOW_S)
+    return Segment("chesleavens bed", bed.t_s[keep], bed.temp_c[keep], bed.pwm[keep])
 
 
-def bed_plant(run: Run, **params):
+def bed_plant(run: Segment, **params):
     return make_plant("bed", ambient_c=BED_AMBIENT_C, initial_c=run.temp_c[0], **params)
 
 
@@ -207,8 +185,8 @@ def heat_up(plant, duty: float = 1.0, limit_s: float = 3600.0) -> tuple[np.ndarr
 
 
 def bed_report() -> list[str]:
-    run, log = bed_run()
-    err = replay(bed_plant(run), run.t_s, run.pwm) - run.temp_c
+    run, log = bed_run(), read_log(BED_LOG)  # the CSV's own session numbers label the holds
+    err = replay(bed_plant(run), run.t_s, run.duty) - run.temp_c
     full_t_s, full_c = heat_up(bed_plant(run), limit_s=600.0)
     rate = BED_RATE_BAND_C
     lines = [
@@ -244,13 +222,15 @@ def bed_report() -> list[str]:
 def fit_report() -> list[str]:
     """The least-squares fits behind hotend_cartridge and bed, and the MK3 loss solve."""
     runs = [run for _, run in onion_runs()]
-    onion, onion_rms = _fit(onion_plant, ONION_FIT_START, runs[:1])
-    profile = {capacity_j_k: _fit(lambda run, **p: onion_plant(run, cartridge_heat_capacity_j_k=capacity_j_k, **p),
-                                  ONION_FIT_START, runs[:1])[1] for capacity_j_k in ONION_CARTRIDGE_PROFILE_J_K}
-    fan_runs = [run for run in runs if run.fan]
-    fan, fan_rms = _fit(lambda run, **p: onion_plant(run, **onion, **p), {"fan_ambient_xfer_w_k": 0.09}, fan_runs)
-    bed_log, _ = bed_run()
-    bed, bed_rms = _fit(bed_plant, BED_FIT_START, [bed_log])
+    onion_fit = fit_plants(onion_plant, ONION_FIT_START, runs[:1])
+    onion, onion_rms = onion_fit.values, onion_fit.rmse_c
+    profile = {capacity: fit_plants(lambda run, **p: onion_plant(run, cartridge_heat_capacity_j_k=capacity, **p),
+                                    ONION_FIT_START, runs[:1]).rmse_c for capacity in ONION_CARTRIDGE_PROFILE_J_K}
+    fan_fit = fit_plants(lambda run, **p: onion_plant(run, **onion, **p), {"fan_ambient_xfer_w_k": 0.09},
+                         [run for run in runs if run.fan])
+    fan, fan_rms = fan_fit.values, fan_fit.rmse_c
+    bed_fit = fit_plants(bed_plant, BED_FIT_START, [bed_run()])
+    bed, bed_rms = bed_fit.values, bed_fit.rmse_c
 
     def mk3_error_s(loss_w_k: float) -> float:
         t_s, temp_c = heat_up(make_plant("bed_mk3", ambient_c=MK3_AMBIENT_C, ambient_xfer_w_k=loss_w_k,
@@ -270,20 +250,6 @@ def fit_report() -> list[str]:
         + [f"  {name} = {value:.4g}" for name, value in bed.items()] + [f"  RMSE {bed_rms:.2f} C"]
         + [f"bed_mk3: ambient_xfer_w_k = {mk3_loss:.4f} (100 C at {MK3_TIME_TO_100_S:.0f} s, duty 220/255)"]
     )
-
-
-def _fit(make, start: dict[str, float], runs: list[Run]) -> tuple[dict[str, float], float]:
-    """Least squares on the logarithms of the parameters over runs with their logged pwm; (values, RMSE).
-
-    ``make(run, **params)`` builds the plant for a run.
-    """
-
-    def residual(z):
-        params = dict(zip(start, np.exp(z)))
-        return np.concatenate([replay(make(run, **params), run.t_s, run.pwm) - run.temp_c for run in runs])
-
-    sol = scipy.optimize.least_squares(residual, np.log(list(start.values())), x_scale=0.1)
-    return dict(zip(start, np.exp(sol.x))), rms(sol.fun)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,0 +1,64 @@
+"""tools/compare.py, tools/compare_cli.py and tools/validation.py on the real hardware logs.
+
+The logs come from hardware_logs_dir(): a missing folder fails these tests (never skips them).
+"""
+
+import math
+
+import pytest
+
+from tools import compare, compare_cli, validation
+from tools.logs import hardware_logs_dir
+
+CHES = "klippy_stats_chesleavens_cartesian_stm32f103.csv"
+
+
+@pytest.fixture(scope="module")
+def logs():
+    return hardware_logs_dir()
+
+
+def test_open_loop_check_gives_finite_numbers(logs):
+    r = compare.open_loop_check(logs, both_ways=False)
+    assert math.isfinite(r.fit_rmse_c) and r.fit_rmse_c < 3.0  # the no-fan fit itself is good
+    (row,) = r.rows
+    assert row["predicted"] == compare.ONION_FAN_TEST
+    for key in ("fan_xfer_w_k", "fit_rmse_c", "rmse_c", "max_err_c", "peak_twin_c"):
+        assert math.isfinite(row[key]), key
+    assert row["fan_xfer_w_k"] > 0 and row["max_err_c"] >= row["rmse_c"] > 0
+
+
+def test_closed_loop_replay_chesleavens_bed(logs):
+    r = compare.closed_loop_check(logs / CHES, "heater_bed")
+    assert r.info.kp == pytest.approx(54.027) and r.info.sensor == "EPCOS 100K B57560G104F"
+    assert r.shutdown is None
+    for m in (r.log, r.twin):
+        for value in (m.heatup_s, m.overshoot_c, m.hold_rms_c, m.steady_pwm):
+            assert math.isfinite(value)
+    assert math.isfinite(r.hold_rmse_c) and set(r.checks) == {"heat-up", "overshoot", "hold"}
+    assert 60.0 < r.log.heatup_s < 200.0  # README: 26 -> 65 C in ~128 s
+
+
+def test_autotune_cross_check_returns_tu(logs):
+    r = compare.autotune_check(logs / CHES, "extruder")
+    assert r.tu_log_s == pytest.approx(2 * 29.229 / 3.360)
+    assert math.isfinite(r.tu_twin_s) and r.tu_twin_s > 0
+
+
+@pytest.mark.parametrize("name", ["m303_hotend_C1_degenerate_marlin6316.txt",
+                                  "rrf_m303_fopdt_models_prusa_mk3s_duet3.txt",
+                                  "klipper_pid_calibrate_results_collection.txt"])
+def test_twin_compare_unusable_exits_2(logs, name, capsys):
+    assert compare_cli.main([str(logs / name)]) == 2
+    err = capsys.readouterr().err
+    assert "not usable" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_twin_compare_missing_file_exits_2(tmp_path, capsys):
+    assert compare_cli.main([str(tmp_path / "nope.csv")]) == 2
+    assert "not usable" in capsys.readouterr().err
+
+
+def test_validation_doc_is_up_to_date(logs):
+    assert validation.DOC.read_text() == validation.render(logs), \
+        "docs/validation.md is stale: run python -m tools.validation"

@@ -1,0 +1,495 @@
+"""Twin against real hardware logs (shared/hardware_logs, README sections A, B, E): three checks.
+
+1. ``open_loop_check``: the onionheater hotend fitted (three_node, ambient 21.4 C) on the no-fan
+   pulse test's first pulse, then the two part-fan runs predicted with one added parameter, the
+   fan-on loss coefficient (fan_ambient_xfer_w_k), fitted on one fan run and tested on the other.
+2. ``closed_loop_check``: a Klipper Stats printer's heater: two_node fitted on one heat-up segment,
+   then KlipperTwin with the printer's own gains, max_power, thermistor, pullup, smooth_time and
+   pwm_cycle_time replays the logged targets of another heat-up (or the same one when the log has
+   only one); heat-up time to target-2 C, overshoot, hold RMSE (twin - log) and steady pwm.
+3. ``autotune_check``: KlipperTwin.pid_calibrate on that fitted plant, Tu against the printer's
+   saved calibration (Tu = 2 Kp / Ki).
+
+Every function raises LogError / NotFittable / Unusable with one sentence when a log cannot serve.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import scipy.optimize
+
+from firmware_port.klipper import HeaterConfig
+from firmware_port.klipper.heater import (
+    CommandError,
+    MIN_PWM_CHANGE_BEFORE_2026_03,
+    PWM_RESEND_2025_04,
+    PWM_RESEND_BEFORE_2025_04,
+)
+from firmware_port.thermistor import KLIPPER_SENSORS
+from tools.identify import (
+    MIN_HEATUP_S,
+    FitResult,
+    fit_model,
+    log_segments,
+    zoh_response,
+)
+from tools.logs import (
+    HeattestLog,
+    StatsLog,
+    hardware_logs_dir,
+    load_log,
+    parse_heattest,
+)
+from twin.klipper_twin import PULLUP_OHM, PWM_CYCLE_TIME_S, HeaterSetup, KlipperTwin
+from twin.plants import Plant
+
+ONION_AMBIENT_C = 21.4  # the author's room temperature (README B)
+ONION_NO_FAN = "klipper_heattest_onionheater_heattest_200.csv"
+ONION_FAN_FIT = "klipper_heattest_onionheater_heattest_fan_200.csv"
+ONION_FAN_TEST = "klipper_heattest_onionheater_heattest_fan_200_2.csv"
+ONION_FILES = (ONION_NO_FAN, ONION_FAN_FIT, ONION_FAN_TEST, "klipper_heattest_onionheater_sample_trace.csv")
+
+GOAL_OPEN_LOOP_RMSE_C = 3.0
+GOAL_HEATUP_REL = 0.10
+GOAL_OVERSHOOT_C = 1.5
+GOAL_HOLD_RMSE_C = 1.0
+GOAL_TU_REL = 0.15
+
+NEAR_TARGET_C = 2.0  # heat-up time: to target - this
+STEADY_LAST_S = 60.0
+HOLD_S = 300.0  # a replay runs this long after the log first reaches target - 2 C (or to a target change)  # steady pwm: the mean over the last this-many seconds of the hold
+
+FALLBACK_SENSOR = "Generic 3950"  # for a custom thermistor table the twin does not have (a B3950)
+CALIBRATION_TARGET_C = {"extruder": 200.0, "heater_bed": 60.0}  # not stated in any log here
+
+# The Stats printers (README A); (file, heater) pairs for the closed-loop and autotune checks.
+STATS_FILES = (
+    "klippy_stats_chesleavens_cartesian_stm32f103.csv",
+    "klippy_stats_shreypatel_cartesian_stm32f407.csv",
+    "klippy_stats_ianryeng_corexy_ebbcan.csv",
+    "klippy_stats_icodextrin_ender5_creality427.csv",
+    "klippy_stats_jc1rb_manta_m8p.csv",
+    "klippy_stats_claudermilk_rp2040_umbilical.csv",
+    "klippy_stats_jakew02_redoubt_longprint.csv",
+    "klippy_stats_pdegrazia_kingroon_kp3s_a.csv",
+    "klippy_stats_pdegrazia_kingroon_kp3s_b.csv",
+)
+HEATERS = ("extruder", "heater_bed")
+# README E: the self-consistent pairs (a heat-up trace and a PID_CALIBRATE result in the same log)
+AUTOTUNE_PAIRS = (
+    ("klippy_stats_chesleavens_cartesian_stm32f103.csv", "extruder"),
+    ("klippy_stats_chesleavens_cartesian_stm32f103.csv", "heater_bed"),
+    ("klippy_stats_ianryeng_corexy_ebbcan.csv", "extruder"),
+    ("klippy_stats_ianryeng_corexy_ebbcan.csv", "heater_bed"),
+    ("klippy_stats_icodextrin_ender5_creality427.csv", "extruder"),
+    ("klippy_stats_icodextrin_ender5_creality427.csv", "heater_bed"),
+    ("klippy_stats_jc1rb_manta_m8p.csv", "extruder"),
+    ("klippy_stats_claudermilk_rp2040_umbilical.csv", "extruder"),
+    ("klippy_stats_claudermilk_rp2040_umbilical.csv", "heater_bed"),
+    ("klippy_stats_jakew02_redoubt_longprint.csv", "extruder"),
+    ("klippy_stats_jakew02_redoubt_longprint.csv", "heater_bed"),
+)
+
+
+class Unusable(ValueError):
+    """A log (or heater of one) this check cannot use; the message says why."""
+
+
+def rel_err(twin: float, log: float) -> float:
+    return (twin - log) / log if log else math.inf
+
+
+def _finite(x: float | None) -> bool:
+    return x is not None and math.isfinite(x)
+
+
+# --- 1. open loop ------------------------------------------------------------------------------
+
+
+@dataclass
+class OpenLoopResult:
+    fit: FitResult  # three_node on the no-fan first pulse
+    fit_segment: str
+    fit_rmse_c: float
+    fit_max_err_c: float
+    # one row per direction: fan coefficient fitted on run "fitted_on", predicted run "predicted"
+    rows: list[dict] = field(default_factory=list)
+    traces: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)  # t, log, twin
+
+
+def _fan_response(fit: FitResult, fan_xfer_w_k: float, log: HeattestLog) -> np.ndarray:
+    spec = replace(fit.spec(), fan_ambient_xfer_w_k=float(fan_xfer_w_k))
+    plant = Plant(fit.model, spec, fit.values["ambient_c"], float(log.temp_c[0]))
+    plant.set_inputs(1.0, 0.0, fit.values["ambient_c"])
+    return zoh_response(plant, log.t_s, log.pwm)
+
+
+def _fit_fan(fit: FitResult, log: HeattestLog) -> float:
+    a = fit.values["ambient_xfer_w_k"]
+    best = scipy.optimize.minimize_scalar(
+        lambda f: float(np.mean(np.square(_fan_response(fit, f, log) - log.temp_c))),
+        bounds=(0.5 * a, 6.0 * a), method="bounded", options={"xatol": 1e-4})
+    return float(best.x)
+
+
+def _errors(pred: np.ndarray, logged: np.ndarray) -> tuple[float, float]:
+    err = pred - logged
+    return float(np.sqrt(np.mean(err ** 2))), float(np.max(np.abs(err)))
+
+
+def open_loop_check(logs_dir: Path | None = None, model: str = "three_node",
+                    both_ways: bool = True) -> OpenLoopResult:
+    """Fit on the no-fan first pulse; fit the fan coefficient on one fan run and predict the other
+    over the whole run (both ways round unless both_ways is False)."""
+    logs_dir = hardware_logs_dir() if logs_dir is None else Path(logs_dir)
+    no_fan = parse_heattest(logs_dir / ONION_NO_FAN)
+    _, segments = log_segments(no_fan)
+    seg = segments[0]
+    fit = fit_model(model, seg.t_s, seg.temp_c, seg.duty, ONION_AMBIENT_C)
+    result = OpenLoopResult(fit, seg.label, *_errors(fit.simulate(seg.t_s, seg.duty), seg.temp_c))
+    result.traces[ONION_NO_FAN] = (seg.t_s, seg.temp_c, fit.simulate(seg.t_s, seg.duty))
+    fans = {name: parse_heattest(logs_dir / name) for name in (ONION_FAN_FIT, ONION_FAN_TEST)}
+    pairs = [(ONION_FAN_FIT, ONION_FAN_TEST)] + ([(ONION_FAN_TEST, ONION_FAN_FIT)] if both_ways else [])
+    for fitted_on, predicted in pairs:
+        f = _fit_fan(fit, fans[fitted_on])
+        own = _errors(_fan_response(fit, f, fans[fitted_on]), fans[fitted_on].temp_c)
+        log = fans[predicted]
+        pred = _fan_response(fit, f, log)
+        rmse, max_err = _errors(pred, log.temp_c)
+        result.rows.append({"fitted_on": fitted_on, "predicted": predicted, "fan_xfer_w_k": f,
+                            "no_fan_xfer_w_k": fit.values["ambient_xfer_w_k"], "fit_rmse_c": own[0],
+                            "rmse_c": rmse, "max_err_c": max_err, "peak_log_c": float(log.temp_c.max()),
+                            "peak_twin_c": float(pred.max()), "passed": rmse <= GOAL_OPEN_LOOP_RMSE_C})
+        result.traces.setdefault(predicted, (log.t_s, log.temp_c, pred))
+    return result
+
+
+# --- 2. closed loop ----------------------------------------------------------------------------
+
+
+@dataclass
+class HeaterInfo:
+    kp: float
+    ki: float
+    kd: float
+    max_power: float
+    sensor: str
+    sensor_note: str
+    pullup_ohm: float
+    smooth_time_s: float
+    pwm_cycle_time_s: float
+    min_temp_c: float
+    max_temp_c: float
+    pwm_resend: str
+
+
+def heater_info(log: StatsLog, heater: str) -> HeaterInfo:
+    cfg = log.meta["config"].get(heater)
+    if not cfg:
+        raise Unusable(f"no [{heater}] section in the log's config dump")
+    if cfg.get("control", "pid") != "pid" or not all(k in cfg for k in ("pid_kp", "pid_ki", "pid_kd")):
+        raise Unusable(f"[{heater}] is not PID-controlled with gains in the config dump")
+    sensor = cfg.get("sensor_type", "")
+    note = ""
+    if sensor not in KLIPPER_SENSORS:
+        note = f"'{sensor}' is a custom table the twin lacks: {FALLBACK_SENSOR} used"
+        sensor = FALLBACK_SENSOR
+    version = log.meta.get("klipper_version") or ""
+    # README A: v0.13.0-504 onward (ianryeng) MAX_HEAT_TIME 3 s; older 5 s
+    resend = PWM_RESEND_2025_04 if version.startswith("v0.13") else PWM_RESEND_BEFORE_2025_04
+    return HeaterInfo(float(cfg["pid_kp"]), float(cfg["pid_ki"]), float(cfg["pid_kd"]),
+                      float(cfg.get("max_power", 1.0)), sensor, note,
+                      float(cfg.get("pullup_resistor", PULLUP_OHM)), float(cfg.get("smooth_time", 1.0)),
+                      float(cfg.get("pwm_cycle_time", PWM_CYCLE_TIME_S)),
+                      float(cfg.get("min_temp", 0.0)), float(cfg.get("max_temp", 300.0)), resend)
+
+
+def make_setup(info: HeaterInfo, heater: str, plant) -> HeaterSetup:
+    config = HeaterConfig(heater, info.min_temp_c, info.max_temp_c, pid_kp=info.kp, pid_ki=info.ki, pid_kd=info.kd,
+                          max_power=info.max_power, smooth_time_s=info.smooth_time_s, pwm_resend=info.pwm_resend,
+                          min_pwm_change=MIN_PWM_CHANGE_BEFORE_2026_03)
+    return HeaterSetup(config, plant, info.sensor, info.pullup_ohm, min(info.pwm_cycle_time_s, config.pwm_delay_s))
+
+
+@dataclass
+class Window:
+    """One heat-up of the log: the gap-free samples from the target change to the segment's end."""
+
+    label: str
+    session: int
+    t_s: np.ndarray
+    target_c: np.ndarray
+    temp_c: np.ndarray
+    pwm: np.ndarray
+
+
+def _heatup_windows(log: StatsLog, heater: str) -> tuple[list, list[Window]]:
+    """The fit segments of a heater and, for those that are heat-ups (a run at max_power of
+    MIN_HEATUP_S or more to a target well above the start), the replay windows."""
+    try:
+        _, segments = log_segments(log, heater)
+    except ValueError as error:
+        raise Unusable(str(error)) from None
+    windows = []
+    for seg in segments:
+        if seg.full_power_s < MIN_HEATUP_S:
+            continue
+        for index, heaters in enumerate(log.sessions):
+            series = heaters.get(heater)
+            if series is None:
+                continue
+            for part in series.segments():
+                i = int(np.searchsorted(part.t_s, seg.t_s[0]))
+                if i >= len(part.t_s) or part.t_s[i] != seg.t_s[0] or part.temp_c[i] != seg.temp_c[0]:
+                    continue
+                j = i + len(seg.t_s)
+                target = part.target_c[j - 1]
+                # extend to the hold: while the target stays, up to HOLD_S after the first reach
+                reach = np.flatnonzero((part.temp_c[i:] >= target - NEAR_TARGET_C)
+                                       | (part.target_c[i:] != target))
+                end_s = part.t_s[i + int(reach[0])] + HOLD_S if reach.size else part.t_s[-1]
+                while j < len(part.t_s) and part.target_c[j] == target and part.t_s[j] <= end_s:
+                    j += 1
+                start = i
+                while start > 0 and part.target_c[start - 1] == target:
+                    start -= 1
+                start = max(start, i - 30)  # the target set at most ~30 s before full power
+                if target - part.temp_c[start] < 10.0 or part.target_c[start] != target:
+                    continue
+                if not np.any(part.temp_c[start:j] >= target - NEAR_TARGET_C):
+                    continue  # the log never reaches this target: nothing to compare
+                windows.append(Window(f"session {index}, {part.t_s[start]:.0f}..{part.t_s[j - 1]:.0f} s", index,
+                                      part.t_s[start:j], part.target_c[start:j], part.temp_c[start:j],
+                                      part.pwm[start:j]))
+    return segments, windows
+
+
+@dataclass
+class ReplayMetrics:
+    heatup_s: float  # from the target change to target - 2 C
+    overshoot_c: float  # max temp - target after reaching target - 2 C
+    hold_rms_c: float  # temp about the target during the hold (each trace on its own)
+    steady_pwm: float  # mean pwm over the last STEADY_LAST_S of the hold
+
+
+def replay_metrics(t_s, temp_c, pwm, target_c: float) -> ReplayMetrics:
+    t, temp, pwm = (np.asarray(a, float) for a in (t_s, temp_c, pwm))
+    reached = np.flatnonzero(temp >= target_c - NEAR_TARGET_C)
+    if not reached.size:
+        return ReplayMetrics(math.nan, math.nan, math.nan, float(np.mean(pwm[t >= t[-1] - STEADY_LAST_S])))
+    k = int(reached[0])
+    if k > 0:  # interpolate the crossing
+        y0, y1 = temp[k - 1], temp[k]
+        heatup = t[k - 1] + (t[k] - t[k - 1]) * (target_c - NEAR_TARGET_C - y0) / (y1 - y0) - t[0]
+    else:
+        heatup = 0.0
+    hold = t >= t[k]
+    return ReplayMetrics(float(heatup), float(np.max(temp[hold]) - target_c),
+                         float(np.sqrt(np.mean((temp[hold] - target_c) ** 2))),
+                         float(np.mean(pwm[hold & (t >= t[-1] - STEADY_LAST_S)])))
+
+
+@dataclass
+class ClosedLoopResult:
+    file: str
+    heater: str
+    fit: FitResult
+    fit_label: str
+    replay_label: str
+    same_segment: bool
+    info: HeaterInfo
+    log: ReplayMetrics
+    twin: ReplayMetrics
+    hold_rmse_c: float  # twin - log over the hold (the log's samples from its first reach of target - 2 C)
+    target_c: float
+    shutdown: str | None
+    trace: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # t, log temp, twin temp, log pwm, twin pwm
+
+    @property
+    def heatup_rel(self) -> float:
+        return rel_err(self.twin.heatup_s, self.log.heatup_s)
+
+    @property
+    def overshoot_diff_c(self) -> float:
+        return self.twin.overshoot_c - self.log.overshoot_c
+
+    @property
+    def checks(self) -> dict[str, bool]:
+        return {"heat-up": _finite(self.heatup_rel) and abs(self.heatup_rel) <= GOAL_HEATUP_REL,
+                "overshoot": _finite(self.overshoot_diff_c) and abs(self.overshoot_diff_c) <= GOAL_OVERSHOOT_C,
+                "hold": _finite(self.hold_rmse_c) and self.hold_rmse_c <= GOAL_HOLD_RMSE_C}
+
+
+def fit_heater(log: StatsLog, heater: str, model: str = "two_node") -> tuple[FitResult, object, list[Window]]:
+    """two_node on the heat-up segment with the most time at max_power; the replay windows."""
+    segments, windows = _heatup_windows(log, heater)
+    if not windows:
+        raise Unusable(f"{heater}: no heat-up (a run at max_power of {MIN_HEATUP_S:g} s or more to a new "
+                       "target at least 10 C above the start)")
+    heatups = [s for s in segments if s.full_power_s >= MIN_HEATUP_S and not s.cools_at_full_power]
+    seg = max(heatups, key=lambda s: (s.temp_c.max() - s.temp_c[0]))
+    try:
+        fit = fit_model(model, seg.t_s, seg.temp_c, seg.duty)
+    except ValueError as error:
+        raise Unusable(f"{heater}: the fit failed: {error}") from None
+    return fit, seg, windows
+
+
+def replay(fit: FitResult, info: HeaterInfo, heater: str, window: Window):
+    """KlipperTwin through the window's targets from the window's first reading; twin at the log's instants."""
+    t0 = float(window.t_s[0])
+    plant = Plant(fit.model, fit.spec(), fit.values["ambient_c"], float(window.temp_c[0]))
+    twin = KlipperTwin([make_setup(info, heater, plant)])
+    rel = window.t_s - t0
+    twin.schedule_targets(heater, rel, window.target_c)
+    twin.run_until(float(rel[-1]) + 0.01)
+    rt, rtemp, rpwm = (twin.column(heater, f) for f in ("t_s", "temp_c", "pwm"))
+    idx = np.searchsorted(rt, rel, side="right") - 1
+    ok = idx >= 0
+    twin_temp = np.where(ok, rtemp[np.maximum(idx, 0)], window.temp_c[0])
+    twin_pwm = np.where(ok, rpwm[np.maximum(idx, 0)], 0.0)
+    return twin_temp, twin_pwm, twin.shutdown_message
+
+
+def closed_loop_check(path: str | Path, heater: str) -> ClosedLoopResult:
+    path = Path(path)
+    log = load_log(path)
+    if not isinstance(log, StatsLog):
+        raise Unusable("not a Klipper Stats log")
+    info = heater_info(log, heater)
+    fit, seg, windows = fit_heater(log, heater)
+    fit_label = seg.label
+    seg_session = int(seg.label.split(",")[0].split()[1])
+    others = [w for w in windows if w.session != seg_session or w.t_s[-1] < seg.t_s[0] or w.t_s[0] > seg.t_s[-1]]
+    same = not others
+    window = (others or windows)[0]
+    target = float(window.target_c[-1])
+    twin_temp, twin_pwm, shutdown = replay(fit, info, heater, window)
+    rel = window.t_s - window.t_s[0]
+    log_m = replay_metrics(rel, window.temp_c, window.pwm, target)
+    twin_m = replay_metrics(rel, twin_temp, twin_pwm, target)
+    reached = np.flatnonzero(window.temp_c >= target - NEAR_TARGET_C)
+    hold = slice(int(reached[0]) if reached.size else len(rel), None)
+    err = twin_temp[hold] - window.temp_c[hold]
+    hold_rmse = float(np.sqrt(np.mean(err ** 2))) if err.size else math.nan
+    return ClosedLoopResult(path.name, heater, fit, fit_label, window.label, same, info, log_m, twin_m, hold_rmse,
+                            target, shutdown, (rel, window.temp_c, twin_temp, window.pwm, twin_pwm))
+
+
+# --- 3. autotune -------------------------------------------------------------------------------
+
+
+@dataclass
+class AutotuneResult:
+    file: str
+    heater: str
+    target_c: float
+    tu_log_s: float  # 2 Kp / Ki of the printer's saved gains
+    tu_twin_s: float
+    p2p_log_c: float
+    p2p_twin_c: float
+    twin_gains: tuple[float, float, float]
+
+    @property
+    def tu_rel(self) -> float:
+        return rel_err(self.tu_twin_s, self.tu_log_s)
+
+    @property
+    def passed(self) -> bool:
+        return _finite(self.tu_rel) and abs(self.tu_rel) <= GOAL_TU_REL
+
+
+def autotune_check(path: str | Path, heater: str, fit: FitResult | None = None,
+                   model: str = "two_node") -> AutotuneResult:
+    path = Path(path)
+    log = load_log(path)
+    if not isinstance(log, StatsLog):
+        raise Unusable("not a Klipper Stats log")
+    info = heater_info(log, heater)
+    if fit is None:
+        fit, _, _ = fit_heater(log, heater, model)
+    target = CALIBRATION_TARGET_C[heater]
+    ambient = fit.values["ambient_c"]
+    plant = Plant(fit.model, fit.spec(), ambient, ambient)
+    twin = KlipperTwin([make_setup(info, heater, plant)])
+    try:
+        result = twin.pid_calibrate(heater, target)
+    except CommandError as error:  # e.g. verify_heater or the ADC range check stopped the twin
+        why = f"; {twin.shutdown_message.splitlines()[0]}" if twin.shutdown_message else ""
+        raise Unusable(f"PID_CALIBRATE at {target} C did not finish in the twin: {error}{why}") from None
+    p2p_log = 8.0 * info.max_power * 0.6 * 255.0 / (math.pi * info.kp)
+    return AutotuneResult(path.name, heater, target, 2.0 * info.kp / info.ki, result.tu_s, p2p_log,
+                          result.peak_to_peak_c, (result.kp, result.ki, result.kd))
+
+
+# --- tables (markdown) -------------------------------------------------------------------------
+
+
+def _f(x: float | None, fmt: str = ".2f") -> str:
+    return "n/a" if x is None or not math.isfinite(x) else format(x, fmt)
+
+
+def _pm(ok: bool) -> str:
+    return "pass" if ok else "**miss**"
+
+
+def open_loop_table(r: OpenLoopResult) -> str:
+    v = r.fit.values
+    lines = [(f"Fit ({r.fit.model}, ambient {ONION_AMBIENT_C} C, power held at {v['power_w']:g} W) on "
+             f"`{ONION_NO_FAN}` {r.fit_segment}: RMSE {r.fit_rmse_c:.2f} C, max error {r.fit_max_err_c:.2f} C; "
+             f"no-fan loss A = {v['ambient_xfer_w_k']:.4f} W/K, block C = {v['block_heat_capacity_j_k']:.2f} J/K, "
+             f"sensor R = {v['sensor_responsiveness_per_s']:.4f} /s, cartridge G = {v['cartridge_xfer_w_k']:.4f} W/K."),
+             "",
+             ("| fan coefficient fitted on | predicted run (whole run) | fan loss F (W/K) | F/A | RMSE on fitted run (C) "
+             "| RMSE (C) | max error (C) | peak log / twin (C) | goal RMSE <= 3 C |"),
+             "|---|---|---|---|---|---|---|---|---|"]
+    for row in r.rows:
+        lines.append(f"| `{row['fitted_on']}` | `{row['predicted']}` | {row['fan_xfer_w_k']:.4f} | "
+                     f"{row['fan_xfer_w_k'] / row['no_fan_xfer_w_k']:.2f} | {row['fit_rmse_c']:.2f} | "
+                     f"{row['rmse_c']:.2f} | {row['max_err_c']:.2f} | {row['peak_log_c']:.1f} / "
+                     f"{row['peak_twin_c']:.1f} | {_pm(row['passed'])} |")
+    return "\n".join(lines)
+
+
+CLOSED_HEADER = ("| log | heater | fit segment | replayed heat-up | target (C) | heat-up to target-2 log / twin (s) "
+                 "| error | overshoot log / twin (C) | hold RMSE twin-log (C) | steady pwm log / twin "
+                 "| heat-up <= 10 % | overshoot <= 1.5 C | hold <= 1 C | notes |\n"
+                 "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+
+
+def closed_loop_row(r: ClosedLoopResult) -> str:
+    c = r.checks
+    notes = []
+    if r.same_segment:
+        notes.append("only one heat-up: replayed the fitted one")
+    if r.info.sensor_note:
+        notes.append(r.info.sensor_note)
+    if r.shutdown:
+        notes.append(f"twin shut down: {r.shutdown}")
+    if not _finite(r.twin.heatup_s):
+        notes.append("twin never reaches target-2 C")
+    return (f"| `{r.file}` | {r.heater} | {r.fit_label} | {r.replay_label} | {r.target_c:g} | "
+            f"{_f(r.log.heatup_s, '.1f')} / {_f(r.twin.heatup_s, '.1f')} | {_f(100 * r.heatup_rel, '+.1f')} % | "
+            f"{_f(r.log.overshoot_c, '.1f')} / {_f(r.twin.overshoot_c, '.1f')} | {_f(r.hold_rmse_c)} | "
+            f"{_f(r.log.steady_pwm, '.3f')} / {_f(r.twin.steady_pwm, '.3f')} | {_pm(c['heat-up'])} | "
+            f"{_pm(c['overshoot'])} | {_pm(c['hold'])} | {'; '.join(notes)} |")
+
+
+def unusable_row(file: str, heater: str, why: str, columns: int) -> str:
+    return f"| `{file}` | {heater} | not usable: {why} |" + " |" * (columns - 3)
+
+
+AUTOTUNE_HEADER = ("| log | heater | PID_CALIBRATE target (C) | Tu saved 2Kp/Ki (s) | Tu twin (s) | error "
+                   "| peak-to-peak saved / twin (C) | twin gains Kp / Ki / Kd | goal Tu within 15 % |\n"
+                   "|---|---|---|---|---|---|---|---|---|")
+
+
+def autotune_row(r: AutotuneResult) -> str:
+    kp, ki, kd = r.twin_gains
+    return (f"| `{r.file}` | {r.heater} | {r.target_c:g} (assumed) | {r.tu_log_s:.1f} | {r.tu_twin_s:.1f} | "
+            f"{100 * r.tu_rel:+.1f} % | {r.p2p_log_c:.1f} / {r.p2p_twin_c:.1f} | {kp:.3f} / {ki:.3f} / {kd:.3f} | "
+            f"{_pm(r.passed)} |")

@@ -1,0 +1,107 @@
+"""twin-compare LOG [--plot FILE]: the twin against one hardware log (tools/compare.py).
+
+A Klipper Stats log: the closed-loop replay and the PID_CALIBRATE cross-check for each heater
+with a heat-up. An onionheater heattest (with its sibling runs in the same folder): the open-loop
+fan prediction. Prints the error table(s); --plot writes logged vs twin with matplotlib.
+A log that no check can use: one message on stderr, exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from tools import compare
+from tools.identify import NotFittable
+from tools.logs import HeattestLog, LogError, StatsLog, load_log
+
+EXIT_UNUSABLE = 2
+
+
+def _stats(path: Path, log: StatsLog):
+    closed, tunes, lines = [], [], [compare.CLOSED_HEADER]
+    tune_lines = [compare.AUTOTUNE_HEADER]
+    for heater in compare.HEATERS:
+        if not any(heater in s for s in log.sessions):
+            continue
+        try:
+            r = compare.closed_loop_check(path, heater)
+        except (compare.Unusable, NotFittable) as error:
+            lines.append(compare.unusable_row(path.name, heater, str(error), 14))
+            continue
+        closed.append(r)
+        lines.append(compare.closed_loop_row(r))
+        try:
+            t = compare.autotune_check(path, heater, fit=r.fit)
+        except (compare.Unusable, ValueError) as error:
+            tune_lines.append(compare.unusable_row(path.name, heater, str(error), 9))
+            continue
+        tunes.append(t)
+        tune_lines.append(compare.autotune_row(t))
+    if not closed:
+        raise compare.Unusable("no heater of this Klipper log has a heat-up to replay")
+    text = "Closed-loop replay\n\n" + "\n".join(lines) + "\n\nPID_CALIBRATE cross-check\n\n" + "\n".join(tune_lines)
+    return text, [(f"{r.heater}: {r.replay_label}", r.trace) for r in closed]
+
+
+def _heattest(path: Path):
+    if path.name not in compare.ONION_FILES or not all((path.parent / f).is_file() for f in compare.ONION_FILES[:3]):
+        raise compare.Unusable("the open-loop check needs the onionheater no-fan and fan heattests side by side "
+                               f"({', '.join(compare.ONION_FILES[:3])}); this heattest is not one of them")
+    r = compare.open_loop_check(path.parent)
+    traces = [(name, (t, logged, twin, None, None)) for name, (t, logged, twin) in r.traces.items()]
+    return "Open-loop prediction (onionheater)\n\n" + compare.open_loop_table(r), traces
+
+
+def _plot(file: str, traces) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(traces), 1, figsize=(10, 3.2 * len(traces)), squeeze=False)
+    for ax, (title, (t, logged, twin, log_pwm, twin_pwm)) in zip(axes[:, 0], traces):
+        ax.plot(t, logged, label="log", lw=1.2)
+        ax.plot(t, twin, label="twin", lw=1.0)
+        ax.set_title(title, fontsize=9)
+        ax.set_ylabel("temp (C)")
+        if log_pwm is not None:
+            ax2 = ax.twinx()
+            ax2.step(t, log_pwm, where="post", color="C2", lw=0.6, label="pwm log")
+            ax2.step(t, twin_pwm, where="post", color="C3", lw=0.6, label="pwm twin")
+            ax2.set_ylim(0, 1.05)
+            ax2.set_ylabel("pwm")
+        ax.legend(loc="lower right", fontsize=8)
+    axes[-1, 0].set_xlabel("t (s)")
+    fig.tight_layout()
+    fig.savefig(file)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="twin-compare", description=__doc__.split("\n")[0])
+    parser.add_argument("log", type=Path)
+    parser.add_argument("--plot", metavar="FILE", help="write logged vs twin to FILE (png, pdf, svg)")
+    args = parser.parse_args(argv)
+    try:
+        log = load_log(args.log)
+        if isinstance(log, StatsLog):
+            text, traces = _stats(args.log, log)
+        elif isinstance(log, HeattestLog):
+            text, traces = _heattest(args.log)
+        else:
+            raise compare.Unusable(f"a {type(log).__name__ if not isinstance(log, list) else 'PID results list'}: "
+                                   "the checks need a Klipper Stats log or the onionheater heattests")
+    except (LogError, compare.Unusable, NotFittable, OSError, ValueError) as error:
+        print(f"twin-compare: {args.log}: not usable: {error}", file=sys.stderr)
+        return EXIT_UNUSABLE
+    print(text)
+    if args.plot:
+        _plot(args.plot, traces)
+        print(f"plot written to {args.plot}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -29,14 +29,10 @@ from firmware_port.marlin.constants import ISR_PERIOD_S, TICKS_PER_READING, tick
 from firmware_port.marlin.protection import H_BED
 from firmware_port.marlin.serial import Console, format_float
 from firmware_port.thermistor import TEMP_ONE, c_to_q5
+from tools.logs import DEFAULT_LOGS, LOGS_ENV
 
 F32 = np.float32
-LOG_DIR = Path(
-    os.environ.get(
-        "HEATER_TWIN_HARDWARE_LOGS",
-        Path(__file__).resolve().parents[1].parent / "shared" / "hardware_logs",
-    )
-)
+LOG_DIR = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)  # checked by each test: missing logs fail
 # Repetier prints Ku from the full peak-to-peak swing, half of Marlin's Ku (it uses the same
 # Classic PID rule on it); see the Kp/Ku ratio of its log line.
 KU_DIVISOR = {"m303_hotend_repetier_davinci356.txt": 2}

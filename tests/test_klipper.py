@@ -42,13 +42,9 @@ from firmware_port.klipper.heater import (
     SAMPLE_TIME,
 )
 from firmware_port.klipper.pid_calibrate import ControlAutoTune
+from tools.logs import DEFAULT_LOGS, LOGS_ENV
 
-LOG_DIR = Path(
-    os.environ.get(
-        "HEATER_TWIN_HARDWARE_LOGS",
-        Path(__file__).resolve().parents[1].parent / "shared" / "hardware_logs",
-    )
-)
+LOG_DIR = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)  # checked by each test: missing logs fail
 COLLECTION = LOG_DIR / "klipper_pid_calibrate_results_collection.txt"
 
 

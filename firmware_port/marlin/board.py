@@ -97,7 +97,6 @@ class MarlinBoard:
         self.autotune: Autotune | None = None  # M303 in progress
         self.autotune_channel = HOTEND_CHANNEL
         self.autotune_apply = False  # M303 U1
-        self.last_autotune: Autotune | None = None  # the finished run, for M303's caller
 
     # -- the outside world's view -------------------------------------------------------
     @property
@@ -211,7 +210,6 @@ class MarlinBoard:
         )
         tune.start(self.now_ms)
         if tune.done:  # refused before disable_all_heaters()
-            self.last_autotune = tune
             return tune
         self.disable_all_heaters()
         self.autotune, self.autotune_channel, self.autotune_apply = tune, channel, apply
@@ -238,7 +236,7 @@ class MarlinBoard:
 
     def _end_autotune(self) -> None:
         self.pwm.set_amount(self.autotune_channel, self.autotune.amount)
-        self.last_autotune, self.autotune = self.autotune, None
+        self.autotune = None
 
     def kill_m112(self) -> None:
         """M112: kill(M112_KILL_STR) and halt."""

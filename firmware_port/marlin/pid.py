@@ -29,6 +29,7 @@ from firmware_port.marlin.constants import (
     DEFAULT_KP,
     PID_DT_S,
     PID_FUNCTIONAL_RANGE_C,
+    PID_K1,
     PID_MAX,
 )
 from firmware_port.thermistor import TEMP_FRAC_BITS
@@ -53,7 +54,7 @@ I_SUM_CAP_Q5 = 1 << 30
 # Derivative input saturation: |Kd_int * dT| <= 2**21 counts, far beyond any output, keeps the
 # filter state and (raw - state) inside int32 in Q.8.
 D_RAW_LIMIT_Q8 = 1 << (21 + OUT_FRAC_BITS)
-D_FILTER_DIVISOR = 20  # 1 - PID_K1 = 0.05 = 1/20 exactly
+D_FILTER_DIVISOR = int(1 / (1 - PID_K1))  # 1 - PID_K1 = 0.05 = 1/20 exactly
 
 
 @dataclass(frozen=True)

@@ -57,8 +57,3 @@ class Console:
     def lines(self) -> list[str]:
         """Completed lines written so far (a trailing partial line is left out)."""
         return self.text.split("\n")[:-1]
-
-    def take(self) -> str:
-        """Return and clear everything written so far."""
-        text, self.text = self.text, ""
-        return text

@@ -45,12 +45,10 @@ from datetime import datetime
 from pathlib import Path
 from typing import Literal
 
-from firmware_port.firmwares import FIRMWARES
 from protocol.printer import VirtualPrinter
 from protocol.settings import Eeprom
 from twin.build import build_twin
 from twin.linear import TICK_S
-from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import parse_scenario, scenario_for, with_overrides
 
 MAX: Literal["max"] = "max"
@@ -87,16 +85,9 @@ def build_printer(*, firmware: str = "pid", plant: str | None = None, bed_plant:
     ``scenario`` (a preset name or TOML file) brings faults, ambient and plant overrides;
     ``settings`` is the file M500 writes (the EEPROM), by default kept in memory only.
     """
-    if firmware not in FIRMWARES:
-        raise ValueError(f"unknown firmware {firmware!r}; choose from {', '.join(FIRMWARES)}")
     chosen = scenario_for(scenario) if scenario else SERIAL_SCENARIO
-    presets: dict[str, dict[str, float | str]] = {}
-    for heater, name in (("hotend", plant), ("bed", bed_plant)):
-        if name is None:
-            continue
-        if name not in PLANT_PRESETS:
-            raise ValueError(f"unknown plant {name!r}; choose from {', '.join(PLANT_PRESETS)}")
-        presets[heater] = {"preset": name}
+    # firmware and plant names are checked where they are used (build_controllers, make_plant)
+    presets = {heater: {"preset": name} for heater, name in (("hotend", plant), ("bed", bed_plant)) if name}
     if presets:
         chosen = with_overrides(chosen, plant=presets)
     if settings and not Path(settings).resolve().parent.is_dir():

@@ -1,0 +1,45 @@
+"""The contracts between the board and a heater controller, declared.
+
+The board calls a controller on each fresh reading (every 0.16384 s) with the temperature in
+celsius_q5 (int16 Q10.5, 1/32 degC), the target in whole degC and millis(); the controller
+returns its output on Marlin's 0..255 scale (``PID_MAX``), which the board shifts into the 7-bit
+soft PWM. A controller with ``check_interval_ms`` runs only that often on the bed (Marlin's
+bang-bang bed gate). A ``Tunable`` controller also takes PID gains (M301/M304, M303 U1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol, runtime_checkable
+
+from firmware_port.marlin.pid import PidGains
+
+OUTPUT_MAX = 255  # Marlin's PID_MAX: the top of every controller's output
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """What the board calls: ``update`` on a fresh reading, ``reset`` when control restarts."""
+
+    check_interval_ms: int | None
+
+    def reset(self) -> None: ...
+
+    def update(self, temp_q5: int, target_c: int, now_ms: int) -> int: ...
+
+
+@runtime_checkable
+class Tunable(Controller, Protocol):
+    """A controller with PID gains in user units (what M301/M304 set and M303 U1 applies)."""
+
+    gains: PidGains
+
+    def set_gains(self, gains: PidGains) -> None: ...
+
+
+# A controller instance, or a factory the board calls for a fresh one at each reset.
+ControllerSpec = Controller | Callable[[], Controller]
+
+
+def is_tunable(controller: object) -> bool:
+    return isinstance(controller, Tunable)

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+from firmware_port.controller import ControllerSpec
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
-from twin.engine import Twin
+from twin.engine import BOOT_S, Twin
 from twin.plants import make_plant
 from twin.scenario import Event, Scenario
 from twin.sensor import DETACHED, OPEN, SHORT
 
 CHANNELS = {"hotend": HOTEND_CHANNEL, "bed": BED_CHANNEL}
-BOOT_S = 2.0  # the board runs this long before scenario time 0
 DEFAULT_PRESETS = {"hotend": "hotend", "bed": "bed"}
 
 
@@ -17,12 +19,14 @@ def build_twin(
     scenario: Scenario,
     firmware: str = "pid",
     *,
+    controllers: Sequence[ControllerSpec | None] = (),
     with_bed: bool = True,
     engine: str = "fast",
     noise_lsb: float = 0.0,
     board_options: dict | None = None,
 ) -> Twin:
-    """A twin ready to run ``scenario``: plants from its [plant] tables, its events scheduled."""
+    """A twin ready to run ``scenario``: plants from its [plant] tables, its events scheduled;
+    ``controllers`` (per heater: an instance, a factory or None) replace the firmware's."""
     heaters = ("hotend", "bed") if with_bed else ("hotend",)
     plants = []
     for heater in heaters:
@@ -34,6 +38,7 @@ def build_twin(
     twin = Twin(
         plants,
         firmware,
+        controllers=controllers,
         seed=scenario.seed or 0,
         noise_lsb=noise_lsb,
         engine=engine,

@@ -21,9 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from firmware_port.marlin.constants import ISR_PERIOD_S
+from twin.clock import TICK_S
 
-TICK_S = float(ISR_PERIOD_S)
 SENSOR, BLOCK = 0, 1  # output rows
 
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
+from typing import Any, cast
 
 from firmware_port.controller import ControllerSpec
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
@@ -49,14 +51,15 @@ def build_twin(
     for event in scenario.events:
         if event.heater == "bed" and not with_bed:
             continue
-        twin.schedule(event.at_s, lambda tw, ev=event: apply_event(tw, ev))
+        twin.schedule(event.at_s, functools.partial(apply_event, event=event))
     return twin
 
 
 def apply_event(twin: Twin, event: Event) -> None:
     """What a scenario event does to the printer and its world, noted in the trace."""
-    channel = CHANNELS.get(event.heater) if event.heater else None
-    kind, value = event.kind, event.value
+    # parse_scenario checked each kind's heater and value types
+    channel: Any = CHANNELS.get(event.heater) if event.heater else None
+    kind, value = event.kind, cast(Any, event.value)
     if kind == "target":
         twin.board.set_target(channel, int(value))
     elif kind == "fan":

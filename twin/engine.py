@@ -120,7 +120,7 @@ class Twin:
         self.ambient_c = float(plants[0].d[0])
         self.heater_mode = [NORMAL] * len(plants)
         self.fan_failed = False
-        self._applied_inputs = None
+        self._applied_inputs: tuple[float, float, float] | None = None
         self.trace = Trace()
         self.recording = True  # trace rows and events (a serial session turns it off)
         self.console.listeners.append(self._console_to_trace)

@@ -316,7 +316,7 @@ class KlipperTwin:
         self.shutdown_time_s: float | None = None
         self._events = EventQueue()  # actions due at a time in seconds
         with self._klippy_logging():
-            self.channels = {}
+            self.channels: dict[str, _Channel] = {}
             for index, setup in enumerate(heaters):
                 channel = _Channel(index, setup, mcu)
                 if channel.name in self.channels:
@@ -542,7 +542,7 @@ class KlipperTwin:
         if self.halted:
             return
         try:
-            next_s = channel.verify.check_event(self.time_s)
+            next_s = channel.verify.check_event(self.time_s)  # type: ignore[union-attr]  # pushed only with a verify
         except HeaterFault as fault:
             self._shutdown(str(fault), str(fault))
             return

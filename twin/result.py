@@ -55,7 +55,11 @@ class HeaterRun:
         (else the first), on the firmware-measured temperature; one per lane for a batch.
         ``options`` go to step_metrics."""
         if self.lanes is not None:
-            return [self.lane(k).metrics(**options) for k in range(self.lanes)]
+            return [self.lane(k)._first_step(options) for k in range(self.lanes)]
+        return self._first_step(options)
+
+    def _first_step(self, options: dict) -> StepMetrics:
+        options = dict(options)
         spans = segments(self.t_s, self.target_c)
         start_s, end_s = next((span for span in spans if self.target_c[self.t_s >= span[0]][0] != 0), spans[0])
         return step_metrics(self.t_s, self.measured_c, self.target_c, self.duty,

@@ -341,7 +341,8 @@ class Autotune:
         heater = "bed" if self.is_bed else ""
         for name, value in zip(("Kp", "Ki", "Kd"), self.tune):
             self.console.writeln(f"{self.rules.define_prefix}{heater}{name} {format_float(value)}")
-        self.gains = tuple(float(value) for value in self.tune)
+        kp, ki, kd = self.tune
+        self.gains = (float(kp), float(ki), float(kd))
         self.succeeded = True
         self.done = True
 

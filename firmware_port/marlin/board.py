@@ -251,18 +251,20 @@ class MarlinBoard:
 
     def _run_autotune(self, fresh: bool) -> None:
         tune, channel = self.autotune, self.autotune_channel
+        assert tune is not None  # task() runs this only during M303
         tune.poll(self.now_ms, self.heaters[channel].temp_q5 if fresh else None)
         if self.halted:  # a temperature error inside M303 killed the board
             self.autotune = None
             return
         self.pwm.set_amount(channel, tune.amount)
         if tune.done:
-            if tune.succeeded and self.autotune_apply:
+            if tune.succeeded and self.autotune_apply and tune.gains is not None:
                 self.set_gains(channel, PidGains.clamped(*tune.gains))
             self._end_autotune()
 
     def _end_autotune(self) -> None:
-        self.pwm.set_amount(self.autotune_channel, self.autotune.amount)
+        if self.autotune is not None:
+            self.pwm.set_amount(self.autotune_channel, self.autotune.amount)
         self.autotune = None
 
     def kill_m112(self) -> None:

@@ -14,7 +14,8 @@ many ISRs at once from samples taken in bulk.
 
 from __future__ import annotations
 
-from typing import Protocol, Sequence
+from collections.abc import Sequence
+from typing import Protocol
 
 from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, OVERSAMPLENR
 

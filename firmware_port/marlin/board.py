@@ -28,6 +28,7 @@ from firmware_port.marlin.protection import (
 )
 from firmware_port.marlin.serial import Console, format_float
 from firmware_port.marlin.softpwm import SoftPwm
+from firmware_port.marlin.versions import DEFAULT_VERSION, MarlinVersion
 from firmware_port.thermistor import B3950_TABLE, TEMP_ONE, TempTable
 
 HOTEND_CHANNEL = 0
@@ -67,7 +68,7 @@ class MarlinBoard:
         hotend_table: TempTable = B3950_TABLE,
         bed_table: TempTable = B3950_TABLE,
         console: Console | None = None,
-        version: str = "2.1",
+        version: str = DEFAULT_VERSION,
     ):
         self.console = console if console is not None else Console()
         self.version = version
@@ -221,7 +222,7 @@ class MarlinBoard:
         return self.has_gains(channel)
 
     def start_autotune(self, channel: int, target_c: int, ncycles: int, apply: bool = False,
-                       version: str = "2.1") -> Autotune:
+                       version: str = DEFAULT_VERSION) -> Autotune:
         """M303: Marlin's relay autotune on one heater; the board runs it until it is done."""
         heater = self.heaters[channel]
         tune = Autotune(
@@ -306,7 +307,7 @@ class MarlinBoard:
 
     def _heater_on_version(self, heater: Heater) -> str:
         """The bed's MINTEMP looks at the target only, in every version."""
-        return "2.1" if heater.is_bed else self.version
+        return MarlinVersion.V2_1 if heater.is_bed else self.version
 
     def _manage_hotend(self, heater: Heater, now_ms: int) -> None:
         """manage_hotends(): MAXTEMP, runaway, the controller, then the heating watch."""

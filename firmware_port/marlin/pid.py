@@ -32,6 +32,7 @@ from firmware_port.marlin.constants import (
     PID_K1,
     PID_MAX,
 )
+from firmware_port.marlin.versions import MarlinVersion
 from firmware_port.thermistor import TEMP_FRAC_BITS
 
 KP_FRAC_BITS = 12  # kp_q12: int32 Q.12, Kp in user units (Kp is not scaled by PID_dT)
@@ -79,8 +80,8 @@ class PidGains:
 HOTEND_GAINS = PidGains(DEFAULT_KP, DEFAULT_KI, DEFAULT_KD)
 BED_GAINS = PidGains(DEFAULT_BED_KP, DEFAULT_BED_KI, DEFAULT_BED_KD)
 
-PREV_TEMP_EVERY_SAMPLE = "2.0.x"  # Marlin 2.0.x: previous temperature updated on every call
-PREV_TEMP_IN_BAND = "2.1.x"  # Marlin 2.1.x: only in band, so re-entering the band kicks D
+PREV_TEMP_EVERY_SAMPLE = MarlinVersion.V2_0  # Marlin 2.0.x: previous temperature updated on every call
+PREV_TEMP_IN_BAND = MarlinVersion.V2_1  # Marlin 2.1.x: only in band, so re-entering the band kicks D
 
 
 def _scaled(value: float, scale: Fraction, frac_bits: int) -> int:

@@ -1,7 +1,7 @@
 """Thermal plants: the hotends and beds the firmware heats, as named presets with their sources.
 
 Two model families, one builder each:
-- ``Lumped``: lumped thermal nodes with Marlin's MPC model as the template (reference section 8):
+- ``Lumped``: lumped thermal nodes with Marlin's MPC model as the template (Marlin 2.1.x Marlin/src/module/temperature.cpp MPC and Configuration.h):
   heater block and sensor, optionally a heater-cartridge node and radiation; states are absolute
   temperatures in degC.
 - ``TransferFunction``: a seed paper's transfer function from heater input to temperature rise
@@ -27,7 +27,7 @@ import scipy.signal
 
 from twin.linear import BLOCK, SENSOR, TICK_S, LinearPlant, Lti
 
-# Marlin 2.1 MPC defaults (Configuration.h, reference section 8).
+# Marlin 2.1 MPC defaults (Configuration.h, Marlin 2.1.x Marlin/src/module/temperature.cpp MPC and Configuration.h).
 MPC_HEATER_POWER_W = 40.0
 MPC_BLOCK_HEAT_CAPACITY_J_K = 16.7
 MPC_SENSOR_RESPONSIVENESS_PER_S = 0.22

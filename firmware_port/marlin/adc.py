@@ -1,4 +1,4 @@
-"""Marlin's ADC state machine in the temperature ISR (reference section 0), for AVR.
+"""Marlin's ADC state machine in the temperature ISR (Marlin 2.1.x Marlin/src/HAL/AVR/timers.h and module/temperature.cpp Temperature::isr()), for AVR.
 
 One round is MIN_ADC_ISR_LOOPS = 10 ISRs: StartSampling, then a Prepare/Measure pair per
 sensor (the conversion starts in Prepare and is read in Measure), then SensorsReady padding.

@@ -1,6 +1,6 @@
 """Marlin's hotend/bed PID law in integer fixed point, as an ATmega328 would run it.
 
-The law is Marlin 2.1's ``PID_t::get_pid_output`` (reference section 1): bang-bang outside
+The law is Marlin 2.1's ``PID_t::get_pid_output`` (Marlin 2.1.x Marlin/src/module/temperature.h PID_t::get_pid_output()): bang-bang outside
 +-PID_FUNCTIONAL_RANGE, a one-sided sum of errors clamped so ``Ki * i_sum <= PID_MAX``,
 derivative on measurement through the ``PID_K1 = 0.95`` filter, output 0..255. Gains come in user
 units (M301) and are scaled by ``PID_dT = 160/977 s`` as Marlin stores them.

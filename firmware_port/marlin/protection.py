@@ -4,7 +4,7 @@ Sources (MarlinFirmware/Marlin bugfix-2.1.x): module/temperature.h (HeaterWatch,
 tr_state_machine_t, setTargetHotend/Bed), module/temperature.cpp (tr_state_machine_t::run,
 manage_hotends, manage_heated_bed, updateTemperaturesFromRawValues, init, _temp_error,
 loud_kill), MarlinCore.cpp (kill, minkill, M112_KILL_STR), core/language.h (STR_*),
-lcd/language/language_en.h (MSG_*). Paraphrased in ../shared/reference/marlin_heater.md, section 4.
+lcd/language/language_en.h (MSG_*).
 
 Marlin checks, on each fresh sample, in this order:
 1. updateTemperaturesFromRawValues: hotend raw MAXTEMP, raw MINTEMP (if the heater is on),

@@ -23,6 +23,7 @@ from twin.scenario import (
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "scenarios.md"
 EVENT_FIELDS = {
+    "pid": ("at_s", "heater", "kp", "ki", "kd"),
     "setpoint": ("at_s", "heater", "target_c"),
     "fan": ("at_s", "speed"),
     "flow": ("at_s", "mm_s"),
@@ -359,6 +360,8 @@ def test_mangled_presets_give_only_scenario_errors(name, data):
 
 
 VALID_EVENTS = {
+    "pid": st.fixed_dictionaries({"heater": st.sampled_from(HEATERS), "kp": st.floats(0, 1000),
+                                  "ki": st.floats(0, 100), "kd": st.floats(0, 5000)}),
     "setpoint": st.fixed_dictionaries({"heater": st.sampled_from(HEATERS), "target_c": st.integers(0, 400)}),
     "fan": st.fixed_dictionaries({"speed": st.floats(0, 1)}),
     "flow": st.fixed_dictionaries({"mm_s": st.floats(0, 50)}),

@@ -8,6 +8,7 @@ and a plot into ./twin-out/.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
@@ -19,6 +20,7 @@ from twin.scenario import PRESETS as SCENARIO_PRESETS
 from twin.scenario import ScenarioError, scenario_for, with_overrides
 
 PROGRESS_SLICES = 20
+NOISE_MAX_LSB = 100.0  # ADC noise beyond this is no sensor, it is a broken wire
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -44,6 +46,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="hotend plant parameter, e.g. --set power_w=50 (repeatable)")
     parser.add_argument("--bed-set", action="append", default=[], metavar="KEY=VALUE", help="bed plant parameter")
+    parser.add_argument("--gains", metavar="KP,KI,KD", help="hotend PID gains at 0 s, M301 units (PID firmwares)")
+    parser.add_argument("--bed-gains", metavar="KP,KI,KD", help="bed PID gains at 0 s, M304 units")
     parser.add_argument("--seed", type=int, help="seed of every random source (default: the scenario's, else 0)")
     parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default 0)")
     parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default) or the tick-by-tick reference")
@@ -69,6 +73,58 @@ def parse_settings(items: list[str], option: str) -> dict[str, float | str]:
     return settings
 
 
+def parse_gains(text: str | None, option: str) -> dict[str, float] | None:
+    """"KP,KI,KD" -> {"kp", "ki", "kd"}; ValueError names the option."""
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        values = [float(part) for part in parts]
+    except ValueError:
+        values = []
+    if len(values) != 3:
+        raise ValueError(f"{option} {text!r}: expected three numbers KP,KI,KD")
+    return dict(zip(("kp", "ki", "kd"), values, strict=True))
+
+
+def check_outputs(paths: list[str | None], plot_path: str | None) -> None:
+    """Before any work: each output's folder can be made and written, the plot is a PNG."""
+    if plot_path is not None and not plot_path.lower().endswith(".png"):
+        raise ValueError(f"--plot {plot_path!r}: the plot is written as PNG, give a .png path")
+    for path in paths:
+        if path is None:
+            continue
+        folder = os.path.dirname(os.path.abspath(path))
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"cannot create the output folder {folder!r}: {exc.strerror or exc}") from None
+        if not os.access(folder, os.W_OK) or os.path.isdir(path):
+            raise ValueError(f"cannot write {path!r}")
+
+
+def clamp_notes(twin, scenario) -> list[str]:
+    """Setpoints the firmware clamps (Marlin: maxtemp - 15 hotend, - 10 bed), said out loud."""
+    notes = []
+    for event in scenario.events:
+        channel = {"hotend": 0, "bed": 1}.get(str(event.heater))
+        if event.kind != "target" or channel is None or channel >= len(twin.plants):
+            continue
+        top_c = twin.board.heaters[channel].temp_range.clamp_target(10_000)
+        if int(event.value) > top_c:
+            notes.append(f"note: {event.heater} target {event.value} C at {event.at_s:g} s is clamped to {top_c} C "
+                         "by the firmware, as Marlin clamps M104/M140")
+    return notes
+
+
+def gains_line(twin) -> str:
+    """The gains each heater runs with now (after the scenario's 0 s events)."""
+    names = ("hotend", "bed")[: len(twin.plants)]
+    parts = [f"{name} Kp {g.kp:g} Ki {g.ki:g} Kd {g.kd:g}" for channel, name in enumerate(names)
+             if twin.board.has_gains(channel) for g in [twin.board.gains(channel)]]
+    return "gains: " + ("; ".join(parts) if parts else "none (no PID in this firmware)")
+
+
 def run(args: argparse.Namespace) -> int:
     scenario = scenario_for(args.scenario)
     plant = {heater: dict(params) for heater, params in scenario.plant.items()}
@@ -82,28 +138,37 @@ def run(args: argparse.Namespace) -> int:
         params.update(parse_settings(items, option))
     targets = {k: v for k, v in (("hotend", args.target), ("bed", args.bed_target)) if v is not None}
     initial = {k: v for k, v in (("hotend", args.initial), ("bed", args.bed_initial)) if v is not None}
+    gains = {k: v for k, v in (("hotend", parse_gains(args.gains, "--gains")),
+                               ("bed", parse_gains(args.bed_gains, "--bed-gains"))) if v is not None}
     scenario = with_overrides(
         scenario, duration_s=args.duration, ambient_c=args.ambient, initial_c=initial or None,
-        targets=targets or None, seed=args.seed, plant=plant,
+        targets=targets or None, seed=args.seed, plant=plant, gains=gains or None,
     )
+    if not (math.isfinite(args.noise) and 0.0 <= args.noise <= NOISE_MAX_LSB):
+        raise ValueError(f"--noise {args.noise}: must be a number of LSB in 0..{NOISE_MAX_LSB:g}")
+    stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
+    plot_path = None if args.no_plot else (args.plot or os.path.join(args.out, stem + ".png"))
+    csv_path = args.csv or os.path.join(args.out, stem + ".csv")
+    check_outputs([csv_path, args.klipper_log, plot_path], plot_path)
     twin = build_twin(scenario, args.firmware, with_bed=not args.no_bed, engine=args.engine, noise_lsb=args.noise)
+    twin.run_until(0.0)  # the scenario's 0 s events: targets and gains in force
+    print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
+    print(gains_line(twin))
+    for note in clamp_notes(twin, scenario):
+        print(note)
     _run_with_progress(twin, scenario.duration_s)
 
     result = twin.result()
-    print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
     print(result.report(_disturbances(scenario)))
     for t, what, heater_id in result.protection_trips():
         print(f"protection at {t:.1f} s: {what} on {heater_id}; the board halted (heaters off until reset)")
 
-    stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
-    csv_path = args.csv or os.path.join(args.out, stem + ".csv")
     _write(csv_path, result.to_csv())
     print(f"trace: {csv_path}")
     if args.klipper_log:
         _write(args.klipper_log, result.to_klipper_stats())
         print(f"klipper stats log: {args.klipper_log}")
-    if not args.no_plot:
-        plot_path = args.plot or os.path.join(args.out, stem + ".png")
+    if plot_path is not None:
         try:
             os.makedirs(os.path.dirname(plot_path) or ".", exist_ok=True)
             result.plot(plot_path, f"{scenario.name}: {result.label}")

@@ -8,6 +8,7 @@ from typing import Any, cast
 
 from firmware_port.controller import ControllerSpec
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
+from firmware_port.marlin.pid import PidGains
 from twin.engine import BOOT_S, Twin
 from twin.plants import make_plant
 from twin.scenario import Event, Scenario
@@ -51,6 +52,9 @@ def build_twin(
     for event in scenario.events:
         if event.heater == "bed" and not with_bed:
             continue
+        if event.kind == "gains" and not twin.board.has_gains(CHANNELS[str(event.heater)]):
+            raise ValueError(f"{scenario.name}: pid gains for the {event.heater} at {event.at_s:g} s, but firmware "
+                             f"{firmware!r} has no PID on that heater")
         twin.schedule(event.at_s, functools.partial(apply_event, event=event))
     return twin
 
@@ -60,7 +64,9 @@ def apply_event(twin: Twin, event: Event) -> None:
     # parse_scenario checked each kind's heater and value types
     channel: Any = CHANNELS.get(event.heater) if event.heater else None
     kind, value = event.kind, cast(Any, event.value)
-    if kind == "target":
+    if kind == "gains":
+        twin.board.set_gains(channel, PidGains(*value))
+    elif kind == "target":
         twin.board.set_target(channel, int(value))
     elif kind == "fan":
         twin.board.fan_speed = round(255 * float(value))

@@ -27,6 +27,8 @@ import scipy.signal
 
 from twin.linear import BLOCK, SENSOR, TICK_S, LinearPlant, Lti
 
+PARAMETER_MAX = 1e9  # any plant parameter's magnitude: far beyond physics, far below float overflow
+
 # Marlin 2.1 MPC defaults (Configuration.h, Marlin 2.1.x Marlin/src/module/temperature.cpp MPC and Configuration.h).
 MPC_HEATER_POWER_W = 40.0
 MPC_BLOCK_HEAT_CAPACITY_J_K = 16.7
@@ -358,5 +360,8 @@ def make_plant(preset: str = "hotend", *, ambient_c: float = 25.0, initial_c: fl
             raise ValueError(f"unknown parameter {name!r} for plant preset {preset!r}; valid: {', '.join(names)}")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ValueError(f"plant parameter {name}={value!r}: must be a finite number")
+        if abs(value) > PARAMETER_MAX:
+            raise ValueError(f"plant parameter {name}={value!r}: beyond {PARAMETER_MAX:g}, no heater's (the model "
+                             "would overflow)")
     return Plant(preset, dataclasses.replace(spec, **{name: float(value) for name, value in params.items()}),  # type: ignore[arg-type]
                  ambient_c, initial_c)

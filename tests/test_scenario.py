@@ -66,7 +66,7 @@ def test_presets_do_what_their_names_say():
 def test_docs_example_parses_and_uses_every_table():
     (example,) = docs_toml_blocks()
     scenario = parse_scenario(example, "example.toml")
-    assert {event.kind for event in scenario.events} == {"target", "fan", "flow", "ambient", "fault"}
+    assert {event.kind for event in scenario.events} == {"gains", "target", "fan", "flow", "ambient", "fault"}
     assert scenario.plant == {"hotend": {"preset": "hotend", "power_w": 40.0}, "bed": {"power_w": 220.0}}
     assert scenario.initial_c == {"hotend": 25.0, "bed": 25.0} and scenario.seed == 1
     assert parse_scenario(dump_scenario(scenario), "dumped.toml") == scenario

@@ -7,6 +7,7 @@ from collections.abc import Callable
 import numpy as np
 
 _F32 = np.float32
+PRINT_FLOAT_MAX = 4294967040.0  # Print::printFloat's "ovf" bound ("determined empirically" there)
 
 
 def format_float(value: float | np.floating, digits: int = 2) -> str:
@@ -16,6 +17,12 @@ def format_float(value: float | np.floating, digits: int = 2) -> str:
     digit taken from the float32 remainder; this is not always Python's round-half-even.
     """
     number = _F32(value)
+    if np.isnan(number):
+        return "nan"
+    if np.isinf(number):
+        return "inf"
+    if abs(number) > PRINT_FLOAT_MAX:  # Arduino's guard: the integer part is an unsigned long
+        return "ovf"
     out = ""
     if number < 0:
         out = "-"

@@ -18,7 +18,7 @@ import textwrap
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NoReturn, cast
 
 from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX
 
@@ -317,7 +317,7 @@ def _event_fields(event: Event) -> tuple[str, dict[str, Any]]:
     """The array of tables an event is written to, and its fields."""
     match event.kind:
         case "gains":
-            kp, ki, kd = event.value  # type: ignore[misc]
+            kp, ki, kd = cast(tuple[float, float, float], event.value)
             return "pid", {"heater": event.heater, "kp": kp, "ki": ki, "kd": kd}
         case "target":
             return "setpoint", {"heater": event.heater, "target_c": event.value}

@@ -78,11 +78,13 @@ class LinearModel:
 
     def fopdt(self) -> Fopdt:
         """FOPDT equivalent: tools/identify.py's two-point method on the exact step response
-        (the same construction as ``identify.fopdt_equivalent``, for any model)."""
+        (the same construction as ``identify.fopdt_equivalent``, for any model). Its dead time is
+        at least the model's own: a lead (seed 003's zero) speeds the early rise so much that the
+        two-point method reads a negative dead time, but nothing moves before the dead time."""
         step_s = SETTLE_TIME_CONSTANTS * self.slowest_time_constant_s / STEP_POINTS
         t_s, y = self.step_response(step_s, STEP_POINTS)
         k, tau, delay = two_point_fopdt(np.r_[0.0, t_s], np.r_[0.0, y], 1.0, final_c=self.static_gain)
-        return Fopdt(k, tau, max(delay, 0.0))
+        return Fopdt(k, tau, max(delay, self.delay_s))
 
 
 def model_of(plant: Spec | Plant, conditions: Conditions | None = None) -> LinearModel:

@@ -7,6 +7,7 @@ import pytest
 
 from tools.identify import Fopdt
 from tools.identify import ultimate_point as fopdt_ultimate_point
+from tools.tuning.ideal import step_response
 from tools.tuning.models import LinearModel, model_of
 from tools.tuning.ultimate import (
     WAVE_FACTORS,
@@ -90,3 +91,24 @@ def test_wave_factors_are_triangle_and_square():
     for wave, factor in ((2 / math.pi * np.arcsin(np.sin(t)), WAVE_FACTORS[0]), (np.sign(np.sin(t)), WAVE_FACTORS[1])):
         fundamental = 2 * np.mean(wave * np.sin(t))
         assert fundamental == pytest.approx(factor, rel=1e-4)
+
+
+def test_idealised_p_loop_at_ku_oscillates_at_tu():
+    """Cross-check in the time domain (tools/tuning/ideal.py): a P controller at Ku holds its
+    oscillation, 2 % below it decays, 2 % above it grows, and zero crossings come every Tu / 2."""
+    model = model_of(SPECS["seed003_third"])
+    point = ultimate_point(model)
+    swings = []
+    for factor in (0.98, 1.0, 1.02):
+        run = step_response(model, (factor * point.ku, 0.0, 0.0), duration_s=20 * point.tu_s)
+        late = run.output[run.t_s > 10 * point.tu_s]
+        half = len(late) // 2
+        swings.append((np.ptp(late[:half]), np.ptp(late[half:])))
+    assert swings[0][1] < 0.9 * swings[0][0]
+    assert swings[1][1] == pytest.approx(swings[1][0], rel=0.02)
+    assert swings[2][1] > 1.1 * swings[2][0]
+    run = step_response(model, (point.ku, 0.0, 0.0), duration_s=20 * point.tu_s)
+    offset = run.output - np.mean(run.output[run.t_s > 10 * point.tu_s])
+    late = run.t_s > 10 * point.tu_s
+    crossings = run.t_s[late][1:][np.diff(np.sign(offset[late])) != 0]
+    assert np.mean(np.diff(crossings)) == pytest.approx(point.tu_s / 2, rel=0.01)

@@ -33,7 +33,9 @@ GAIN, LEAD_S, LAGS_S, DELAY_S = 0.72653, 163.40925, (634.10445, 61.55245, 0.5089
 # ... and its expanded form as printed: (118.7254 s + 0.72) e^-5s / (19864.64 s^3 + 39384.75 s^2 + 696.16 s + 1)
 PRINTED_NUM = (118.7254, 0.72)
 PRINTED_DEN = (19864.64, 39384.75, 696.16, 1.0)
-INPUT_FULL_SCALE = SPECS[PRESET].input_full_scale  # the preset's assumed paper units at duty 1 (docs/plants.md)
+_SPEC = SPECS[PRESET]
+assert isinstance(_SPEC, TransferFunction)
+INPUT_FULL_SCALE = _SPEC.input_full_scale  # the preset's assumed paper units at duty 1 (docs/plants.md)
 DURATION_S = 1200.0  # idealised and firmware runs: long past the slowest closed-loop root's 160 s
 TARGET_C, AMBIENT_C = 210.0, 25.0
 TAIL_S = 300.0  # the last seconds of a firmware run, where a limit cycle's swing is measured
@@ -60,6 +62,7 @@ PAPER_TABLE = (
     PaperRow("MSDI fig. 4c", 1.24, 134.2, 4.6, 70.47, 74.0, 4.5, 82.0, None),
     PaperRow("ZN fig. 4d", None, 336.6, 34.22, 841.5, 80.0, 4.0, 92.0, 0),
 )
+MSDI_ROWS = tuple(row for row in PAPER_TABLE if row.j is not None)
 
 
 class LoopCheck(NamedTuple):
@@ -102,7 +105,7 @@ def twin_step(gains: tuple[float, float, float]) -> tuple[StepMetrics, float]:
     heating 25 -> 210 C: the step's metrics and the last TAIL_S seconds' swing."""
     tw = Twin([make_plant(PRESET, ambient_c=AMBIENT_C)], "pid")
     tw.boot(BOOT_S)
-    tw.hotend.controller.set_gains(Gains.from_duty(*(g / INPUT_FULL_SCALE for g in gains)).firmware())
+    tw.hotend.gains = Gains.from_duty(*(g / INPUT_FULL_SCALE for g in gains)).firmware()
     tw.hotend.target_c = TARGET_C
     run = tw.run(DURATION_S).hotend
     tail = run.measured_c[run.t_s >= DURATION_S - TAIL_S]
@@ -129,12 +132,11 @@ def _residual(quasi: Quasi, gains: tuple[float, float, float], j: float) -> floa
     return float(abs(parts.sum()) / np.abs(parts).sum())
 
 
-def _evidence(report_parts: dict) -> list[str]:
-    up: UltimatePoint = report_parts["ultimate"]
-    checks: list[LoopCheck] = report_parts["checks"]
-    quasi: Quasi = report_parts["quasi"]
+def _evidence(up: UltimatePoint, checks: list[LoopCheck], quasi: Quasi,
+              ours_at_j: list[tuple[float, float, float]]) -> list[str]:
+    """Where table 1 cannot be right, in sentences, from the computations."""
     lines = []
-    for row, chk in zip(PAPER_TABLE, checks):
+    for row, chk in zip(PAPER_TABLE, checks[: len(PAPER_TABLE)], strict=True):
         if chk.unstable_roots:
             lines.append(
                 f"{row.method}: Kp {row.kp:g} Ki {row.ki:g} Kd {row.kd:g} leave {chk.unstable_roots} roots of the "
@@ -142,9 +144,10 @@ def _evidence(report_parts: dict) -> list[str]:
                 f"diverges (|y| > 1e6 at {chk.ideal.t_s[-1]:.0f} s), yet the table reports settling in "
                 f"{row.settling_s:g} s with {row.overshoot_pct:g} % overshoot")
         if row.j is not None:
-            lines.append(f"{row.method}: at J = {row.j:g} D(-J) with the table's gains is {_residual(quasi, row[2:5], row.j):.2f} "
-                         "of its parts' size: -J is not a root, so these gains do not come from eqs. (5)-(8) at that J")
-    for row, ours in zip(PAPER_TABLE, report_parts["ours_at_table_j"]):
+            residual = _residual(quasi, (row.kp, row.ki, row.kd), row.j)
+            lines.append(f"{row.method}: at J = {row.j:g} D(-J) with the table's gains is {residual:.2f} of its "
+                         "parts' size: -J is not a root, so these gains do not come from eqs. (5)-(8) at that J")
+    for row, ours in zip(MSDI_ROWS, ours_at_j, strict=True):
         if min(ours) < 0:
             lines.append(f"J = {row.j:g}: eqs. (5)-(8) give Kp {ours[0]:.3g} Ki {ours[1]:.3g} Kd {ours[2]:.3g}, all "
                          "negative: past the maximal stability degree the method has no positive gains")
@@ -165,12 +168,11 @@ def reproduce() -> Report:
     up = ultimate_point(model)
     relay = relay_experiment(model).point
     result = msdi(quasi)
-    ours_at_j = [gains_at(quasi, row.j) for row in PAPER_TABLE if row.j is not None]
+    ours_at_j = [gains_at(quasi, row.j) for row in MSDI_ROWS if row.j is not None]
     checks = [check(row.method, model, quasi, (row.kp, row.ki, row.kd)) for row in PAPER_TABLE]
     checks.append(check(f"ours MSDI J = {result.j:.4f}", model, quasi, result.gains))
-    parts = {"ultimate": up, "checks": checks, "quasi": quasi, "ours_at_table_j": ours_at_j}
     return Report(model, (quasi.num, quasi.den), up, relay, result, _slow_root(quasi, result.gains), ours_at_j,
-                  checks, _evidence(parts))
+                  checks, _evidence(up, checks, quasi, ours_at_j))
 
 
 def _cell(value: float | None, fmt: str = ".1f") -> str:
@@ -194,7 +196,7 @@ def format_report(report: Report) -> str:
         "  on the twin (duty = input / 550): " + str(Gains.from_duty(*(g / INPUT_FULL_SCALE for g in report.msdi.gains))),
         "eqs. (5)-(8) at the table's J (ours):",
     ]
-    for row, ours in zip(PAPER_TABLE, report.ours_at_table_j):
+    for row, ours in zip(MSDI_ROWS, report.ours_at_table_j, strict=True):
         lines.append(f"  J {row.j:<5g} printed Kp {row.kp:<7g} Ki {row.ki:<7g} Kd {row.kd:<7g}  ours Kp {ours[0]:<8.3f} "
                      f"Ki {ours[1]:<8.4f} Kd {ours[2]:.3f}")
     lines.append("step responses: printed (rise, overshoot %, settling 5 %) | idealised loop, unit step "

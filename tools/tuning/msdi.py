@@ -37,6 +37,7 @@ from tools.tuning.models import LinearModel
 DERIVATIVES = 3  # D, D', D'' at -J: a triple root
 J_GRID_POINTS = 3000  # the sweep's resolution: relative steps of 0.33 % over its 4.3 decades
 ARGUMENT_POINTS_PER_RAD = 40  # the argument principle's grid: points per radian of the delay's rotation
+DOMINANCE = 100.0  # the argument count's tail: the leading term this many times the rest
 MAX_ARGUMENT_POINTS = 5_000_000  # memory bound of the argument count's grid
 ROOT_SHIFT = 1e-3  # count roots right of -J (1 - ROOT_SHIFT): the triple root itself lies left of it
 
@@ -83,7 +84,7 @@ def terms(model: Quasi, gains: tuple[float, float, float], s: float, count: int 
     polynomial = _derivatives(np.polymul([1.0, 0.0], model.den), s, count)
     columns = [_delayed_derivatives(np.polymul(power, model.num), model.delay_s, s, count)
                for power in ([1.0, 0.0], [1.0], [1.0, 0.0, 0.0])]  # kp s, ki, kd s^2 times num e^(-tau s)
-    return np.column_stack([polynomial, *(g * c for g, c in zip(gains, columns))])
+    return np.column_stack([polynomial, *(g * c for g, c in zip(gains, columns, strict=True))])
 
 
 def _system(model: Quasi, j: float) -> tuple[np.ndarray, np.ndarray]:
@@ -106,6 +107,23 @@ def characteristic(model: Quasi, gains: tuple[float, float, float], s: np.ndarra
             + (kd * s * s + kp * s + ki) * np.polyval(model.num, s) * np.exp(-model.delay_s * s))
 
 
+def _dominance_frequency(model: Quasi, gains: tuple[float, float, float], sigma: float) -> float:
+    """A frequency beyond which, on Re s = sigma, the leading term of s den(s) outweighs the rest of
+    D DOMINANCE times (so arg D is that of s^n): doubled until the bound of the rest by the
+    coefficients' magnitudes holds."""
+    kp, ki, kd = gains
+    rest_poly = np.abs(np.polymul([1.0, 0.0], model.den))[1:]
+    loop_poly = np.abs(np.polymul([abs(kd), abs(kp), abs(ki)], model.num)) * math.exp(-sigma * model.delay_s)
+    n = len(rest_poly)
+    w = 1.0
+    for _ in range(200):
+        r = abs(sigma + 1j * w)
+        if abs(model.den[0]) * r**n > DOMINANCE * (np.polyval(rest_poly, r) + np.polyval(loop_poly, r)):
+            return w
+        w *= 2.0
+    raise ValueError("no frequency where the leading term dominates: not a retarded loop")
+
+
 def is_retarded(model: Quasi) -> bool:
     """deg(s den) > deg(kd s^2 num): the delayed part has the lower degree (a FOPDT with a PID does not)."""
     return len(model.den) > len(model.num) + 1
@@ -118,10 +136,7 @@ def roots_right_of(model: Quasi, gains: tuple[float, float, float], sigma: float
     n = len(model.den)  # deg(s den) = len(den)
     if not is_retarded(model):
         raise ValueError("the argument count needs deg(den) > deg(num) + 1 (a retarded loop)")
-    kp, ki, kd = gains
-    # beyond w_max the leading term a0 s^n outweighs the rest 100 times: the argument is that of s^n
-    scale = np.abs(np.r_[model.den, kd, kp, ki, model.num]).max() / abs(model.den[0])
-    w_max = 100.0 * (1.0 + abs(sigma)) * scale * math.exp(max(0.0, -sigma) * model.delay_s) * (1 + n)
+    w_max = _dominance_frequency(model, gains, sigma)
     points = int(max(20000, ARGUMENT_POINTS_PER_RAD * model.delay_s * w_max))
     if points > MAX_ARGUMENT_POINTS:
         raise ValueError(f"the argument count needs {points} points: gains or shift too large")

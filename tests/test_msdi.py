@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from tools.tuning.models import model_of
 from tools.tuning.msdi import Quasi, characteristic, gains_at, msdi, msdi_gains, roots_right_of, terms
@@ -83,3 +85,18 @@ def test_msdi_on_the_preset_in_duty_units():
     paper = msdi(SEED003)
     gains = msdi_gains(model_of(SPECS["seed003_third"]))
     assert gains.duty == pytest.approx(tuple(g / 550.0 for g in paper.gains), rel=1e-4)
+
+
+@settings(max_examples=25, deadline=None)
+@given(lead=st.floats(0.0, 200.0), lag1=st.floats(10.0, 1000.0), lag2=st.floats(1.0, 100.0),
+       lag3=st.floats(0.1, 10.0), delay=st.floats(0.5, 30.0), j_fraction=st.floats(0.05, 2.0))
+def test_triple_root_for_any_third_order_model(lead, lag1, lag2, lag3, delay, j_fraction):
+    """The contract for any model of seed 003's family: the gains of J put D, D', D'' at -J to zero
+    (to 1e-8 of their parts' size: the 3 x 3 solve's rounding), wherever the system is regular
+    (J away from the zero's rate 1/lead, where the gains have a pole)."""
+    model = Quasi.third_order_zero(1.0, lead, (lag1, lag2, lag3), delay)
+    j = j_fraction / delay
+    assume(lead == 0.0 or abs(j * lead - 1.0) > 0.05)
+    gains = gains_at(model, j)
+    parts = terms(model, gains, -j, 3)
+    assert np.all(np.abs(parts.sum(axis=1)) <= 1e-8 * np.abs(parts).sum(axis=1))

@@ -39,6 +39,8 @@ import math
 from dataclasses import dataclass
 from fractions import Fraction
 
+import numpy as np
+
 from firmware_port.fixed import checked_s32, checked_s64, clamp, div_round, sat_s16, sat_s32, shr_round
 from firmware_port.marlin.constants import PID_DT_S, PID_MAX
 from firmware_port.marlin.pid import (
@@ -159,33 +161,31 @@ SEED001_BOARD = FuzzyPidConfig(ke=1638 / 4096, reading=INCREMENTAL)  # the board
 # -- the fuzzy system in float (the paper's) ----------------------------------------------------
 
 
-def memberships(x: float) -> list[float]:
+SET_CENTRES = np.arange(N_SETS) - HALF
+GRID_Y = np.arange(GRID_MAX + 1) / (2 * GRID)  # the output grid on [0, 3], 16 points a unit
+# OUT_SETS[j, i]: degree of output set j (a triangle centred j/2, half-width 1/2) at grid point i
+OUT_SETS = np.maximum(0.0, 1.0 - np.abs(GRID_Y[None, :] - SET_CENTRES[:, None] / 2 - OUT_ZO) * 2)
+RULE_INDEX = [np.array(table).ravel() for table in RULES]  # output set of rule (e, ec), row-major
+
+
+def memberships(x: float) -> np.ndarray:
     """Degrees of NB..PB at position x of [-3, 3]: unit triangles centred -3..3 (sum to 1)."""
-    return [max(0.0, 1.0 - abs(x - (k - HALF))) for k in range(N_SETS)]
+    return np.maximum(0.0, 1.0 - np.abs(x - SET_CENTRES))
 
 
-def centroid(strengths: list[float]) -> float:
-    """Sampled centroid on [0, 3] (16 points a unit) of the max of the output sets clipped at their
-    strengths; output set j is a triangle centred j/2 of half-width 1/2."""
-    num = den = 0.0
-    for i in range(GRID_MAX + 1):
-        y = i / (2 * GRID)
-        mu = max(min(s, max(0.0, 1.0 - abs(y - j / 2) * 2)) for j, s in enumerate(strengths))
-        num += y * mu
-        den += mu
-    return num / den
+def centroid(strengths: np.ndarray) -> float:
+    """Sampled centroid on [0, 3] of the max of the output sets clipped at their strengths."""
+    mu = np.minimum(np.asarray(strengths, dtype=float)[:, None], OUT_SETS).max(axis=0)
+    return float(GRID_Y @ mu / mu.sum())
 
 
 def infer(x_e: float, x_ec: float) -> tuple[float, float, float]:
     """Mamdani min-max inference and centroid: the (kp, ki, kd) centroids in [0, 3]."""
-    mu_e, mu_ec = memberships(x_e), memberships(x_ec)
+    fired = np.minimum.outer(memberships(x_e), memberships(x_ec)).ravel()  # rule (e, ec) strengths
     out = []
-    for table in RULES:
-        strengths = [0.0] * N_SETS
-        for i in range(N_SETS):
-            for j in range(N_SETS):
-                k = table[i][j]
-                strengths[k] = max(strengths[k], min(mu_e[i], mu_ec[j]))
+    for index in RULE_INDEX:
+        strengths = np.zeros(N_SETS)
+        np.maximum.at(strengths, index, fired)
         out.append(centroid(strengths))
     return out[0], out[1], out[2]
 

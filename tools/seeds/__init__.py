@@ -1,0 +1,1 @@
+"""The seed papers' headline experiments as library functions: the paper's numbers beside ours."""

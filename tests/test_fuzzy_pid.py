@@ -131,7 +131,7 @@ def test_factors_match_float(config, e_q5, derr_q5):
     x_ec = min(max(ref.kec * derr_q5 / TEMP_ONE / ref.dt_s, -3.0), 3.0)
     c_want = infer(x_e, x_ec)
     want = [c if config.reading == LITERAL else 1 + config.span * (c - 1.5) / 1.5 for c in c_want]
-    for g, w in zip(got, want):
+    for g, w in zip(got, want, strict=True):
         assert abs(g / Q12 - w) <= factor_bound(config) + 1e-12
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import cast
 
 import numpy as np
 from scipy.optimize import brentq
@@ -42,10 +43,10 @@ from firmware_port.marlin.pid import PidGains
 from tools.seeds.ideal_fopdt import Fopdt, simulate
 from twin.engine import BOOT_S, Twin
 from twin.metrics import step_metrics
-from twin.plants import SPECS, make_plant
+from twin.plants import SPECS, TransferFunction, make_plant
 
 PRESET = "seed001_fopdt"
-_SPEC = SPECS[PRESET]
+_SPEC = cast(TransferFunction, SPECS[PRESET])
 PLANT = Fopdt(_SPEC.gain, _SPEC.lag1_s, _SPEC.delay_s)  # eq. (9)
 STEP_C = 180.0  # section 3: "喷头起始温度为 0℃, 目标温度为 180℃"
 # Table 1 as printed: settling time (s), overshoot (%), steady-state error (units not stated).

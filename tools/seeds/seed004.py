@@ -29,6 +29,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 from firmware_port.fuzzy_pi import (
     DU_FRAC_BITS,
@@ -42,10 +43,12 @@ from firmware_port.fuzzy_pi import (
 from firmware_port.marlin.protection import RunawayMonitor
 from firmware_port.thermistor import B3950, KELVIN_OFFSET, Divider, SteinhartHart
 from twin.engine import BOOT_S, Twin
-from twin.plants import SPECS, make_plant
+from twin.plants import SPECS, Lumped, make_plant
 from twin.result import HeaterRun
-from twin.sensor import SensorChain
+from twin.metrics import StepMetrics
+from twin.sensor import DEFAULT_DIVIDER, SensorChain
 
+HOTEND = cast(Lumped, SPECS["hotend"])  # 40 W: the paper's cartridge at 12 V and duty 255/255
 AMBIENT_C = 25.0  # not stated; the bed preset's loss was solved for it
 # Section 5.1 as printed.
 PAPER_BED = {"setpoint_c": 105.0, "max_c": 106.0, "steady_c": 104.0, "rise_time_s": 500.0, "settling_time_s": 800.0}
@@ -117,13 +120,21 @@ def _twin(hotend_plant, bed_plant=None, controllers=(), sensors=None) -> Twin:
     return twin
 
 
+def _metrics(run: HeaterRun) -> StepMetrics:
+    """The step metrics of a single-lane run (one StepMetrics, not a list per lane)."""
+    metrics = run.metrics()
+    if not isinstance(metrics, StepMetrics):
+        raise TypeError("a single twin's run has one lane")
+    return metrics
+
+
 def bed_run(config: FuzzyPiConfig) -> BedRun:
     """The bed experiment: ``bed_mk3`` from ambient to 105 C under the integer fuzzy-like PI."""
     twin = _twin(make_plant("hotend", ambient_c=AMBIENT_C), make_plant("bed_mk3", ambient_c=AMBIENT_C),
                  controllers=[None, FuzzyPi(config)])
     twin.bed.target_c = SEED004_BED_SETPOINT_C
     run = twin.run(BED_RUN_S).bed
-    m = run.metrics()
+    m = _metrics(run)
     tail = run.measured_c[run.t_s >= 0.9 * BED_RUN_S]
     return BedRun(config.du_range_counts, m.rise_time_s, m.settling_time_2pct_s, float(run.measured_c.max()),
                   float(tail.mean()))
@@ -166,10 +177,10 @@ def extruder_case(name: str, setting: str, sensor: SensorChain | None = None, **
     halted = twin.board.halted
     reproduces = not halted and abs(steady_max_c - PAPER_EXTRUDER["steady_max_c"]) <= REPRODUCES_WITHIN * excess_c
     return ExtruderCase(name, setting, float(run.measured_c.max()), steady_max_c,
-                        float(run.block_c[steady].mean()), run.metrics().rise_time_s, halted, reproduces)
+                        float(run.block_c[steady].mean()), _metrics(run).rise_time_s, halted, reproduces)
 
 
-def adc_step_c(temp_c: float, divider: Divider = Divider()) -> float:
+def adc_step_c(temp_c: float, divider: Divider = DEFAULT_DIVIDER) -> float:
     """Degrees per 10-bit ADC count at temp_c (the thermistor's resolution there)."""
     return 1.0 / abs(divider.adc_exact(temp_c + 0.5) - divider.adc_exact(temp_c - 0.5))
 
@@ -211,7 +222,7 @@ def extruder_cases() -> tuple[ExtruderCase, ...]:
                       f"({excess_c:g} C low at {steady_max_c:g} C)", sensor=SensorChain(gradient_fraction=gradient)),
         extruder_case("calibration error", f"thermistor beta {beta_k:.0f} K, table B3950",
                       sensor=SensorChain(divider=Divider(part=part))),
-        _bisect_log(lagging, RESPONSIVENESS_LO, SPECS["hotend"].sensor_responsiveness_per_s, RESPONSIVENESS_STEPS),
+        _bisect_log(lagging, RESPONSIVENESS_LO, HOTEND.sensor_responsiveness_per_s, RESPONSIVENESS_STEPS),
     )
 
 

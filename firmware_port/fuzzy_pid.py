@@ -382,6 +382,7 @@ class FuzzyPid:
         self.i_q8 = clamp(checked_s32(self.i_q8 + di_q8), 0, OUT_MAX_Q8)
         # kd_q16 < 2**31: int64 < 2**60; Q33 -> Q8 may exceed int32: saturated (the output clamps anyway).
         d_q8 = sat_s32(shr_round(checked_s64(k.kd_q16 * f_d * derr_q5), D_SHIFT))
+        # p + i + d can reach 2**31.6: summed in int64, then clamped to the output range.
         return clamp(checked_s64(p_q8 + self.i_q8 + d_q8), 0, OUT_MAX_Q8)
 
 

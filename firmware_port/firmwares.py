@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat
+from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
 from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed
 from firmware_port.marlin.pid_float import PidFloat
@@ -35,6 +36,16 @@ FIRMWARES: dict[str, tuple[Callable, Callable, str]] = {
         lambda: FuzzyPiFloat(SEED004_HOTEND),
         lambda: FuzzyPiFloat(SEED004_BED),
         "seed 004's fuzzy-like PI in float, the oracle of fuzzy_pi",
+    ),
+    "fuzzy_pid": (
+        lambda: FuzzyPid(HOTEND_GAINS),
+        lambda: FuzzyPid(BED_GAINS),
+        "seed 001's fuzzy-PID in integer arithmetic, incremental reading on Marlin's default gains",
+    ),
+    "fuzzy_pid_float": (
+        lambda: FuzzyPidFloat.board(HOTEND_GAINS),
+        lambda: FuzzyPidFloat.board(BED_GAINS),
+        "seed 001's fuzzy-PID in float, the oracle of fuzzy_pid",
     ),
 }
 

@@ -8,6 +8,8 @@ floors), with optional Gaussian noise in LSB from a seeded generator. Faults:
 - shorted thermistor: R = 0, the ADC reads 0;
 - detached thermistor: the bead hangs in air, so it reads its own node relaxing from the
   temperature it had toward ambient with ``detached_tau_s``.
+Placement: an attached bead on a gradient (away from the heater, near the block's surface) sees
+only ``1 - gradient_fraction`` of the sensor node's rise above ambient; 0 is a bead at the node.
 """
 
 from __future__ import annotations
@@ -31,9 +33,13 @@ class SensorChain:
         noise_lsb: float = 0.0,
         rng: np.random.Generator | None = None,
         detached_tau_s: float = DETACHED_TAU_S,
+        gradient_fraction: float = 0.0,
     ):
         if noise_lsb < 0:
             raise ValueError("noise_lsb must be >= 0")
+        if not 0.0 <= gradient_fraction < 1.0:
+            raise ValueError(f"gradient_fraction must be within [0, 1), got {gradient_fraction!r}")
+        self.gradient_fraction = float(gradient_fraction)
         self.divider = divider
         self.noise_lsb = noise_lsb
         self.rng = rng if rng is not None else np.random.default_rng(0)
@@ -73,7 +79,10 @@ class SensorChain:
             return np.full(sensor_c.shape, ADC_MAX)
         if self.fault == SHORT:
             return np.zeros(sensor_c.shape, dtype=int)
-        temps_c = np.broadcast_to(self._bead_c(ticks), sensor_c.shape) if self.fault == DETACHED else sensor_c
+        if self.fault == DETACHED:
+            temps_c = np.broadcast_to(self._bead_c(ticks), sensor_c.shape)
+        else:
+            temps_c = sensor_c - self.gradient_fraction * (sensor_c - self._ambient_c)
         r = self.divider.part.resistance_ohm(temps_c)
         analog = ADC_COUNTS * r / (r + self.divider.pullup_ohm)
         if self.noise_lsb:

@@ -108,7 +108,8 @@ class LoadedPlant(Plant):
         self.d = np.array([ambient_c, 0.0])
 
     def set_inputs(self, fan: float, flow_mm_s: float, ambient_c: float) -> None:
-        super().set_inputs(fan, flow_mm_s, ambient_c)
+        """As Plant's (a transfer function has no fan or flow terms), keeping the load."""
+        self.fan, self.flow_mm_s = float(fan), float(flow_mm_s)
         self.d = np.array([ambient_c, self.load])
 
     def set_load(self, load: float) -> None:

@@ -282,7 +282,7 @@ def _klipper_event(twin, event: Event) -> None:
     _apply_to_plant(channel.plant, event)
 
 
-def _run_scalars(problem: Problem, gains: np.ndarray) -> Traces:
+def run_scalars(problem: Problem, gains: np.ndarray) -> Traces:
     """One twin per candidate, resampled onto the first run's clock (their readings share it)."""
     run_one = _run_scalar_klipper if problem.loop == "klipper" else _run_scalar_marlin
     results = [run_one(problem, row) for row in gains]
@@ -348,7 +348,7 @@ def run_chunk(problem: Problem, gains: np.ndarray) -> Traces:
         return _run_ideal(problem, gains)
     if problem.batched:
         return _run_batch(problem, gains)
-    return _run_scalars(problem, gains)
+    return run_scalars(problem, gains)
 
 
 def _chunks(gains: np.ndarray) -> Iterator[np.ndarray]:

@@ -252,9 +252,8 @@ def _run_scalar_marlin(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, n
     twin = _marlin_twin(problem, _firmware_gains(row))
     twin.board.set_target(HOTEND_CHANNEL, int(round(problem.scenario.target_c)))
     twin.run_until(problem.scenario.duration_s)
-    trace = twin.trace
-    return (trace.column("t_s"), trace.column("hotend_measured_c"), trace.column("hotend_duty"),
-            bool(twin.board.halted))
+    rows = np.array(twin.trace.rows, dtype=float)  # time, then the hotend's target, measured, block, sensor, duty
+    return rows[:, 0], rows[:, 2], rows[:, 5], bool(twin.board.halted)
 
 
 def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
@@ -438,3 +437,48 @@ def firmware_autotune(problem: Problem) -> tuple[str, Gains]:
     if problem.loop == "klipper":
         return "PID_CALIBRATE", klipper_autotune(problem)
     return f"M303 C{M303_CYCLES}", marlin_autotune(problem)
+
+
+# -- candidates: the rules' gains, scored together ---------------------------------------------------
+@dataclass(frozen=True)
+class Candidate:
+    """One tuned result: where it came from, its gains, its cost and its run on the firmware twin."""
+
+    method: str
+    gains: Gains
+    cost: float
+    run: Run
+    history: np.ndarray | None = None  # an optimiser's best cost per iteration
+
+
+def rule_gains(problem: Problem, names: list[str]) -> dict[str, Gains]:
+    """Each named rule's gains for the problem's plant (tools/tuning/rules)."""
+    from tools.tuning.rules import tune_plant
+
+    return {name: tune_plant(name, problem.spec) for name in names}
+
+
+def rule_names() -> list[str]:
+    try:
+        from tools.tuning.rules import RULES
+    except ImportError:
+        return []
+    return list(RULES)
+
+
+def optimiser_names() -> list[str]:
+    try:
+        from tools.tuning.optim import OPTIMISERS
+    except ImportError:
+        return []
+    return list(OPTIMISERS)
+
+
+def score(problem: Problem, cost: Callable[[Run], np.ndarray], gains: dict[str, Gains], client=None) -> list[Candidate]:
+    """Every candidate in one batch on the firmware twin, best first."""
+    names = list(gains)
+    table = np.array([[g.kp, g.ki, g.kd] for g in gains.values()])
+    run = simulate(problem, np.clip(table, 0.0, GAIN_MAX), client)
+    costs = cost(run)
+    scored = [Candidate(name, gains[name], float(costs[i]), run.lanes([i])) for i, name in enumerate(names)]
+    return sorted(scored, key=lambda c: c.cost)

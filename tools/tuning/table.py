@@ -98,10 +98,10 @@ def generate() -> str:
 
 def table_of(doc: str) -> str:
     """The generated table inside a document (ValueError without the markers)."""
-    match = re.search(re.escape(BEGIN) + r"\n(.*?)\n" + re.escape(END), doc, re.S)
+    match = re.search(re.escape(BEGIN) + r"\n(.*?)" + re.escape(END), doc, re.S)
     if match is None:
         raise ValueError("docs/tuning.md lacks the rules-table markers")
-    return match.group(1)
+    return match.group(1).rstrip("\n")
 
 
 def _number(cell: str) -> float | None:
@@ -138,8 +138,8 @@ def main(argv: list[str] | None = None) -> int:
         problems = same_table(table_of(doc), table)
         print("\n".join(problems) or "docs/tuning.md is current")
         return 1 if problems else 0
-    old = table_of(doc)
-    DOC.write_text(doc.replace(BEGIN + "\n" + old + "\n" + END, BEGIN + "\n" + table + "\n" + END))
+    start, end = doc.index(BEGIN) + len(BEGIN), doc.index(END)
+    DOC.write_text(doc[:start] + "\n" + table + "\n" + doc[end:])
     print(f"wrote the rules table ({table.count(chr(10)) - 1} rows) into {DOC}")
     return 0
 

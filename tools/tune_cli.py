@@ -122,21 +122,22 @@ def settings_lines(gains: Gains, is_bed: bool) -> list[str]:
             "Klipper printer.cfg:", *("  " + line for line in gains.klipper_section(heater).splitlines())]
 
 
-def write_plot(path: Path, candidates: list[Candidate], reference: Candidate, title: str) -> None:
+def write_plot(path: Path, candidates: list[Candidate], reference: Candidate | str, title: str) -> None:
     """Responses of the best candidates and the reference; the convergence of any optimiser."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    shown = candidates[:4] + ([reference] if isinstance(reference, Candidate) else [])
     searched = [c for c in candidates if c.history is not None]
     fig, axes = plt.subplots(1 + bool(searched), 1, figsize=(10, 6 + 3 * bool(searched)), squeeze=False)
     ax = axes[0, 0]
-    for c in candidates[:4] + [reference]:
+    for c in shown:
         ax.plot(c.run.t_s, c.run.temp_c[:, 0], lw=1.2 if c is candidates[0] else 0.8,
                 label=f"{c.method}: {c.gains} (cost {c.cost:.4g})")
-    ax.axhline(reference.run.target_c, color="k", ls=":", lw=0.8)
-    for t_s in reference.run.disturbances_s:
+    ax.axhline(candidates[0].run.target_c, color="k", ls=":", lw=0.8)
+    for t_s in candidates[0].run.disturbances_s:
         ax.axvline(t_s, color="grey", ls="--", lw=0.6)
     ax.set(xlabel="time (s)", ylabel="measured temperature (C)", title=title)
     ax.legend(fontsize=8)
@@ -209,15 +210,27 @@ def progress_bar(total: int):
     return tqdm(total=total, unit="eval", file=sys.stderr, disable=None, leave=False)
 
 
-def tune(args: argparse.Namespace, problem: Problem, client=None) -> tuple[list[Candidate], Candidate]:
+def autotune_reference(problem: Problem, cost: Callable[[Run], np.ndarray], client=None) -> Candidate | str:
+    """The firmware's own autotune on the same twin, scored; or why it failed."""
+    try:
+        name, gains = firmware_autotune(replace(problem, loop="klipper" if problem.loop == "klipper" else "marlin"))
+    except ValueError as exc:
+        return str(exc)
+    return score(problem, cost, {name: gains}, client)[0]
+
+
+def tune(args: argparse.Namespace, problem: Problem, client=None) -> tuple[list[Candidate], Candidate | str]:
     """Every planned candidate scored, best first, and the firmware's autotune on the same twin."""
     cost = objective(args.objective)
     rules, optimisers = plan(args.method)
-    autotune_name, autotune_gains = firmware_autotune(replace(problem, loop="klipper" if problem.loop == "klipper"
-                                                              else "marlin"))
-    reference = score(problem, cost, {autotune_name: autotune_gains}, client)[0]
+    reference = autotune_reference(problem, cost, client)
     candidates = score(problem, cost, rule_gains(problem, rules), client) if rules else []
-    start = candidates[0].gains if candidates else autotune_gains
+    if candidates:
+        start = candidates[0].gains
+    elif isinstance(reference, Candidate):
+        start = reference.gains
+    else:
+        raise ValueError(f"--method {args.method}: no rule to start the search from, and {reference}")
     for method in optimisers:
         with progress_bar(args.budget) as bar:
             def step(costs: np.ndarray, bar=bar) -> None:
@@ -229,17 +242,21 @@ def tune(args: argparse.Namespace, problem: Problem, client=None) -> tuple[list[
 
 
 def report(args: argparse.Namespace, problem: Problem, is_bed: bool, candidates: list[Candidate],
-           reference: Candidate) -> None:
+           reference: Candidate | str) -> None:
     best = candidates[0]
     print(f"twin-tune: {problem.name} at {problem.scenario.target_c:g} C, objective {args.objective}, "
           f"loop {problem.loop}")
-    verdict = "beats" if best.cost < reference.cost else "does not beat"
-    print(f"best: {best.method}  {best.gains}  cost {best.cost:.4g}  ({verdict} {reference.method}: "
-          f"{reference.gains}  cost {reference.cost:.4g})")
+    if isinstance(reference, Candidate):
+        verdict = "beats" if best.cost < reference.cost else "does not beat"
+        versus = f"{verdict} {reference.method}: {reference.gains}  cost {reference.cost:.4g}"
+        shown = candidates + [reference]
+    else:
+        versus, shown = reference, candidates
+    print(f"best: {best.method}  {best.gains}  cost {best.cost:.4g}  ({versus})")
     print("\n".join(settings_lines(best.gains, is_bed)))
     print("candidates on the firmware twin (best first):")
-    width = max(len(c.method) for c in candidates + [reference])
-    for c in candidates + [reference]:
+    width = max(len(c.method) for c in shown)
+    for c in shown:
         mark = "*" if c is best else " "
         print(f" {mark}{c.method:{width}}  {str(c.gains):36}  cost {c.cost:10.4g}  {metrics_line(c)}")
 

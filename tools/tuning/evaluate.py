@@ -427,8 +427,14 @@ def klipper_autotune(problem: Problem) -> Gains:
     """PID_CALIBRATE HEATER=extruder TARGET=<target> on a Klipper twin of the problem's plant."""
     from twin.klipper_twin import KlipperTwin, extruder_setup
 
+    from firmware_port.klipper import CommandError
+
     twin = KlipperTwin([extruder_setup(make_problem_plant(problem), max_temp_c=KLIPPER_MAX_TEMP_C)])
-    result = twin.pid_calibrate("extruder", problem.scenario.target_c)
+    try:
+        result = twin.pid_calibrate("extruder", problem.scenario.target_c)
+    except CommandError as exc:
+        why = (twin.shutdown_message or str(exc)).splitlines()[0]
+        raise ValueError(f"PID_CALIBRATE failed on {problem.name}: {why}") from None
     return Gains(result.kp, result.ki, result.kd)
 
 

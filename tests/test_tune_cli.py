@@ -24,7 +24,8 @@ BEST = re.compile(r"^best: (\S+)\s+Kp (\S+) Ki (\S+) Kd (\S+)\s+cost (\S+)\s+\((
 def test_every_rule_on_hotend_cartridge_beats_or_loses_to_m303_and_the_best_beats_it(capsys, tmp_path):
     """The acceptance run: the best rule beats the twin's own M303 C8 on the heater objective."""
     plot = tmp_path / "tune.png"
-    assert main(["--plant", "hotend_cartridge", "--target", "210", "--method", "auto", "--plot", str(plot)]) == 0
+    assert main(["--plant", "hotend_cartridge", "--target", "210", "--method", "auto", "--budget", "90",
+                 "--plot", str(plot)]) == 0
     out = capsys.readouterr().out
     best = BEST.search(out)
     assert best is not None, out
@@ -70,8 +71,8 @@ def test_a_missing_log_is_one_line(capsys, tmp_path):
 
 
 def test_a_tune_on_a_local_dask_cluster_equals_in_process():
-    """Same seed, same candidates, chunks on two workers: the same gains and costs."""
-    args = parse_args(["--plant", "hotend_cartridge", "--method", "all", "--budget", "60", "--seed", "3"])
+    """Same seed, DE's three generations of 45 on two workers: the same gains and costs."""
+    args = parse_args(["--plant", "hotend_cartridge", "--method", "de", "--budget", "135", "--seed", "3"])
     problem = preset_problem("hotend_cartridge", 210)
     local, _ = tune(args, problem)
     with LocalCluster(n_workers=2, processes=False, dashboard_address=None) as cluster, Client(cluster) as client:

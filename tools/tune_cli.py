@@ -40,7 +40,7 @@ from twin.plants import SPECS, Spec
 
 FIRMWARES = {"marlin": "marlin", "klipper": "klipper"}  # --firmware -> the evaluation loop
 BED_TARGET_C, HOTEND_TARGET_C = 60.0, 210.0
-DEFAULT_BUDGET = 2000  # optimiser evaluations: about 45 DE generations of a 45-strong population
+DEFAULT_BUDGET = 900  # optimiser evaluations: 20 generations of DE's default population of 45
 SEARCH_FACTOR = 4.0  # optimiser bounds: 0 .. 4 x the best rule's gains (capped at the firmware's range)
 MIN_BOUND = np.array([1.0, 0.05, 1.0])  # so a rule's zero Ki or Kd still leaves room to search
 
@@ -90,10 +90,10 @@ def search_bounds(start: Gains) -> list[tuple[float, float]]:
 def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, start: Gains, budget: int,
              seed: int, client=None, progress=None) -> Candidate:
     """Search with an optimiser of tools/tuning/optim on the firmware twin, within search_bounds(start)."""
-    from tools.tuning.optim import OPTIMISERS
+    from tools.tuning.optim import METHODS
 
     evaluator = Evaluator(problem, cost, client, on_batch=progress)
-    result = OPTIMISERS[method](evaluator, search_bounds(start), rng=np.random.default_rng(seed), budget=budget)
+    result = METHODS[method](evaluator, search_bounds(start), rng=np.random.default_rng(seed), budget=budget)
     best = Gains(*np.clip(result.x, 0.0, GAIN_MAX))
     run = simulate(problem, [[best.kp, best.ki, best.kd]], client)
     return Candidate(method, best, float(cost(run)[0]), run, np.asarray(result.history, float))

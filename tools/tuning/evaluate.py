@@ -345,9 +345,10 @@ def run_chunk(problem: Problem, gains: np.ndarray) -> Traces:
     """One chunk of candidates on the problem's loop (a picklable task for dask)."""
     if problem.loop == "ideal":
         return _run_ideal(problem, gains)
-    if problem.batched:
-        return _run_batch(problem, gains)
-    return run_scalars(problem, gains)
+    traces = _run_batch(problem, gains) if problem.batched else run_scalars(problem, gains)
+    if problem.loop == "marlin":  # Marlin's first reading after reset sums 15 oversamples, not 16: it reads high
+        traces = Traces(traces.t_s[1:], traces.temp_c[1:], traces.duty[1:], traces.tripped)
+    return traces
 
 
 def _chunks(gains: np.ndarray) -> Iterator[np.ndarray]:
@@ -474,10 +475,10 @@ def rule_names() -> list[str]:
 
 def optimiser_names() -> list[str]:
     try:
-        from tools.tuning.optim import OPTIMISERS
+        from tools.tuning.optim import METHODS
     except ImportError:
         return []
-    return list(OPTIMISERS)
+    return list(METHODS)
 
 
 def score(problem: Problem, cost: Callable[[Run], np.ndarray], gains: dict[str, Gains], client=None) -> list[Candidate]:

@@ -17,7 +17,6 @@ from firmware_port.marlin.constants import (
 )
 from firmware_port.marlin.pid import PidGains
 from firmware_port.marlin.serial import format_float
-from firmware_port.thermistor import TEMP_ONE
 from protocol.gcode import Command, unknown_command_text
 from protocol.settings import EEPROM_VERSION, Settings, crc16
 
@@ -95,7 +94,6 @@ def m190(p, cmd: Command):
 def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
     """wait_for_hotend / wait_for_bed: 1 s reports with W:, residency 10 s within 1 C, M108 breaks."""
     board = p.twin.board
-    heater = board.heaters[channel]
     target_c = None
     wants_to_cool = False
     residency_start_ms = next_temp_ms = next_cool_check_ms = 0
@@ -104,10 +102,10 @@ def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
     p.wait_for_heatup = True
     while True:
         now = board.now_ms
-        temp_c = heater.temp_q5 / TEMP_ONE
-        if target_c != heater.target_c:
-            wants_to_cool = heater.target_c < temp_c
-            target_c = heater.target_c
+        temp_c = board.temp_c(channel)
+        if target_c != board.target_c(channel):
+            target_c = board.target_c(channel)
+            wants_to_cool = target_c < temp_c
             if no_wait_for_cooling and wants_to_cool:
                 break
         if now >= next_temp_ms:
@@ -121,7 +119,7 @@ def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
         if board.halted:
             return False
         now = board.now_ms
-        temp_c = heater.temp_q5 / TEMP_ONE
+        temp_c = board.temp_c(channel)
         diff_c = abs(target_c - temp_c)
         if not residency_start_ms:
             if diff_c < TEMP_WINDOW_C:
@@ -176,16 +174,15 @@ def _pid_line(code: str, gains: PidGains) -> str:
 def _set_pid(p, channel: int, cmd: Command, code: str):
     """M301 / M304: set P, I, D (user units) or report them; Unknown without PID on that heater."""
     board = p.twin.board
-    if not board.can_autotune(channel):
+    if not board.has_gains(channel):
         p.write(unknown_command_text(cmd))
         return None
-    controller = board.heaters[channel].controller
+    g = board.gains(channel)
     if not any(cmd.has(k) for k in "PID"):
-        p.write(_pid_line(code, controller.gains))
+        p.write(_pid_line(code, g))
         return None
-    g = controller.gains
-    controller.set_gains(PidGains.clamped(cmd.value_float("P", g.kp), cmd.value_float("I", g.ki),
-                                          cmd.value_float("D", g.kd)))
+    board.set_gains(channel, PidGains.clamped(cmd.value_float("P", g.kp), cmd.value_float("I", g.ki),
+                                              cmd.value_float("D", g.kd)))
     return None
 
 
@@ -230,7 +227,7 @@ def _autotune_wait(p):
 # -- settings -----------------------------------------------------------------------------------
 def _current_settings(p) -> Settings:
     board = p.twin.board
-    pids = [h.controller.gains if board.can_autotune(c) else None for c, h in enumerate(board.heaters)]
+    pids = [board.gains(c) if board.has_gains(c) else None for c in range(len(board.heaters))]
     defaults = Settings()
     return Settings(pids[0] or defaults.hotend, (pids[1] if len(pids) > 1 else None) or defaults.bed)
 
@@ -239,7 +236,7 @@ def _apply_settings(p, settings: Settings) -> None:
     board = p.twin.board
     for channel, gains in ((HOTEND_CHANNEL, settings.hotend), (BED_CHANNEL, settings.bed)):
         if board.can_autotune(channel):
-            board.heaters[channel].controller.set_gains(gains)
+            board.set_gains(channel, gains)
 
 
 def _load_settings(p) -> str:
@@ -262,7 +259,7 @@ def _settings_report(p) -> str:
     text = ""
     for channel, code, title in ((HOTEND_CHANNEL, "M301", "Hotend PID"), (BED_CHANNEL, "M304", "Bed PID")):
         if board.can_autotune(channel):
-            text += f"echo:; {title}:\n" + _pid_line(code, board.heaters[channel].controller.gains)
+            text += f"echo:; {title}:\n" + _pid_line(code, board.gains(channel))
     return text
 
 

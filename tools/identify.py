@@ -423,7 +423,10 @@ def two_point_fopdt(t_s, temp_c, step_size: float, final_c: float | None = None)
 
 def ultimate_point(fopdt: Fopdt) -> tuple[float, float]:
     """(Ku, Tu) of a FOPDT: the proportional gain (input per C) and the period at which a P
-    controller would hold a steady oscillation: atan(w T) + w L = pi, Ku = sqrt(1 + (w T)^2) / K."""
+    controller would hold a steady oscillation: atan(w T) + w L = pi, Ku = sqrt(1 + (w T)^2) / K.
+
+    Superseded by tools.tuning.ultimate.ultimate_point (any model, from its frequency response);
+    still used by tools/fit_cli.py, to be rewired."""
     k, tau, delay = fopdt
     if delay <= 0 or k <= 0 or tau < 0:
         raise ValueError(f"no ultimate point for {fopdt}: needs a positive gain and dead time")
@@ -455,7 +458,10 @@ def pid_gains(fopdt: Fopdt, control_delay_s: float = CONTROL_DELAY_S) -> tuple[f
     Hagglund 2004, "Revisiting the Ziegler-Nichols step response method for PID control", J. Process
     Control 14:635-650): Kp = (0.2 + 0.45 T/L) / K, Ti = L (0.4 L + 0.8 T) / (L + 0.1 T),
     Td = 0.5 L T / (0.3 L + T). Not Ziegler-Nichols: a heater's lag dwarfs its dead time, and there
-    Ziegler-Nichols' integral action is far too strong."""
+    Ziegler-Nichols' integral action is far too strong.
+
+    Superseded by tools.tuning.rules.amigo (a FOPDT in, Gains out; add the loop's delay to the
+    FOPDT first); still used by tools/fit_cli.py, to be rewired."""
     k, lag_s, delay_s = fopdt._replace(delay_s=fopdt.delay_s + control_delay_s)
     kp = (0.2 + 0.45 * lag_s / delay_s) / k
     ti_s = delay_s * (0.4 * delay_s + 0.8 * lag_s) / (delay_s + 0.1 * lag_s)

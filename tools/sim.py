@@ -14,7 +14,6 @@ import sys
 from firmware_port.firmwares import FIRMWARES
 from twin.build import build_twin
 from twin.engine import ENGINES
-from twin.metrics import format_metrics_table, max_deviation_c, recovery_time_s, segments, step_metrics
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
 from twin.scenario import ScenarioError, scenario_for, with_overrides
@@ -90,30 +89,33 @@ def run(args: argparse.Namespace) -> int:
     twin = build_twin(scenario, args.firmware, with_bed=not args.no_bed, engine=args.engine, noise_lsb=args.noise)
     _run_with_progress(twin, scenario.duration_s)
 
-    heaters = ("hotend",) if args.no_bed else ("hotend", "bed")
+    result = twin.result()
     print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
-    print(_metrics_report(twin.trace, scenario, heaters))
-    for t, what, heater_id in twin.trace.protection_trips():
+    print(result.report(_disturbances(scenario)))
+    for t, what, heater_id in result.protection_trips():
         print(f"protection at {t:.1f} s: {what} on {heater_id}; the board halted (heaters off until reset)")
 
     stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
     csv_path = args.csv or os.path.join(args.out, stem + ".csv")
-    _write(csv_path, twin.trace.to_csv())
+    _write(csv_path, result.to_csv())
     print(f"trace: {csv_path}")
     if args.klipper_log:
-        _write(args.klipper_log, twin.trace.to_klipper_stats(heaters))
+        _write(args.klipper_log, result.to_klipper_stats())
         print(f"klipper stats log: {args.klipper_log}")
     if not args.no_plot:
         plot_path = args.plot or os.path.join(args.out, stem + ".png")
         try:
-            from tools.plot import plot_trace
-
             os.makedirs(os.path.dirname(plot_path) or ".", exist_ok=True)
-            plot_trace(twin.trace, plot_path, f"{scenario.name}: {args.firmware}", heaters)
+            result.plot(plot_path, f"{scenario.name}: {result.label}")
             print(f"plot: {plot_path}")
         except ImportError as exc:
             print(f"plot skipped: {exc}")
     return 0
+
+
+def _disturbances(scenario) -> list[tuple[float, str]]:
+    """The scenario's fan and flow changes, whose recovery the report measures."""
+    return [(e.at_s, f"{e.kind} {e.value}") for e in scenario.events if e.kind in ("fan", "flow")]
 
 
 def _run_with_progress(twin, duration_s: float) -> None:
@@ -125,33 +127,6 @@ def _run_with_progress(twin, duration_s: float) -> None:
             print(f"\r  {100 * k // PROGRESS_SLICES:3d}% ({twin.time_s:.0f}/{duration_s:g} s virtual)", end="", file=sys.stderr)
     if show:
         print(file=sys.stderr)
-
-
-def _metrics_report(trace, scenario, heaters: tuple[str, ...]) -> str:
-    """Step metrics per setpoint of each heater, then recovery after fan/flow disturbances."""
-    t_s = trace.column("t_s")
-    out = []
-    for heater in heaters:
-        target = trace.column(f"{heater}_target_c")
-        temp = trace.column(f"{heater}_measured_c")
-        duty = trace.column(f"{heater}_duty")
-        steps = [
-            step_metrics(t_s, temp, target, duty, start_s=start, end_s=end)
-            for start, end in segments(t_s, target)
-            if target[t_s >= start][0] > 0 and (t_s[(t_s >= start) & (t_s < end)].size > 2)
-        ]
-        if steps:
-            out.append(f"{heater} (firmware-measured temperature):")
-            out.append(format_metrics_table(steps))
-        for event in scenario.events:
-            if event.kind in ("fan", "flow") and (heater == "hotend") and event.at_s < t_s[-1]:
-                after = t_s >= event.at_s
-                rec = recovery_time_s(t_s, temp, target, event.at_s)
-                dev = max_deviation_c(t_s[after], temp[after], target[after], event.at_s)
-                rec_text = f"{rec:.1f} s" if rec is not None else "not recovered"
-                out.append(f"{heater} after {event.kind} {event.value} at {event.at_s:g} s: "
-                           f"max deviation {dev:.2f} C, recovery to +-2 C {rec_text}")
-    return "\n".join(out) if out else "no heater had a target"
 
 
 def _write(path: str, text: str) -> None:

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 
-from firmware_port.marlin.constants import ISR_PERIOD_S
+from twin.clock import TICK_S
 
-TICK_S = float(ISR_PERIOD_S)
 SENSOR, BLOCK = 0, 1  # output rows
 
 
@@ -56,7 +56,7 @@ class TickModel:
         self._powers = [np.eye(n)]  # Phi^k
         self._u_resp = [np.zeros(n)]  # sum_{j<k} Phi^j g: response to u = 1 over k ticks
         self._d_resp = [np.zeros((n, m))]  # sum_{j<k} Phi^j H
-        self._runs: dict[tuple, tuple] = {}
+        self._runs: dict[tuple, Any] = {}  # (kind, n_ticks[, offsets]) -> cached maps
 
     def _extend(self, k: int) -> None:
         while len(self._powers) <= k:

@@ -299,7 +299,7 @@ def _toml_value(value: float | str) -> str:
     return _toml_string(value) if isinstance(value, str) else repr(value)
 
 
-def _event_fields(event: Event) -> tuple[str, dict[str, float | str]]:
+def _event_fields(event: Event) -> tuple[str, dict[str, Any]]:
     """The array of tables an event is written to, and its fields."""
     match event.kind:
         case "target":
@@ -322,10 +322,10 @@ def dump_scenario(scenario: Scenario) -> str:
              f"ambient_c = {scenario.ambient_c!r}"]
     if scenario.seed is not None:
         lines.append(f"seed = {scenario.seed}")
-    sections = [("initial_c", scenario.initial_c)]
-    sections += [(f"plant.{heater}", params) for heater, params in scenario.plant.items()]
-    for header, table in sections:
-        lines += ["", f"[{header}]"] + [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in table.items()]
+    sections: list[tuple[str, dict[str, Any]]] = [("initial_c", dict(scenario.initial_c))]
+    sections += [(f"plant.{heater}", dict(params)) for heater, params in scenario.plant.items()]
+    for header, values in sections:
+        lines += ["", f"[{header}]"] + [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in values.items()]
     for table in _EVENT_TABLES:  # the tie order of parse_scenario, so the round trip is exact
         for event in scenario.events:
             name, fields = _event_fields(event)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 _F32 = np.float32
 
 
-def format_float(value: float, digits: int = 2) -> str:
+def format_float(value: float | np.floating, digits: int = 2) -> str:
     """Arduino ``Print::printFloat`` in float32 (avr-gcc's double), as Marlin's SERIAL_ECHO prints.
 
     The rounding constant 0.5/10**digits is added in float32, the integer part printed, then each
@@ -44,7 +46,7 @@ class Console:
 
     def __init__(self) -> None:
         self.text = ""
-        self.listeners = []  # callables(text) told of every write (the twin's trace, a transport)
+        self.listeners: list[Callable[[str], None]] = []  # callables(text) told of every write (the twin's trace, a transport)
 
     def write(self, text: str) -> None:
         self.text += text

@@ -459,10 +459,14 @@ class Candidate:
 
 
 def rule_gains(problem: Problem, names: list[str]) -> dict[str, Gains]:
-    """Each named rule's gains for the problem's plant (tools/tuning/rules)."""
-    from tools.tuning.rules import tune_plant
+    """Each named rule's gains for the problem's plant (tools/tuning/rules) as its linear model with
+    the loop's own delay added (tools/identify.py CONTROL_DELAY_S, as twin-fit tunes)."""
+    from tools.identify import CONTROL_DELAY_S
+    from tools.tuning.models import model_of
+    from tools.tuning.rules import tune
 
-    return {name: tune_plant(name, problem.spec) for name in names}
+    model = model_of(problem.spec).delayed(CONTROL_DELAY_S)
+    return {name: tune(name, model) for name in names}
 
 
 def rule_names() -> list[str]:

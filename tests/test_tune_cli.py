@@ -16,6 +16,7 @@ from tools.tune_cli import main, parse_args, tune
 from tools.tuning import table
 from tools.tuning.evaluate import preset_problem, rule_names
 
+ROW = re.compile(r"^ [ *](\S+(?: C8)?)\s+Kp \S+ Ki \S+ Kd \S+\s+cost\s+(\S+)", re.M)
 LOG_DIR = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)
 BEST = re.compile(r"^best: (\S+)\s+Kp (\S+) Ki (\S+) Kd (\S+)\s+cost (\S+)\s+\((beats|does not beat) "
                   r"M303 C8: Kp \S+ Ki \S+ Kd \S+\s+cost (\S+)\)$", re.M)
@@ -31,6 +32,8 @@ def test_every_rule_on_hotend_cartridge_beats_or_loses_to_m303_and_the_best_beat
     assert best is not None, out
     assert best.group(1) in rule_names() + ["de"]
     assert best.group(6) == "beats" and float(best.group(5)) < float(best.group(7))
+    costs = {name: float(cost) for name, cost in ROW.findall(out)}
+    assert min(costs[rule] for rule in rule_names()) < costs["M303 C8"]  # the acceptance: a rule beats M303
     for paste in ("M301 E0 P", "  M500", "#define DEFAULT_Kp", "[extruder]", "pid_Kp: "):
         assert paste in out
     for rule in rule_names():

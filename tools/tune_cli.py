@@ -253,6 +253,9 @@ def report(args: argparse.Namespace, problem: Problem, is_bed: bool, candidates:
     else:
         versus, shown = reference, candidates
     print(f"best: {best.method}  {best.gains}  cost {best.cost:.4g}  ({versus})")
+    by_rule = [c for c in candidates if c.history is None]
+    if by_rule and by_rule[0] is not best:
+        print(f"best rule: {by_rule[0].method}  {by_rule[0].gains}  cost {by_rule[0].cost:.4g}")
     print("\n".join(settings_lines(best.gains, is_bed)))
     print("candidates on the firmware twin (best first):")
     width = max(len(c.method) for c in shown)

@@ -81,7 +81,7 @@ def test_a_tune_on_a_local_dask_cluster_equals_in_process():
     with LocalCluster(n_workers=2, processes=False, dashboard_address=None) as cluster, Client(cluster) as client:
         remote, _ = tune(args, problem, client)
     assert [c.method for c in remote] == [c.method for c in local]
-    for a, b in zip(local, remote):
+    for a, b in zip(local, remote, strict=True):
         assert (a.gains, a.cost) == (b.gains, b.cost)  # identical chunks, identical arithmetic
 
 

@@ -22,6 +22,8 @@ chunks run on its workers, else in this process: the same chunks either way, so 
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
@@ -30,13 +32,19 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
+from firmware_port.klipper import CommandError
 from firmware_port.marlin.board import HOTEND_CHANNEL
 from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PidGains
+from tools.identify import CONTROL_DELAY_S
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
+from tools.tuning.models import model_of
 from tools.tuning.objectives import Run
+from tools.tuning.optim import METHODS
+from tools.tuning.rules import RULES, tune
 from twin.batch import BatchTwin
 from twin.build import apply_event
 from twin.engine import Twin
+from twin.klipper_twin import KlipperTwin, extruder_setup, tick_near
 from twin.linear import SENSOR, Lti
 from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
 from twin.scenario import Event
@@ -55,6 +63,10 @@ LOAD_FRACTION = 0.1  # seed 002's 0.1 step, of the input's full scale
 IDEAL_DT_S = 0.05
 IDEAL_FILTER_PER_S = 100.0  # Simulink PID block's default filter coefficient N
 M303_CYCLES = 8
+AUTOTUNE_TIMEOUT_S = 2 * 20 * 60.0  # twice Marlin's MAX_CYCLE_TIME_PID_AUTOTUNE (20 min)
+AUTOTUNE_POLL_S = 10.0
+KLIPPER_MAX_TEMP_C = 300.0  # above any tuning target, so only a real runaway trips
+OUT_OF_RANGE_COST = 1e9  # a candidate the firmware cannot take
 
 
 @dataclass(frozen=True)
@@ -103,7 +115,7 @@ class LoadedPlant(Plant):
     """A transfer-function plant with a load at its input: d = [ambient, load (fraction of full scale)]."""
 
     def __init__(self, preset: str, spec: TransferFunction, ambient_c: float):
-        super().__init__(preset, _LoadedSpec(spec), ambient_c)
+        super().__init__(preset, _LoadedSpec(**dataclasses.asdict(spec)), ambient_c)
         self.load = 0.0
         self.d = np.array([ambient_c, 0.0])
 
@@ -118,26 +130,13 @@ class LoadedPlant(Plant):
 
 
 @dataclass(frozen=True)
-class _LoadedSpec:
+class _LoadedSpec(TransferFunction):
     """A TransferFunction whose model takes the load as a second disturbance (added to u)."""
 
-    tf: TransferFunction
-    linear = True
-
-    @property
-    def delay_ticks(self) -> int:
-        return self.tf.delay_ticks
-
-    def conditions(self, fan: float, flow_mm_s: float, ambient_c: float, block_c: float) -> None:
-        return None
-
     def lti(self, key: None = None) -> Lti:
-        base = self.tf.lti()
+        base = super().lti()
         e = np.column_stack((base.e[:, 0], base.b))
         return Lti(base.a, base.b, e, base.c, np.column_stack((base.f[:, 0], np.zeros(2))))
-
-    def initial_state(self, ambient_c: float, start_c: float) -> np.ndarray:
-        return self.tf.initial_state(ambient_c, start_c)
 
 
 def make_problem_plant(problem: Problem) -> Plant:
@@ -160,7 +159,7 @@ def full_power_time_s(spec: Spec, ambient_c: float, target_c: float) -> float:
     """The open-loop time from ambient to target_c at full power (dead time included).
 
     ValueError when full power cannot hold the target."""
-    lti = spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))
+    lti = spec.lti() if isinstance(spec, TransferFunction) else spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))
     t, rise = _sensor_step(lti)
     need = target_c - ambient_c
     if need <= 0 or rise[-1] <= need:
@@ -175,6 +174,7 @@ def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C) 
     heat_s = max(MIN_PHASE_S, HEATUP_FACTOR * full_power_time_s(spec, ambient_c, target_c))
     heat_s = math.ceil(heat_s / PHASE_ROUND_S) * PHASE_ROUND_S
     phase_s = math.ceil(max(MIN_PHASE_S, heat_s / 2) / PHASE_ROUND_S) * PHASE_ROUND_S
+    events: tuple[Event, ...]
     if isinstance(spec, TransferFunction):
         events = (Event(heat_s, "load", None, -LOAD_FRACTION),)
     else:
@@ -191,21 +191,32 @@ def preset_problem(preset: str, target_c: float, loop: str = "marlin") -> Proble
     return Problem(preset, spec, default_scenario(spec, target_c), loop)
 
 
+def _value(event: Event) -> float:
+    if not isinstance(event.value, (int, float)):
+        raise ValueError(f"a {event.kind!r} event needs a number, not {event.value!r}")
+    return float(event.value)
+
+
 def _apply_to_plant(plant: Plant, event: Event) -> None:
-    """A scenario event acting on a plant directly (batch lanes and the idealised loop)."""
-    fan, flow, ambient = plant.fan, plant.flow_mm_s, plant.ambient_c
+    """A scenario event acting on a plant directly (batch lanes, Klipper's plants, the idealised loop)."""
     if event.kind == "load":
-        plant.set_load(float(event.value))
+        if not isinstance(plant, LoadedPlant):
+            raise ValueError("a load step needs a transfer-function plant")
+        plant.set_load(_value(event))
         return
-    if event.kind == "fan":
-        fan = float(event.value)
-    elif event.kind == "flow":
-        flow = float(event.value)
-    elif event.kind == "ambient":
-        ambient = float(event.value)
-    else:
+    inputs = {"fan": plant.fan, "flow": plant.flow_mm_s, "ambient": plant.ambient_c}
+    if event.kind not in inputs:
         raise ValueError(f"a tuning scenario has no {event.kind!r} events")
-    plant.set_inputs(fan, flow, ambient)
+    inputs[event.kind] = _value(event)
+    plant.set_inputs(inputs["fan"], inputs["flow"], inputs["ambient"])
+
+
+def _batch_event(batch: BatchTwin, event: Event) -> None:
+    _apply_to_plant(batch.plant, event)
+
+
+def _twin_load(twin: Twin, event: Event) -> None:
+    _apply_to_plant(twin.plants[0], event)
 
 
 # -- the loops -------------------------------------------------------------------------------------
@@ -228,7 +239,7 @@ def _run_batch(problem: Problem, gains: np.ndarray) -> Traces:
     batch = BatchTwin(make_problem_plant(problem), [_firmware_gains(row) for row in gains])
     batch.set_target(int(round(scenario.target_c)))
     for event in scenario.events:
-        batch.schedule(event.at_s, lambda b, ev=event: _apply_to_plant(b.plant, ev))
+        batch.schedule(event.at_s, functools.partial(_batch_event, event=event))
     batch.run_until(scenario.duration_s)
     return Traces(batch.t_s, batch.measured_c, batch.duty, batch.lanes.halted.copy())
 
@@ -239,12 +250,9 @@ def _marlin_twin(problem: Problem, gains: PidGains | None) -> Twin:
     twin = Twin([plant], "pid")
     twin.set_ambient(problem.scenario.ambient_c)
     if gains is not None:
-        twin.board.hotend.controller.set_gains(gains)
+        twin.board.set_gains(HOTEND_CHANNEL, gains)
     for event in problem.scenario.events:
-        if event.kind == "load":
-            twin.schedule(event.at_s, lambda tw, ev=event: tw.plants[0].set_load(float(ev.value)))
-        else:
-            twin.schedule(event.at_s, lambda tw, ev=event: apply_event(tw, ev))
+        twin.schedule(event.at_s, functools.partial(_twin_load if event.kind == "load" else apply_event, event=event))
     return twin
 
 
@@ -257,26 +265,19 @@ def _run_scalar_marlin(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, n
 
 
 def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    from twin.klipper_twin import KlipperTwin, extruder_setup
-
     plant = make_problem_plant(problem)
     kp, ki, kd = (float(v) for v in row)
     twin = KlipperTwin([extruder_setup(plant, pid_kp=kp, pid_ki=ki, pid_kd=kd, max_temp_c=KLIPPER_MAX_TEMP_C)])
     for event in problem.scenario.events:
-        twin.schedule(event.at_s, lambda tw, ev=event: _klipper_event(tw, ev))
+        twin.schedule(event.at_s, functools.partial(_klipper_event, event=event))
     twin.set_target("extruder", problem.scenario.target_c)
     twin.run_until(problem.scenario.duration_s)
     return (twin.column("extruder", "t_s"), twin.column("extruder", "temp_c"), twin.column("extruder", "duty"),
             bool(twin.halted))
 
 
-KLIPPER_MAX_TEMP_C = 300.0  # above any tuning target, so only a real runaway trips
-
-
-def _klipper_event(twin, event: Event) -> None:
+def _klipper_event(twin: KlipperTwin, event: Event) -> None:
     channel = twin.channels["extruder"]
-    from twin.klipper_twin import tick_near
-
     channel.advance_plant(tick_near(twin.time_s))
     _apply_to_plant(channel.plant, event)
 
@@ -402,9 +403,6 @@ class Evaluator:
         return costs
 
 
-OUT_OF_RANGE_COST = 1e9
-
-
 # -- the firmware's own autotune ---------------------------------------------------------------------
 def marlin_autotune(problem: Problem, cycles: int = M303_CYCLES) -> Gains:
     """M303 E0 S<target> C<cycles> on a Marlin twin of the problem's plant (at ambient, no
@@ -415,21 +413,14 @@ def marlin_autotune(problem: Problem, cycles: int = M303_CYCLES) -> Gains:
     limit_s = AUTOTUNE_TIMEOUT_S
     while not tune.done and twin.time_s < limit_s:
         twin.run_until(twin.time_s + AUTOTUNE_POLL_S)
-    if not tune.succeeded:
+    if not tune.succeeded or tune.gains is None:
         raise ValueError(f"M303 failed on {problem.name}: " + " | ".join(twin.console.lines()[-2:]))
-    return Gains(*tune.gains)
-
-
-AUTOTUNE_TIMEOUT_S = 20 * 60.0 * 2  # two of Marlin's MAX_CYCLE_TIME_PID_AUTOTUNE (20 min)
-AUTOTUNE_POLL_S = 10.0
+    kp, ki, kd = tune.gains
+    return Gains(kp, ki, kd)
 
 
 def klipper_autotune(problem: Problem) -> Gains:
     """PID_CALIBRATE HEATER=extruder TARGET=<target> on a Klipper twin of the problem's plant."""
-    from twin.klipper_twin import KlipperTwin, extruder_setup
-
-    from firmware_port.klipper import CommandError
-
     twin = KlipperTwin([extruder_setup(make_problem_plant(problem), max_temp_c=KLIPPER_MAX_TEMP_C)])
     try:
         result = twin.pid_calibrate("extruder", problem.scenario.target_c)
@@ -461,27 +452,15 @@ class Candidate:
 def rule_gains(problem: Problem, names: list[str]) -> dict[str, Gains]:
     """Each named rule's gains for the problem's plant (tools/tuning/rules) as its linear model with
     the loop's own delay added (tools/identify.py CONTROL_DELAY_S, as twin-fit tunes)."""
-    from tools.identify import CONTROL_DELAY_S
-    from tools.tuning.models import model_of
-    from tools.tuning.rules import tune
-
     model = model_of(problem.spec).delayed(CONTROL_DELAY_S)
     return {name: tune(name, model) for name in names}
 
 
 def rule_names() -> list[str]:
-    try:
-        from tools.tuning.rules import RULES
-    except ImportError:
-        return []
     return list(RULES)
 
 
 def optimiser_names() -> list[str]:
-    try:
-        from tools.tuning.optim import METHODS
-    except ImportError:
-        return []
     return list(METHODS)
 
 

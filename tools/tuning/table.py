@@ -127,13 +127,17 @@ def same_table(a: str, b: str) -> list[str]:
     if len(rows_a) != len(rows_b):
         return [f"{len(rows_a)} rows against {len(rows_b)}"]
     problems = []
-    for line_a, line_b in zip(rows_a, rows_b):
-        for col, (x, y) in enumerate(zip(line_a.split("|"), line_b.split("|"))):
+    for line_a, line_b in zip(rows_a, rows_b, strict=True):
+        cells_a, cells_b = line_a.split("|"), line_b.split("|")
+        if len(cells_a) != len(cells_b):
+            problems.append(f"{line_a} has {len(cells_a)} cells against {len(cells_b)}")
+            continue
+        for col, (x, y) in enumerate(zip(cells_a, cells_b, strict=True)):
             fx, fy = _number(x.strip()), _number(y.strip())
             same = (np.isclose(fx, fy, rtol=REL_TOL, atol=ABS_TOL) if fx is not None and fy is not None
                     else x.strip() == y.strip())
             if not same:
-                problems.append(f"{line_a.split('|')[1].strip()} {line_a.split('|')[3].strip()}: column "
+                problems.append(f"{cells_a[1].strip()} {cells_a[3].strip()}: column "
                                 f"{COLUMNS[col - 1] if 0 < col <= len(COLUMNS) else col}: {x.strip()} != {y.strip()}")
     return problems
 

@@ -17,13 +17,14 @@ from tools.tuning.evaluate import (
     Evaluator,
     LoadedPlant,
     default_scenario,
+    klipper_autotune,
     marlin_autotune,
     preset_problem,
     run_chunk,
     run_scalars,
     simulate,
 )
-from tools.tuning.objectives import heater_cost
+from tools.tuning.objectives import heater_cost, heater_terms
 from twin.linear import SENSOR
 from twin.plants import SPECS
 
@@ -115,3 +116,22 @@ def test_m303_on_the_twin_gives_working_gains():
     run = simulate(CARTRIDGE, [[gains.kp, gains.ki, gains.kd]])
     assert not run.tripped[0]
     assert np.all(np.isfinite(heater_cost(run)))
+
+
+def test_the_klipper_loop_runs_klippers_pid_and_its_pid_calibrate():
+    """--firmware klipper: PID_CALIBRATE on the twin, then its gains through Klipper's PID."""
+    problem = replace(preset_problem("hotend", 210), loop="klipper")
+    gains = klipper_autotune(problem)
+    run = simulate(problem, [[gains.kp, gains.ki, gains.kd], [gains.kp / 4, 0.0, 0.0]])
+    # P-only at a quarter of the gain holds so far below the target that verify_heater shuts down
+    assert run.tripped.tolist() == [False, True]
+    terms = heater_terms(run)
+    assert terms.reach_s[0] < problem.scenario.disturbances_s[0]
+    assert terms.hold_error_c[0] < 1.0 < terms.hold_error_c[1]
+
+
+def test_pid_calibrate_tripping_verify_heater_is_one_error():
+    """On hotend_cartridge the relay swings more than verify_heater's 5 C below 210 C for long
+    enough to trip it (max_error 120): a ValueError naming the check, not a traceback."""
+    with pytest.raises(ValueError, match="PID_CALIBRATE failed on hotend_cartridge: Heater extruder not heating"):
+        klipper_autotune(replace(CARTRIDGE, loop="klipper"))

@@ -4,9 +4,12 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from tools.identify import Fopdt
+from tools.identify import Fopdt, model_spec
 from tools.identify import ultimate_point as fopdt_ultimate_point
+from tools.tuning.ideal import step_response
 from tools.tuning.models import LinearModel, model_of
 from tools.tuning.ultimate import (
     WAVE_FACTORS,
@@ -90,3 +93,51 @@ def test_wave_factors_are_triangle_and_square():
     for wave, factor in ((2 / math.pi * np.arcsin(np.sin(t)), WAVE_FACTORS[0]), (np.sign(np.sin(t)), WAVE_FACTORS[1])):
         fundamental = 2 * np.mean(wave * np.sin(t))
         assert fundamental == pytest.approx(factor, rel=1e-4)
+
+
+def test_idealised_p_loop_at_ku_oscillates_at_tu():
+    """Cross-check in the time domain (tools/tuning/ideal.py): a P controller at Ku holds its
+    oscillation, 2 % below it decays, 2 % above it grows, and zero crossings come every Tu / 2."""
+    model = model_of(SPECS["seed003_third"])
+    point = ultimate_point(model)
+    swings = []
+    for factor in (0.98, 1.0, 1.02):
+        run = step_response(model, (factor * point.ku, 0.0, 0.0), duration_s=20 * point.tu_s)
+        late = run.output[run.t_s > 10 * point.tu_s]
+        half = len(late) // 2
+        swings.append((np.ptp(late[:half]), np.ptp(late[half:])))
+    assert swings[0][1] < 0.9 * swings[0][0]
+    assert swings[1][1] == pytest.approx(swings[1][0], rel=0.02)
+    assert swings[2][1] > 1.1 * swings[2][0]
+    run = step_response(model, (point.ku, 0.0, 0.0), duration_s=20 * point.tu_s)
+    offset = run.output - np.mean(run.output[run.t_s > 10 * point.tu_s])
+    late = run.t_s > 10 * point.tu_s
+    crossings = run.t_s[late][1:][np.diff(np.sign(offset[late])) != 0]
+    assert np.mean(np.diff(crossings)) == pytest.approx(point.tu_s / 2, rel=0.01)
+
+
+def test_response_of_a_transfer_function_is_its_polynomials_with_the_delay():
+    spec = SPECS["seed003_third"]
+    num, den = spec.polynomials()
+    w = np.logspace(-4, 1, 30)
+    expected = (np.polyval(num, 1j * w) / np.polyval(den, 1j * w) * spec.input_full_scale
+                * np.exp(-1j * w * spec.delay_s))
+    assert model_of(spec).response(w) == pytest.approx(expected, rel=1e-9)
+
+
+def test_lumped_and_fitted_models_have_their_physical_static_gain():
+    """A lumped plant rises P / A at full power (heater watts over loss W/K); a fitted FOPDT
+    (identify.model_spec, what FitResult.spec() returns) its fitted gain."""
+    spec = SPECS["hotend_cartridge"]
+    assert model_of(spec).static_gain == pytest.approx(spec.power_w / spec.ambient_xfer_w_k, rel=1e-9)
+    fitted = model_spec("fopdt", {"gain_c": 300.0, "time_constant_s": 120.0, "delay_s": 4.0})
+    model = model_of(fitted)
+    assert (model.static_gain, model.delay_s) == pytest.approx((300.0, 4.0))
+    assert model.fopdt() == pytest.approx((300.0, 120.0, 4.0), rel=1e-3)
+
+
+@settings(max_examples=30, deadline=None)
+@given(gain=st.floats(1.0, 1000.0), lag_s=st.floats(1.0, 1000.0), delay_s=st.floats(0.1, 100.0))
+def test_any_fopdt_crossover_is_the_closed_form(gain, lag_s, delay_s):
+    model = model_of(TransferFunction(gain=gain, input_full_scale=1.0, lag1_s=lag_s, delay_s=delay_s))
+    assert ultimate_point(model) == pytest.approx(fopdt_ultimate_point(Fopdt(gain, lag_s, delay_s)), rel=1e-7)

@@ -23,6 +23,7 @@ from twin.linear import SENSOR, Lti, TickModel
 from twin.plants import Conditions, Lumped, Plant, Spec
 
 STEP_POINTS = 20000  # grid of the step response for the FOPDT equivalent (as tools/identify.py)
+NEGLIGIBLE = 1e-12  # a numerator coefficient this small against the largest is rounding: dropped
 SETTLE_TIME_CONSTANTS = 8.0  # the step response runs this many slowest time constants
 
 
@@ -48,7 +49,10 @@ class LinearModel:
     def polynomials(self) -> tuple[np.ndarray, np.ndarray]:
         """Numerator and denominator of the rational part, highest power first."""
         num, den = scipy.signal.ss2tf(self.a, self.b[:, None], self.c[None, :], np.zeros((1, 1)))
-        return np.trim_zeros(num[0], "f"), den
+        num = num[0]
+        # ss2tf leaves rounding residue where the numerator's leading coefficients are zero
+        leading = np.flatnonzero(np.abs(num) > NEGLIGIBLE * np.abs(num).max())[0]
+        return num[leading:], den
 
     @property
     def poles(self) -> np.ndarray:

@@ -22,6 +22,7 @@ from firmware_port.marlin.autotune import pid_from_relay
 from tools.identify import Fopdt
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import LinearModel
+from tools.tuning.msdi import msdi_gains
 from tools.tuning.ultimate import UltimatePoint, ultimate_point
 
 
@@ -149,6 +150,8 @@ RULES: dict[str, Rule] = {
                                 "Marlin 2.1.x Marlin/src/module/temperature.cpp PID_autotune"),
     "klipper": Rule(klipper, "ultimate", "Klipper PID_CALIBRATE's Ziegler-Nichols on this ultimate point",
                     "Klipper klippy/extras/pid_calibrate.py"),
+    "msdi": Rule(msdi_gains, "model", "maximal stability degree: triple root at -J, J at the gains' first maximum",
+                 "seed 003 (MSDI PID tuning for third-order models with a zero and delay), eqs. (4)-(8)"),
 }
 
 

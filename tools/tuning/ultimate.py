@@ -11,6 +11,8 @@ the crossover, and the describing function gives Ku ~ 4 d / (pi a).
 
     point = ultimate_point(model_of(SPECS["seed001_fopdt"]))
     relay = relay_experiment(model_of(SPECS["seed001_fopdt"]))
+
+``python -m tools.tuning.ultimate`` prints both for every plant preset.
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from tools.tuning.models import LinearModel
+from tools.tuning.models import LinearModel, model_of
+from twin.plants import SPECS, Lumped
 
 GRID_DECADES_BELOW = 4.0  # the phase search starts this far below the model's slowest corner
 GRID_DECADES_ABOVE = 4.0  # and ends this far above its fastest corner (or 1/dead time)
@@ -205,3 +208,28 @@ def relay_tolerance(model: LinearModel, point: UltimatePoint) -> RelayTolerance:
     gain = 1.0 / np.abs(model.response(w[low : high + 1]))
     return RelayTolerance(WAVE_FACTORS[0] * float(gain.min()), WAVE_FACTORS[1] * float(gain.max()),
                           2.0 * math.pi / float(w[high]), 2.0 * math.pi / float(w[low]))
+
+
+# Seed 000's plants have no dead time of their own: the firmware's control period adds one.
+CONTROL_PERIOD_S = 0.16384  # Marlin's PID_dT on the ATmega328 (firmware_port/marlin/constants.py)
+
+
+def main() -> None:
+    """Print every plant preset's ultimate point from its model beside an ideal relay's on it."""
+    print(f"{'preset':<18} {'extra delay':>11} {'Ku model':>10} {'Tu model':>9} {'Ku relay':>10} {'Tu relay':>9} "
+          f"{'dKu %':>6} {'dTu %':>6}  Ku range (DF)        Tu range (DF)")
+    for name, spec in SPECS.items():
+        if isinstance(spec, Lumped) and not spec.linear:
+            continue
+        model = model_of(spec)
+        extra_s = 0.0 if model.delay_s else CONTROL_PERIOD_S
+        model = model.delayed(extra_s)
+        point, relay = ultimate_point(model), relay_experiment(model).point
+        tol = relay_tolerance(model, point)
+        print(f"{name:<18} {extra_s:>10.5f}s {point.ku:>10.5g} {point.tu_s:>8.4g}s {relay.ku:>10.5g} "
+              f"{relay.tu_s:>8.4g}s {100 * (relay.ku / point.ku - 1):>+6.1f} {100 * (relay.tu_s / point.tu_s - 1):>+6.1f}"
+              f"  {tol.ku_low:.4g}..{tol.ku_high:.4g}  {tol.tu_low_s:.4g}..{tol.tu_high_s:.4g} s")
+
+
+if __name__ == "__main__":
+    main()

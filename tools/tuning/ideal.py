@@ -1,0 +1,77 @@
+"""The idealised loop the papers simulate: a continuous-time parallel PID on the linear model with its
+dead time, a set-point step, no firmware (no ADC, PWM, integer maths or output clamp unless asked).
+
+The plant steps exactly (zero-order hold) at a small step, its dead time as whole steps; the PID
+acts on the error at each step: integral by the rectangle rule, derivative by the backward
+difference through an optional first-order filter (Simulink's PID block filters it with
+N = 100 by default, a 0.01 s time constant). With steps far below the loop's time scales this is
+the continuous loop the papers plot.
+
+    run = step_response(model, (kp, ki, kd), duration_s=600)
+    metrics = step_metrics(run.t_s, run.output, 1.0)     # twin.metrics
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+import scipy.linalg
+
+from tools.tuning.models import LinearModel
+
+STEP_S = 0.01  # default simulation step (the dead time is rounded to whole steps of at most this)
+DIVERGED = 1e6  # |output| beyond this many set points: the loop is unstable, the run stops
+
+
+class LoopRun(NamedTuple):
+    """Times, the model's output (its own units, from 0), the controller's output, and whether it diverged."""
+
+    t_s: np.ndarray
+    output: np.ndarray
+    control: np.ndarray
+    diverged: bool
+
+
+def step_response(model: LinearModel, gains: tuple[float, float, float], setpoint: float = 1.0,
+                  duration_s: float = 600.0, step_s: float = STEP_S, derivative_filter_s: float = 0.0,
+                  control_limits: tuple[float, float] | None = None) -> LoopRun:
+    """The closed loop from rest after a set-point step at t = 0: u = kp e + ki int e + kd de/dt
+    (filtered by derivative_filter_s), clipped to control_limits if given (no anti-windup: the
+    papers' linear loop has none)."""
+    if duration_s <= 0 or step_s <= 0 or derivative_filter_s < 0:
+        raise ValueError("duration_s and step_s must be > 0, derivative_filter_s >= 0")
+    kp, ki, kd = gains
+    delay_steps = math.ceil(model.delay_s / step_s - 1e-9) if model.delay_s else 0
+    h = model.delay_s / delay_steps if delay_steps else step_s
+    n = len(model.b)
+    aug = np.zeros((n + 1, n + 1))
+    aug[:n, :n], aug[:n, n] = model.a, model.b
+    disc = scipy.linalg.expm(aug * h)
+    phi, gam = disc[:n, :n], disc[:n, n]
+    steps = int(round(duration_s / h))
+    y, u = np.zeros(steps + 1), np.zeros(steps + 1)
+    buffer = np.zeros(delay_steps)
+    x = np.zeros(n)
+    integral = derivative = 0.0
+    previous_error = 0.0  # the loop at rest before the step: e = 0
+    diverged = False
+    for k in range(steps + 1):
+        y[k] = model.c @ x
+        if abs(y[k]) > DIVERGED * max(abs(setpoint), 1.0):
+            diverged = True
+            y, u = y[: k + 1], u[: k + 1]
+            break
+        error = setpoint - y[k]
+        integral += ki * error * h
+        derivative = (derivative_filter_s * derivative + kd * (error - previous_error)) / (derivative_filter_s + h)
+        previous_error = error
+        u[k] = kp * error + integral + derivative
+        if control_limits is not None:
+            u[k] = min(max(u[k], control_limits[0]), control_limits[1])
+        applied = u[k]
+        if delay_steps:
+            applied, buffer[k % delay_steps] = buffer[k % delay_steps], u[k]
+        x = phi @ x + gam * applied
+    return LoopRun(h * np.arange(len(y)), y, u, diverged)

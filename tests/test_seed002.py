@@ -65,3 +65,6 @@ def test_reproduce_is_deterministic_and_reports_both_optimisers() -> None:
         assert numbers.q == pytest.approx(first.runs[name].cost, rel=1e-12)
         assert all(0 <= g <= 1e5 for g in numbers.gains)
     assert len(first.evidence) == 3
+    text = seed002.format_reproduction(first)
+    assert "overshoot %: 1.59774 / " in text and "recovery s: 225.1 / " in text
+    assert text.count("evidence: ") == 3

@@ -334,3 +334,33 @@ def reproduce(
         for name, row in PRINTED_TABLE11.items()
     }
     return Reproduction(ours, runs, printed, model_consistency() + printed_claims())
+
+
+def _cell(value: float | None, digits: int = 4) -> str:
+    return "-" if value is None else f"{value:.{digits}g}"
+
+
+def format_reproduction(rep: Reproduction) -> str:
+    """Printed numbers beside ours, one line per figure, then the evidence."""
+    lines = ["figure: printed OCALO / ours OCALO | printed ALO / ours ALO"]
+    figures = [("overshoot_pct", "overshoot %"), ("peak_time_s", "peak time s"), ("rise_time_s", "rise time s"),
+               ("settling_time_s", "settling time s")]  # fmt: skip
+    for key, label in figures:
+        cells = [f"{PRINTED_TABLE9[a][key]:g} / {_cell(getattr(rep.ours[a], key))}" for a in ("OCALO", "ALO")]
+        lines.append(f"{label}: " + " | ".join(cells))
+    for index, label, key in ((0, "max after 520 s C", "max_after_disturbance_c"), (1, "recovery s", "recovery_time_s")):
+        cells = [f"{_cell(PRINTED_TABLE10[a][index])} / {_cell(getattr(rep.ours[a], key))}" for a in ("OCALO", "ALO")]
+        lines.append(f"{label}: " + " | ".join(cells))
+    for name, numbers in rep.ours.items():
+        kp, ki, kd = numbers.gains
+        lines.append(f"ours {name}: Kp {kp:.5g} Ki {ki:.5g} Kd {kd:.5g} (duty/C), Q {numbers.q:.6g}, "
+                     f"{rep.runs[name].evaluations} evaluations in {rep.runs[name].wall_s:.0f} s")  # fmt: skip
+    for name, numbers in rep.printed_gains_on_model.items():
+        lines.append(f"printed {name} platform gains (table 11) / 255 on eq. 15: Q {numbers.q:.3g}, "
+                     f"overshoot {_cell(numbers.overshoot_pct)} %, settling {_cell(numbers.settling_time_s)} s")  # fmt: skip
+    lines += [f"evidence: {line}" for line in rep.evidence]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(format_reproduction(reproduce()))

@@ -94,9 +94,20 @@ def test_quick_command_writes_the_report(tmp_path, capsys) -> None:
 @pytest.mark.parametrize(
     ("flags", "message"),
     [(["--runs", "0"], "--runs"), (["--methods", "nm,sa"], "--methods"), (["--functions", "F24"], "--functions"),
-     (["--iterations", "2"], "--iterations")],
+     (["--iterations", "2"], "--iterations"), (["--shift", "1.5"], "--shift")],
 )  # fmt: skip
 def test_bad_flags_get_a_one_line_error(flags, message, capsys) -> None:
     assert benchfuncs.main(flags) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err
+
+
+def test_ocalo_is_pulled_to_the_origin_and_shift_exposes_it() -> None:
+    # Seed 002's cosine factors end at 0.01 R_A (ocalo.py): ants land near x = 0. On F1 with a
+    # tiny budget OCALO reaches ~1e-8 at the origin; with the minimiser moved to x_i = 30 it stays
+    # ~1e4 away, as far as ALO. Margins of 4+ orders of magnitude, not a tolerance on a float.
+    settings = {"seed": 0, "population": 10, "iterations": 10, "workers": 1}
+    at_origin = run_all(["F1"], ["alo", "ocalo"], 2, **settings)
+    shifted = run_all(["F1"], ["alo", "ocalo"], 2, shift=0.3, **settings)
+    assert at_origin["F1", "ocalo"].max() < 1e-3 < 1e3 < at_origin["F1", "alo"].min()
+    assert shifted["F1", "ocalo"].min() > 1e3

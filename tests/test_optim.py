@@ -145,3 +145,10 @@ def test_ocalo_options_are_checked() -> None:
         METHODS["ocalo"](bowl, BOUNDS, rng=np.random.default_rng(0), budget=500, eobl_k=2.0)
     fixed = METHODS["ocalo"](bowl, BOUNDS, rng=np.random.default_rng(0), budget=500, eobl_k=1.0)
     assert fixed.evaluations == 500
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_an_objective_that_is_inf_everywhere_still_returns_an_evaluated_point(method: str) -> None:
+    result = run(method, 0, lambda points: np.full(points.shape[0], np.inf), 500)
+    assert result.cost == np.inf
+    assert np.all(np.isfinite(result.x)) and np.all(np.abs(result.x) <= 5.0)

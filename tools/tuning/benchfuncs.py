@@ -257,6 +257,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--workers", type=int, default=2, help="worker processes (2)")
     parser.add_argument("--methods", default="nm,de,pso,alo,ocalo", help="comma-separated optimisers")
     parser.add_argument("--functions", default=",".join(b.name for b in BENCHMARKS), help="e.g. F1,F9,F21")
+    parser.add_argument("--shift", type=float, default=0.0, help="move origin minimisers to SHIFT x upper bound (0)")
     parser.add_argument("--quick", action="store_true", help="2 runs, population 10, 10 iterations")
     parser.add_argument("--out", type=Path, help="write the markdown report here (default: stdout)")
     args = parser.parse_args(argv)
@@ -276,6 +277,7 @@ def _problem(args: argparse.Namespace) -> str | None:
         (args.population < 5, "--population must be >= 5 (DE needs 5)"),
         (args.iterations < 3, "--iterations must be >= 3 (OCALO's start costs 2 populations)"),
         (args.workers < 1, "--workers must be >= 1"),
+        (not 0.0 <= args.shift < 1.0, "--shift must be within [0, 1)"),
         (bool(unknown_methods), f"--methods: unknown {unknown_methods}, choose from {sorted(METHODS)}"),
         (bool(unknown_functions), f"--functions: unknown {unknown_functions}, choose from F1..F23"),
     ]
@@ -294,11 +296,11 @@ def main(argv: list[str] | None = None) -> int:
     start_s = time.perf_counter()
     results = run_all(
         functions, methods, args.runs, seed=args.seed, population=args.population,
-        iterations=args.iterations, workers=args.workers,
+        iterations=args.iterations, workers=args.workers, shift=args.shift,
     )  # fmt: skip
     report = format_report(
         results, methods, runs=args.runs, population=args.population, iterations=args.iterations,
-        wall_s=time.perf_counter() - start_s, workers=args.workers,
+        wall_s=time.perf_counter() - start_s, workers=args.workers, shift=args.shift,
     )  # fmt: skip
     if args.out is None:
         print(report, end="")

@@ -5,7 +5,9 @@ mode scipy requires for it), seeded from ``rng``. Defaults are scipy's (strategy
 mutation 0.5-1, recombination 0.7, Latin-hypercube start) except three, all so that the run
 spends the budget it is given and no more: ``polish=False`` (the L-BFGS-B polish would evaluate
 outside the budget), ``tol=0`` (run all generations, as the seeds' fixed-iteration comparisons
-do) and a population of ``population`` points (default scipy's 15 per dimension).
+do) and a population of ``population`` points (default scipy's 15 per dimension). When every
+initial cost is inf, scipy evaluates the first population again; a generation the budget cannot
+pay for ends the run with the best point so far.
 """
 
 from __future__ import annotations
@@ -42,18 +44,27 @@ def minimize(
     start = qmc.scale(qmc.LatinHypercube(d=low.size, rng=rng).random(size), low, high)
 
     def batch(columns: np.ndarray) -> np.ndarray:
+        if columns.shape[1] > ledger.remaining:
+            raise _BudgetSpent
         return ledger(np.asarray(columns).T)
 
     settings = {"polish": False, "tol": 0.0, **options}
-    differential_evolution(
-        batch,
-        list(zip(low, high, strict=True)),
-        init=start,
-        maxiter=budget // size - 1,
-        vectorized=True,
-        updating="deferred",
-        rng=rng,
-        callback=lambda intermediate_result: ledger.end_iteration(),
-        **settings,
-    )
+    try:
+        differential_evolution(
+            batch,
+            list(zip(low, high, strict=True)),
+            init=start,
+            maxiter=budget // size - 1,
+            vectorized=True,
+            updating="deferred",
+            rng=rng,
+            callback=lambda intermediate_result: ledger.end_iteration(),
+            **settings,
+        )
+    except _BudgetSpent:
+        ledger.end_iteration()
     return ledger.result()
+
+
+class _BudgetSpent(Exception):
+    """scipy asked for more evaluations than the budget has left: stop with the best so far."""

@@ -80,7 +80,7 @@ class Ledger:
         costs = np.where(np.isnan(costs), np.inf, costs)
         self.evaluations += points.shape[0]
         i = int(np.argmin(costs))
-        if costs[i] < self.best_cost:
+        if costs[i] < self.best_cost or self.evaluations == points.shape[0]:  # the first batch sets a point
             self.best_cost = float(costs[i])
             self.best_x = points[i].copy()
         return costs

@@ -223,7 +223,10 @@ def tune(args: argparse.Namespace, problem: Problem, client=None) -> tuple[list[
     cost = objective(args.objective)
     rules, optimisers = plan(args.method)
     reference = autotune_reference(problem, cost, client)
-    candidates = score(problem, cost, rule_gains(problem, rules), client) if rules else []
+    gains, failures = rule_gains(problem, rules)
+    for rule, why in failures.items():
+        print(f"twin-tune: rule {rule} gives no gains here: {why}", file=sys.stderr)
+    candidates = score(problem, cost, gains, client) if gains else []
     if candidates:
         start = candidates[0].gains
     elif isinstance(reference, Candidate):

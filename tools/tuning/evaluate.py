@@ -449,11 +449,18 @@ class Candidate:
     history: np.ndarray | None = None  # an optimiser's best cost per iteration
 
 
-def rule_gains(problem: Problem, names: list[str]) -> dict[str, Gains]:
+def rule_gains(problem: Problem, names: list[str]) -> tuple[dict[str, Gains], dict[str, str]]:
     """Each named rule's gains for the problem's plant (tools/tuning/rules) as its linear model with
-    the loop's own delay added (tools/identify.py CONTROL_DELAY_S, as twin-fit tunes)."""
+    the loop's own delay added (tools/identify.py CONTROL_DELAY_S, as twin-fit tunes); and, for the
+    rules that give none on this model, why (a rule's ValueError)."""
     model = model_of(problem.spec).delayed(CONTROL_DELAY_S)
-    return {name: tune(name, model) for name in names}
+    gains, failures = {}, {}
+    for name in names:
+        try:
+            gains[name] = tune(name, model)
+        except ValueError as exc:
+            failures[name] = str(exc)
+    return gains, failures
 
 
 def rule_names() -> list[str]:

@@ -83,12 +83,8 @@ def plant_rows(preset: str) -> list[Row]:
     except ValueError as exc:
         reference = None
         rows.append(Row(preset, target_c, "M303 C8", None, f"failed: {str(exc).split(': ', 1)[-1]}"))
-    gains_by_rule, failed = {}, []
-    for rule in rule_names():
-        try:
-            gains_by_rule.update(rule_gains(problem, [rule]))
-        except ValueError as exc:
-            failed.append(Row(preset, target_c, rule, None, f"no gains: {exc}"))
+    gains_by_rule, failures = rule_gains(problem, rule_names())
+    failed = [Row(preset, target_c, rule, None, f"no gains: {why}") for rule, why in failures.items()]
     for c in score(problem, heater_cost, gains_by_rule) if gains_by_rule else []:
         verdict = "-" if reference is None else _verdict(c.cost, reference.cost)
         rows.append(Row(preset, target_c, c.method, c, verdict))

@@ -39,7 +39,7 @@ from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, Run, heater_t
 from twin.metrics import step_metrics
 from twin.plants import SPECS, Spec
 
-FIRMWARES = {"marlin": "marlin", "klipper": "klipper"}  # --firmware -> the evaluation loop
+FIRMWARES = ("marlin", "klipper")  # --firmware: also the name of the evaluation loop
 BED_TARGET_C, HOTEND_TARGET_C = 60.0, 210.0
 DEFAULT_BUDGET = 900  # optimiser evaluations: 20 generations of DE's default population of 45
 SEARCH_FACTOR = 4.0  # optimiser bounds: 0 .. 4 x the best rule's gains (capped at the firmware's range)
@@ -79,7 +79,7 @@ def make_problem(args: argparse.Namespace) -> tuple[Problem, bool]:
         scenario = default_scenario(spec, target_c)
     except ValueError as exc:
         raise ValueError(f"--target {target_c:g}: {exc}") from None
-    return Problem(name, spec, scenario, "ideal" if args.ideal else FIRMWARES[args.firmware]), is_bed
+    return Problem(name, spec, scenario, "ideal" if args.ideal else args.firmware), is_bed
 
 
 # -- candidates ---------------------------------------------------------------------------------

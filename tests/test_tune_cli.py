@@ -61,6 +61,7 @@ def test_a_fitted_log_is_tuned(capsys, tmp_path):
     (["--plant", "hotend_cartridge", "--firmware", "repetier"], "--firmware"),
     (["--plant", "hotend_cartridge", "--budget", "0"], "--budget"),
     (["--plant", "hotend_cartridge", "--method", "guess"], "--method"),
+    (["--plant", "hotend_cartridge", "--method", "alo", "--budget", "3"], "--method alo --budget 3"),
     (["--plant", "hotend_cartridge", "--model", "fifth_order"], "--model"),
 ])
 def test_bad_input_is_one_line_naming_the_flag(capsys, argv, flag):

@@ -92,7 +92,10 @@ def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, s
              seed: int, client=None, progress=None) -> Candidate:
     """Search with an optimiser of tools/tuning/optim on the firmware twin, within search_bounds(start)."""
     evaluator = Evaluator(problem, cost, client, on_batch=progress)
-    result = METHODS[method](evaluator, search_bounds(start), rng=np.random.default_rng(seed), budget=budget)
+    try:
+        result = METHODS[method](evaluator, search_bounds(start), rng=np.random.default_rng(seed), budget=budget)
+    except ValueError as exc:  # e.g. a budget below two of the optimiser's generations
+        raise ValueError(f"--method {method} --budget {budget}: {exc}") from None
     best = Gains(*np.clip(result.x, 0.0, GAIN_MAX))
     run = simulate(problem, [[best.kp, best.ki, best.kd]], client)
     return Candidate(method, best, float(cost(run)[0]), run, np.asarray(result.history, float))
@@ -259,7 +262,7 @@ def report(args: argparse.Namespace, problem: Problem, is_bed: bool, candidates:
     if by_rule and by_rule[0] is not best:
         print(f"best rule: {by_rule[0].method}  {by_rule[0].gains}  cost {by_rule[0].cost:.4g}")
     print("\n".join(settings_lines(best.gains, is_bed)))
-    print("candidates on the firmware twin (best first):")
+    print(f"candidates on the {problem.loop} loop (best first):")
     width = max(len(c.method) for c in shown)
     for c in shown:
         mark = "*" if c is best else " "

@@ -12,7 +12,8 @@ The PID experiment (seed 002, section 4), rebuilt as the paper describes it:
   platform gains (table 11, Klipper's 0..255 scale) can be tried on it after dividing by 255;
 - controller: a continuous parallel PID Kp + Ki/s + Kd N s/(s + N) with N = 100, the default
   filter coefficient of Simulink's PID block (the paper builds its loop in Simulink), no output
-  limits (the paper states none), run at SAMPLE_S;
+  limits (the paper states none), run at SAMPLE_S; the setpoint is 0 before t = 0, so the
+  derivative sees the step (as Simulink's step block does);
 - objective: eq. 17, Q = integral of (w1 |e| + w2 u^2 + w3 |e| while overshooting) dt with
   w1 = 0.999, w2 = 0.001, w3 = 100, the extra term applying while the output is above the
   setpoint, over a step from 0 to 210 C (the paper's print temperature) for HORIZON_S;
@@ -21,7 +22,6 @@ The PID experiment (seed 002, section 4), rebuilt as the paper describes it:
 - disturbance (section 4.4): a 0.1 step added to the plant input at 520 s, recovery into the
   2 % band (Table 10) and the largest temperature after it.
 """
-
 
 from __future__ import annotations
 
@@ -150,8 +150,6 @@ def ordering_errors() -> list[str]:
             if values[0] > values[1] + slack or values[1] > values[2] + slack or values[0] > values[2] + slack:
                 errors.append(f"{function} {algorithm}: best {best}, mean {mean}, worst {worst}")
     return errors
-
-
 
 
 # -- the PID experiment (section 4) -------------------------------------------------------------

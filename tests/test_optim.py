@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tools.tuning.optim import METHODS, batch_objective
-from tools.tuning.optim.alo import random_walks, shrink_ratio
+from tools.tuning.optim.alo import random_walks, shrink_ratio, walk_summary
 from tools.tuning.optim.ocalo import chaotic_population, cosine_update, tent_logistic_cotangent
 from tools.tuning.optim.result import check_bounds
 
@@ -152,3 +152,16 @@ def test_an_objective_that_is_inf_everywhere_still_returns_an_evaluated_point(me
     result = run(method, 0, lambda points: np.full(points.shape[0], np.inf), 500)
     assert result.cost == np.inf
     assert np.all(np.isfinite(result.x)) and np.all(np.abs(result.x) <= 5.0)
+
+
+@pytest.mark.parametrize(("t", "t_max"), [(1, 1), (5, 13), (13, 13), (16, 16), (8, 300), (299, 300)])
+def test_walk_summary_equals_the_walk_step_by_step(t: int, t_max: int) -> None:
+    width = 50
+    here, low, high = walk_summary(t, t_max, width, np.random.default_rng(9))
+    blocks = -(-t_max // 8)
+    codes = np.frombuffer(np.random.default_rng(9).bytes(blocks * width), dtype=np.uint8).reshape(blocks, width)
+    steps = 2 * np.unpackbits(codes, axis=0)[:t_max].astype(int) - 1  # each byte's bits in time order
+    walks = np.vstack([np.zeros(width, dtype=int), np.cumsum(steps, axis=0)])  # eq. 1: starts at 0
+    np.testing.assert_array_equal(here, walks[t])
+    np.testing.assert_array_equal(low, walks.min(axis=0))
+    np.testing.assert_array_equal(high, walks.max(axis=0))

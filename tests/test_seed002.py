@@ -56,7 +56,7 @@ def test_printed_platform_gains_diverge_on_the_printed_model() -> None:
 
 
 def test_reproduce_is_deterministic_and_reports_both_optimisers() -> None:
-    settings = {"seed": 1, "population": 8, "iterations": 6, "sample_s": COARSE_S}
+    settings = {"seed": 1, "population": 8, "iterations": 6, "sample_s": COARSE_S, "reference_budget": 90}
     first, again = seed002.reproduce(**settings), seed002.reproduce(**settings)
     assert set(first.ours) == {"ALO", "OCALO"} == set(first.printed_gains_on_model)
     for name, numbers in first.ours.items():
@@ -65,6 +65,7 @@ def test_reproduce_is_deterministic_and_reports_both_optimisers() -> None:
         assert numbers.q == pytest.approx(first.runs[name].cost, rel=1e-12)
         assert all(0 <= g <= 1e5 for g in numbers.gains)
     assert len(first.evidence) == 3
+    assert first.reference.gains == again.reference.gains and first.reference_run.evaluations <= 90
     text = seed002.format_reproduction(first)
     assert "overshoot %: 1.59774 / " in text and "recovery s: 225.1 / " in text
     assert text.count("evidence: ") == 3

@@ -12,16 +12,19 @@ The PID experiment (seed 002, section 4), rebuilt as the paper describes it:
   platform gains (table 11, Klipper's 0..255 scale) can be tried on it after dividing by 255;
 - controller: a continuous parallel PID Kp + Ki/s + Kd N s/(s + N) with N = 100, the default
   filter coefficient of Simulink's PID block (the paper builds its loop in Simulink), no output
-  limits (the paper states none), run at SAMPLE_S;
+  limits (the paper states none), run at SAMPLE_S; the setpoint is 0 before t = 0, so the
+  derivative sees the step (as Simulink's step block does);
 - objective: eq. 17, Q = integral of (w1 |e| + w2 u^2 + w3 |e| while overshooting) dt with
   w1 = 0.999, w2 = 0.001, w3 = 100, the extra term applying while the output is above the
   setpoint, over a step from 0 to 210 C (the paper's print temperature) for HORIZON_S;
 - search: gains in [0, 100000]^3 (section 4.2), ALO and OCALO with the benchmark's population
   and iterations (the paper gives none for this experiment);
+- reference: DE on the same Q in a box around the gains that matter for this plant (below),
+  to show what Q the search range [0, 100000]^3 hides: with a plant gain of 1014 C per unit,
+  useful Kp are about 1e-3, a 1e-8 sliver of the paper's range;
 - disturbance (section 4.4): a 0.1 step added to the plant input at 520 s, recovery into the
   2 % band (Table 10) and the largest temperature after it.
 """
-
 
 from __future__ import annotations
 
@@ -152,8 +155,6 @@ def ordering_errors() -> list[str]:
     return errors
 
 
-
-
 # -- the PID experiment (section 4) -------------------------------------------------------------
 PLANT_NUM = 1.014  # seed 002 eq. 15 numerator
 PLANT_DEN = (1.0, 0.05, 0.001)  # seed 002 eq. 15 denominator s^2 + 0.05 s + 0.001
@@ -166,6 +167,10 @@ SETPOINT_C = 210.0  # seed 002's print temperature (table 7, tables 10-12)
 HORIZON_S = 1000.0  # seed 002 figures 9-10 run to 1000 s
 DISTURBANCE_AT_S, DISTURBANCE = 520.0, 0.1  # seed 002 section 4.4: "a 0.1 step signal at 520 s"
 BAND = 0.02  # seed 002 section 4.4: recovery "within 2 % error bars"
+# Our reference box: Kp up to a loop gain of about 10 (10 / 1014), integral time >= 10 s at that
+# Kp, derivative time <= 100 s at that Kp; DE with scipy's defaults and this population.
+REFERENCE_BOUNDS = [(0.0, 0.01), (0.0, 1e-3), (0.0, 1.0)]
+REFERENCE_POPULATION = 30
 SAMPLE_S = 0.1  # our fixed step: 1/300 of the plant's 200 s natural period, 1/200 of the dead time
 
 # Printed results. Table 9 (simulation; "peak amplitude" read as overshoot in %, the only reading
@@ -305,6 +310,8 @@ class Reproduction:
     ours: dict[str, LoopNumbers]
     runs: dict[str, OptimResult]
     printed_gains_on_model: dict[str, LoopNumbers]
+    reference: LoopNumbers
+    reference_run: OptimResult
     evidence: list[str] = field(default_factory=list)
 
 
@@ -314,7 +321,8 @@ def _triple(gains: np.ndarray) -> tuple[float, float, float]:
 
 
 def reproduce(
-    *, seed: int = 0, population: int = 50, iterations: int = 300, sample_s: float = SAMPLE_S
+    *, seed: int = 0, population: int = 50, iterations: int = 300, sample_s: float = SAMPLE_S,
+    reference_budget: int = 50 * REFERENCE_POPULATION,
 ) -> Reproduction:
     """Tune the eq. 15 loop with ALO and OCALO on Q (eq. 17) and measure tables 9-10's figures."""
 
@@ -333,7 +341,13 @@ def reproduce(
         name: loop_numbers(_triple(np.array(row[3:]) / COUNTS_PER_DUTY), sample_s)
         for name, row in PRINTED_TABLE11.items()
     }
-    return Reproduction(ours, runs, printed, model_consistency() + printed_claims())
+    reference = METHODS["de"](
+        objective, REFERENCE_BOUNDS, rng=np.random.default_rng([seed, len(ALGORITHMS)]), budget=reference_budget,
+        population=REFERENCE_POPULATION,
+    )  # fmt: skip
+    return Reproduction(
+        ours, runs, printed, loop_numbers(_triple(reference.x), sample_s), reference, model_consistency() + printed_claims()
+    )
 
 
 def _cell(value: float | None, digits: int = 4) -> str:
@@ -355,6 +369,11 @@ def format_reproduction(rep: Reproduction) -> str:
         kp, ki, kd = numbers.gains
         lines.append(f"ours {name}: Kp {kp:.5g} Ki {ki:.5g} Kd {kd:.5g} (duty/C), Q {numbers.q:.6g}, "
                      f"{rep.runs[name].evaluations} evaluations in {rep.runs[name].wall_s:.0f} s")  # fmt: skip
+    kp, ki, kd = rep.reference.gains
+    lines.append(f"reference DE in {REFERENCE_BOUNDS}: Kp {kp:.5g} Ki {ki:.5g} Kd {kd:.5g}, Q {rep.reference.q:.6g}, "
+                 f"overshoot {_cell(rep.reference.overshoot_pct)} %, rise {_cell(rep.reference.rise_time_s)} s, "
+                 f"settling {_cell(rep.reference.settling_time_s)} s, max after 520 s "
+                 f"{_cell(rep.reference.max_after_disturbance_c)} C, recovery {_cell(rep.reference.recovery_time_s)} s")  # fmt: skip
     for name, numbers in rep.printed_gains_on_model.items():
         lines.append(f"printed {name} platform gains (table 11) / 255 on eq. 15: Q {numbers.q:.3g}, "
                      f"overshoot {_cell(numbers.overshoot_pct)} %, settling {_cell(numbers.settling_time_s)} s")  # fmt: skip

@@ -54,19 +54,38 @@ def random_walks(
     flip_low, flip_high = rng.random((2, n, 1)) < 0.5
     c = np.where(flip_low, low / ratio, -low / ratio) + centres
     d = np.where(flip_high, -high / ratio, high / ratio) + centres
-    sums = np.int16 if t_max <= np.iinfo(np.int16).max else np.int32  # int16 cumsum: twice as fast
-    walks = np.cumsum(_unit_steps(t_max, n * dims, rng), axis=0, dtype=sums)  # time-major: fastest
-    a = np.minimum(walks.min(axis=0), 0).reshape(n, dims)  # the walk starts at 0 (eq. 1)
-    b = np.maximum(walks.max(axis=0), 0).reshape(n, dims)
-    here = walks[t - 1].reshape(n, dims)  # t >= 1: the walk after t steps
-    return (here - a) * (d - c) / (b - a) + c
+    here, a, b = walk_summary(t, t_max, n * dims, rng)
+    return ((here - a) * (d - c).reshape(-1) / (b - a)).reshape(n, dims) + c
 
 
-def _unit_steps(count: int, width: int, rng: np.random.Generator) -> np.ndarray:
-    """(count, width) steps of +-1 with probability 1/2 each (2 r(t) - 1 of eq. 2), from random bits."""
-    size = count * width
-    bits = np.unpackbits(np.frombuffer(rng.bytes(-(-size // 8)), dtype=np.uint8))[:size]
-    return (bits.view(np.int8) * 2 - 1).reshape(count, width)
+# Each random byte is 8 steps of a walk (its bits, most significant first: step = 2 bit - 1).
+# For every byte value and every prefix length r = 0..8: the position after r steps and the
+# lowest and highest positions reached in those r steps (0 included). A walk of t_max steps is
+# then summarised from t_max / 8 bytes per walk with table look-ups, 8 times less work than
+# summing single steps, with exactly the same distribution.
+_STEPS = 2 * np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).astype(np.int16) - 1
+_PREFIX = np.concatenate([np.zeros((256, 1), dtype=np.int16), np.cumsum(_STEPS, axis=1, dtype=np.int16)], axis=1)
+_PREFIX_MIN = np.minimum.accumulate(_PREFIX, axis=1)
+_PREFIX_MAX = np.maximum.accumulate(_PREFIX, axis=1)
+
+
+def walk_summary(t: int, t_max: int, width: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """For ``width`` walks of t_max random +-1 steps (seed 002 eqs. 1-2) started at 0: the
+    position after t steps, and the minimum and maximum over the whole walk."""
+    blocks, last = -(-t_max // 8), t_max - 8 * (-(-t_max // 8) - 1)  # last: steps in the last byte
+    codes = np.frombuffer(rng.bytes(blocks * width), dtype=np.uint8).reshape(blocks, width)
+    parts = []
+    for table in (_PREFIX, _PREFIX_MIN, _PREFIX_MAX):  # whole bytes by a 1-D look-up (fast), then the last
+        values = np.take(table[:, 8], codes)
+        values[-1] = np.take(table[:, last], codes[-1])
+        parts.append(values)
+    moved, lowest, highest = parts
+    start = np.cumsum(moved, axis=0, dtype=np.int32) - moved
+    block, into = divmod(t, 8)
+    if block == blocks:  # t = t_max, a whole number of bytes
+        block, into = blocks - 1, 8
+    here = start[block] + np.take(_PREFIX[:, into], codes[block])
+    return here, np.min(start + lowest, axis=0), np.max(start + highest, axis=0)
 
 
 def roulette(n_antlions: int, n_ants: int, rng: np.random.Generator) -> np.ndarray:

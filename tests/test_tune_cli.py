@@ -1,0 +1,102 @@
+"""twin-tune end to end: the acceptance run on hotend_cartridge, a fitted log, one-line errors,
+a tune on a dask LocalCluster equal to in-process, and docs/tuning.md's table still current."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from distributed import Client, LocalCluster
+
+from tools.logs import DEFAULT_LOGS, LOGS_ENV
+from tools.tune_cli import main, parse_args, tune
+from tools.tuning import table
+from tools.tuning.evaluate import preset_problem, rule_names
+
+ROW = re.compile(r"^ [ *](\S+(?: C8)?)\s+Kp \S+ Ki \S+ Kd \S+\s+cost\s+(\S+)", re.M)
+LOG_DIR = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)
+BEST = re.compile(r"^best: (\S+)\s+Kp (\S+) Ki (\S+) Kd (\S+)\s+cost (\S+)\s+\((beats|does not beat) "
+                  r"M303 C8: Kp \S+ Ki \S+ Kd \S+\s+cost (\S+)\)$", re.M)
+
+
+def test_every_rule_on_hotend_cartridge_beats_or_loses_to_m303_and_the_best_beats_it(capsys, tmp_path):
+    """The acceptance run: the best rule beats the twin's own M303 C8 on the heater objective."""
+    plot = tmp_path / "tune.png"
+    assert main(["--plant", "hotend_cartridge", "--target", "210", "--method", "auto", "--budget", "90",
+                 "--plot", str(plot)]) == 0
+    captured = capsys.readouterr()
+    out = captured.out
+    assert "eval" not in captured.err  # no progress bar when stderr is not a terminal
+    best = BEST.search(out)
+    assert best is not None, out
+    assert best.group(1) in rule_names() + ["de"]
+    assert best.group(6) == "beats" and float(best.group(5)) < float(best.group(7))
+    costs = {name: float(cost) for name, cost in ROW.findall(out)}
+    assert min(costs[rule] for rule in rule_names()) < costs["M303 C8"]  # the acceptance: a rule beats M303
+    for paste in ("M301 E0 P", "  M500", "#define DEFAULT_Kp", "[extruder]", "pid_Kp: "):
+        assert paste in out
+    for rule in rule_names():
+        assert re.search(rf"^ [ *]{re.escape(rule)}\s+Kp", out, re.M), rule
+    assert plot.stat().st_size > 10_000
+
+
+def test_a_fitted_log_is_tuned(capsys, tmp_path):
+    log = LOG_DIR / "klipper_heattest_onionheater_heattest_200.csv"
+    if not log.is_file():
+        pytest.fail(f"hardware log {log} not found; set {LOGS_ENV} to the shared/hardware_logs folder")
+    method = rule_names()[0]
+    assert main(["--from-log", str(log), "--method", method, "--plot", "none"]) == 0
+    out = capsys.readouterr().out
+    assert "klipper_heattest_onionheater_heattest_200.csv (two_node" in out
+    assert BEST.search(out).group(1) == method
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["--plant", "nope"], "--plant"),
+    (["--plant", "hotend_cartridge", "--target", "900"], "--target"),
+    (["--plant", "hotend_cartridge", "--objective", "fastest"], "--objective"),
+    (["--plant", "hotend_cartridge", "--firmware", "repetier"], "--firmware"),
+    (["--plant", "hotend_cartridge", "--budget", "0"], "--budget"),
+    (["--plant", "hotend_cartridge", "--method", "guess"], "--method"),
+    (["--plant", "hotend_cartridge", "--method", "alo", "--budget", "3"], "--method alo --budget 3"),
+    (["--plant", "hotend_cartridge", "--model", "fifth_order"], "--model"),
+])
+def test_bad_input_is_one_line_naming_the_flag(capsys, argv, flag):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"twin-tune: error: {flag}"), err
+
+
+def test_a_missing_log_is_one_line(capsys, tmp_path):
+    assert main(["--from-log", str(tmp_path / "none.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "none.csv" in err
+
+
+def test_a_tune_on_a_local_dask_cluster_equals_in_process():
+    """Same seed, DE's three generations of 45 on two workers: the same gains and costs."""
+    args = parse_args(["--plant", "hotend_cartridge", "--method", "de", "--budget", "135", "--seed", "3"])
+    problem = preset_problem("hotend_cartridge", 210)
+    local, _ = tune(args, problem)
+    with LocalCluster(n_workers=2, processes=False, dashboard_address=None) as cluster, Client(cluster) as client:
+        remote, _ = tune(args, problem, client)
+    assert [c.method for c in remote] == [c.method for c in local]
+    for a, b in zip(local, remote, strict=True):
+        assert (a.gains, a.cost) == (b.gains, b.cost)  # identical chunks, identical arithmetic
+
+
+def test_the_rules_table_in_the_docs_is_current():
+    """docs/tuning.md's table against a fresh run, with table.same_table's tolerances."""
+    problems = table.same_table(table.table_of(table.DOC.read_text()), table.generate())
+    assert not problems, "\n".join(problems[:20]) + "\nregenerate with: python -m tools.tuning.table"
+
+
+def test_same_table_tolerates_small_moves_but_not_verdicts():
+    a = "| hotend | 210 | simc | 10.0 | 0.5 | 100 | beats |"
+    assert table.same_table(a, a.replace("10.0", "10.1")) == []
+    assert table.same_table(a, a.replace("10.0", "11")) != []
+    assert table.same_table(a, a.replace("beats", "loses")) != []
+    assert np.isclose(10.0, 10.1, rtol=table.REL_TOL)

@@ -1,0 +1,481 @@
+"""Evaluate candidate gains on the firmware in the loop: gains (N, 3) on the 0..255 scale -> runs.
+
+A ``Problem`` is a plant (a preset's or a fitted spec), a ``TuneScenario`` and a loop:
+
+- ``marlin`` (default): Marlin's integer PID on the board (ADC, soft PWM, thermal protection) in
+  lockstep with the plant. Linear plants without dead time run as numpy lanes (twin/batch.py
+  ``BatchTwin``), others one ``Twin`` per candidate.
+- ``klipper``: Klipper's host PID (twin/klipper_twin.py), one twin per candidate.
+- ``ideal``: the papers' loop: a continuous PID, Kp + Ki/s + Kd s/(s/N + 1) with Simulink's
+  default filter N = 100 1/s, on the plant's linear model, no saturation, no quantisation, the
+  dead time exact; stepped with the plant's exact zero-order hold at ``IDEAL_DT_S`` (backward
+  Euler for the controller), all candidates at once.
+
+The scenario heats from ambient to the target, then disturbs the loop: on a lumped heater a part
+fan kick, the filament flow starting, then an ambient change; on a transfer-function plant (no
+fan or flow in its model) a load step at the plant input of ``LOAD_FRACTION`` of full scale, as
+seed 002 (OCALO-PID, Zhou et al. 2024) section 4.3 does with its 0.1 step at 520 s.
+
+Candidates are split into chunks of ``CHUNK_LANES``; with a dask.distributed ``Client`` the
+chunks run on its workers, else in this process: the same chunks either way, so the same numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from firmware_port.klipper import CommandError
+from firmware_port.marlin.board import HOTEND_CHANNEL
+from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PidGains
+from tools.identify import CONTROL_DELAY_S
+from tools.tuning.gains import COUNTS_PER_DUTY, Gains
+from tools.tuning.models import model_of
+from tools.tuning.objectives import Run
+from tools.tuning.optim import METHODS
+from tools.tuning.rules import RULES, tune
+from twin.batch import BatchTwin
+from twin.build import apply_event
+from twin.engine import Twin
+from twin.klipper_twin import KlipperTwin, extruder_setup, tick_near
+from twin.linear import SENSOR, Lti
+from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
+from twin.scenario import Event
+
+LOOPS = ("marlin", "klipper", "ideal")
+GAIN_MAX = np.array([KP_MAX, KI_MAX, KD_MAX])  # what the firmware's fixed-point PID accepts
+CHUNK_LANES = 32  # candidates per batch: one dask task
+AMBIENT_C = 25.0
+HEATUP_FACTOR = 3.0  # heat-up phase = 3 x the open-loop time to the target at full power
+MIN_PHASE_S = 100.0
+PHASE_ROUND_S = 10.0
+FAN_KICK = 1.0  # part fan to full
+FLOW_MM_S = 5.0  # 1.75 mm filament at 5 mm/s: about 12 mm^3/s, a brisk print
+AMBIENT_STEP_C = 10.0  # an enclosure warming up
+LOAD_FRACTION = 0.1  # seed 002's 0.1 step, of the input's full scale
+IDEAL_DT_S = 0.05
+IDEAL_FILTER_PER_S = 100.0  # Simulink PID block's default filter coefficient N
+M303_CYCLES = 8
+AUTOTUNE_TIMEOUT_S = 2 * 20 * 60.0  # twice Marlin's MAX_CYCLE_TIME_PID_AUTOTUNE (20 min)
+AUTOTUNE_POLL_S = 10.0
+KLIPPER_MAX_TEMP_C = 300.0  # above any tuning target, so only a real runaway trips
+OUT_OF_RANGE_COST = 1e9  # a candidate the firmware cannot take
+
+
+@dataclass(frozen=True)
+class TuneScenario:
+    """Heat from ambient_c to target_c at t = 0, the events after (fan, flow, ambient, load), end at duration_s."""
+
+    target_c: float
+    duration_s: float
+    ambient_c: float
+    events: tuple[Event, ...]
+
+    @property
+    def disturbances_s(self) -> tuple[float, ...]:
+        return tuple(event.at_s for event in self.events)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """What a tune evaluates on: a named plant spec, a scenario, a loop."""
+
+    name: str
+    spec: Spec
+    scenario: TuneScenario
+    loop: str = "marlin"
+
+    def __post_init__(self) -> None:
+        if self.loop not in LOOPS:
+            raise ValueError(f"unknown loop {self.loop!r}; choose one of: {', '.join(LOOPS)}")
+
+    @property
+    def input_full_scale(self) -> float:
+        """The plant input at duty 1: W for a lumped heater, the paper's unit for a transfer function."""
+        return self.spec.power_w if isinstance(self.spec, Lumped) else self.spec.input_full_scale
+
+    @property
+    def batched(self) -> bool:
+        return self.loop == "ideal" or (self.loop == "marlin" and self.spec.linear and not self.spec.delay_ticks)
+
+    def plant_gains(self, gains: np.ndarray) -> np.ndarray:
+        """Gains (N, 3) on the 0..255 scale -> the plant's input units per degC (W/C for a heater)."""
+        return np.asarray(gains, float) / COUNTS_PER_DUTY * self.input_full_scale
+
+
+# -- the plant and its scenario ---------------------------------------------------------------------
+class LoadedPlant(Plant):
+    """A transfer-function plant with a load at its input: d = [ambient, load (fraction of full scale)]."""
+
+    def __init__(self, preset: str, spec: TransferFunction, ambient_c: float):
+        super().__init__(preset, _LoadedSpec(**dataclasses.asdict(spec)), ambient_c)
+        self.load = 0.0
+        self.d = np.array([ambient_c, 0.0])
+
+    def set_inputs(self, fan: float, flow_mm_s: float, ambient_c: float) -> None:
+        """As Plant's (a transfer function has no fan or flow terms), keeping the load."""
+        self.fan, self.flow_mm_s = float(fan), float(flow_mm_s)
+        self.d = np.array([ambient_c, self.load])
+
+    def set_load(self, load: float) -> None:
+        self.load = float(load)
+        self.d = np.array([self.ambient_c, self.load])
+
+
+@dataclass(frozen=True)
+class _LoadedSpec(TransferFunction):
+    """A TransferFunction whose model takes the load as a second disturbance (added to u)."""
+
+    def lti(self, key: None = None) -> Lti:
+        base = super().lti()
+        e = np.column_stack((base.e[:, 0], base.b))
+        return Lti(base.a, base.b, e, base.c, np.column_stack((base.f[:, 0], np.zeros(2))))
+
+
+def make_problem_plant(problem: Problem) -> Plant:
+    """A fresh plant at the scenario's ambient, every node there."""
+    if isinstance(problem.spec, TransferFunction):
+        return LoadedPlant(problem.name, problem.spec, problem.scenario.ambient_c)
+    return Plant(problem.name, problem.spec, problem.scenario.ambient_c)
+
+
+def _sensor_step(lti: Lti) -> tuple[np.ndarray, np.ndarray]:
+    """Open-loop sensor rise at full power: times and values (to 10 time constants of the slowest pole)."""
+    slowest_s = 1.0 / np.min(np.abs(np.linalg.eigvals(lti.a).real))
+    t = np.linspace(0.0, 10.0 * slowest_s, 4001)
+    system = scipy.signal.StateSpace(lti.a, lti.b[:, None], lti.c[SENSOR][None, :], np.zeros((1, 1)))
+    _, y = scipy.signal.step(system, T=t)
+    return t, y
+
+
+def full_power_time_s(spec: Spec, ambient_c: float, target_c: float) -> float:
+    """The open-loop time from ambient to target_c at full power (dead time included).
+
+    ValueError when full power cannot hold the target."""
+    lti = spec.lti() if isinstance(spec, TransferFunction) else spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))
+    t, rise = _sensor_step(lti)
+    need = target_c - ambient_c
+    if need <= 0 or rise[-1] <= need:
+        raise ValueError(f"target {target_c:g} C is not reachable: full power holds {ambient_c + rise[-1]:.4g} C "
+                         f"at ambient {ambient_c:g} C")
+    delay_s = getattr(spec, "delay_s", 0.0)
+    return float(t[np.argmax(rise >= need)]) + delay_s
+
+
+def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C) -> TuneScenario:
+    """Heat-up for 3x the full-power time, then one phase per disturbance (see the module docstring)."""
+    heat_s = max(MIN_PHASE_S, HEATUP_FACTOR * full_power_time_s(spec, ambient_c, target_c))
+    heat_s = math.ceil(heat_s / PHASE_ROUND_S) * PHASE_ROUND_S
+    phase_s = math.ceil(max(MIN_PHASE_S, heat_s / 2) / PHASE_ROUND_S) * PHASE_ROUND_S
+    events: tuple[Event, ...]
+    if isinstance(spec, TransferFunction):
+        events = (Event(heat_s, "load", None, -LOAD_FRACTION),)
+    else:
+        events = (Event(heat_s, "fan", None, FAN_KICK), Event(heat_s + phase_s, "flow", "hotend", FLOW_MM_S),
+                  Event(heat_s + 2 * phase_s, "ambient", None, ambient_c + AMBIENT_STEP_C))
+    return TuneScenario(float(target_c), events[-1].at_s + phase_s, ambient_c, events)
+
+
+def preset_problem(preset: str, target_c: float, loop: str = "marlin") -> Problem:
+    """A problem on a twin/plants.py preset with the default scenario; ValueError names a bad preset."""
+    if preset not in SPECS:
+        raise ValueError(f"unknown plant preset {preset!r}; valid: {', '.join(SPECS)}")
+    spec = SPECS[preset]
+    return Problem(preset, spec, default_scenario(spec, target_c), loop)
+
+
+def _value(event: Event) -> float:
+    if not isinstance(event.value, (int, float)):
+        raise ValueError(f"a {event.kind!r} event needs a number, not {event.value!r}")
+    return float(event.value)
+
+
+def _apply_to_plant(plant: Plant, event: Event) -> None:
+    """A scenario event acting on a plant directly (batch lanes, Klipper's plants, the idealised loop)."""
+    if event.kind == "load":
+        if not isinstance(plant, LoadedPlant):
+            raise ValueError("a load step needs a transfer-function plant")
+        plant.set_load(_value(event))
+        return
+    inputs = {"fan": plant.fan, "flow": plant.flow_mm_s, "ambient": plant.ambient_c}
+    if event.kind not in inputs:
+        raise ValueError(f"a tuning scenario has no {event.kind!r} events")
+    inputs[event.kind] = _value(event)
+    plant.set_inputs(inputs["fan"], inputs["flow"], inputs["ambient"])
+
+
+def _batch_event(batch: BatchTwin, event: Event) -> None:
+    _apply_to_plant(batch.plant, event)
+
+
+def _twin_load(twin: Twin, event: Event) -> None:
+    _apply_to_plant(twin.plants[0], event)
+
+
+# -- the loops -------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Traces:
+    """Raw arrays of one chunk: (rows,), (rows, n), (rows, n), (n,)."""
+
+    t_s: np.ndarray
+    temp_c: np.ndarray
+    duty: np.ndarray
+    tripped: np.ndarray
+
+
+def _firmware_gains(row: np.ndarray) -> PidGains:
+    return PidGains(*np.clip(row, 0.0, GAIN_MAX))
+
+
+def _run_batch(problem: Problem, gains: np.ndarray) -> Traces:
+    scenario = problem.scenario
+    batch = BatchTwin(make_problem_plant(problem), [_firmware_gains(row) for row in gains])
+    batch.set_target(int(round(scenario.target_c)))
+    for event in scenario.events:
+        batch.schedule(event.at_s, functools.partial(_batch_event, event=event))
+    batch.run_until(scenario.duration_s)
+    return Traces(batch.t_s, batch.measured_c, batch.duty, batch.lanes.halted.copy())
+
+
+def _marlin_twin(problem: Problem, gains: PidGains | None) -> Twin:
+    """A scalar firmware twin on the problem's plant, the scenario scheduled (target not yet set)."""
+    plant = make_problem_plant(problem)
+    twin = Twin([plant], "pid")
+    twin.set_ambient(problem.scenario.ambient_c)
+    if gains is not None:
+        twin.board.set_gains(HOTEND_CHANNEL, gains)
+    for event in problem.scenario.events:
+        twin.schedule(event.at_s, functools.partial(_twin_load if event.kind == "load" else apply_event, event=event))
+    return twin
+
+
+def _run_scalar_marlin(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    twin = _marlin_twin(problem, _firmware_gains(row))
+    twin.board.set_target(HOTEND_CHANNEL, int(round(problem.scenario.target_c)))
+    twin.run_until(problem.scenario.duration_s)
+    rows = np.array(twin.trace.rows, dtype=float)  # time, then the hotend's target, measured, block, sensor, duty
+    return rows[:, 0], rows[:, 2], rows[:, 5], bool(twin.board.halted)
+
+
+def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    plant = make_problem_plant(problem)
+    kp, ki, kd = (float(v) for v in row)
+    twin = KlipperTwin([extruder_setup(plant, pid_kp=kp, pid_ki=ki, pid_kd=kd, max_temp_c=KLIPPER_MAX_TEMP_C)])
+    for event in problem.scenario.events:
+        twin.schedule(event.at_s, functools.partial(_klipper_event, event=event))
+    twin.set_target("extruder", problem.scenario.target_c)
+    twin.run_until(problem.scenario.duration_s)
+    return (twin.column("extruder", "t_s"), twin.column("extruder", "temp_c"), twin.column("extruder", "duty"),
+            bool(twin.halted))
+
+
+def _klipper_event(twin: KlipperTwin, event: Event) -> None:
+    channel = twin.channels["extruder"]
+    channel.advance_plant(tick_near(twin.time_s))
+    _apply_to_plant(channel.plant, event)
+
+
+def run_scalars(problem: Problem, gains: np.ndarray) -> Traces:
+    """One twin per candidate, resampled onto the first run's clock (their readings share it)."""
+    run_one = _run_scalar_klipper if problem.loop == "klipper" else _run_scalar_marlin
+    results = [run_one(problem, row) for row in gains]
+    t_s = results[0][0]
+    temp = np.column_stack([np.interp(t_s, r[0], r[1]) for r in results])
+    duty = np.column_stack([np.interp(t_s, r[0], r[2]) for r in results])
+    return Traces(t_s, temp, duty, np.array([r[3] for r in results]))
+
+
+def _ideal_maps(lti: Lti, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Zero-order hold of x' = A x + b u + E d on dt_s: (Phi, g, H)."""
+    n, m = lti.a.shape[0], lti.e.shape[1]
+    aug = np.zeros((n + 1 + m, n + 1 + m))
+    aug[:n, :n], aug[:n, n], aug[:n, n + 1:] = lti.a, lti.b, lti.e
+    disc = scipy.linalg.expm(aug * dt_s)
+    return disc[:n, :n], disc[:n, n], disc[:n, n + 1:]
+
+
+def _run_ideal(problem: Problem, gains: np.ndarray) -> Traces:
+    """The papers' loop (module docstring); duty = controller output / full scale, unbounded."""
+    scenario, dt = problem.scenario, IDEAL_DT_S
+    plant = make_problem_plant(problem)
+    kp, ki, kd = (problem.plant_gains(gains) / problem.input_full_scale).T  # duty per degC
+    n_steps = int(round(scenario.duration_s / dt))
+    delay = int(round(getattr(problem.spec, "delay_s", 0.0) / dt))
+    pending = np.zeros((delay, len(gains)))
+    x = np.repeat(plant.x[:, None], len(gains), axis=1)
+    integral = np.zeros(len(gains))
+    deriv = np.zeros(len(gains))
+    prev_e = np.zeros(len(gains))  # the reference steps at t = 0: the derivative sees the kick
+    tf_s = 1.0 / IDEAL_FILTER_PER_S
+    events = list(scenario.events)
+    maps = {}
+    t_rows, temps, duties = [], [], []
+    for k in range(n_steps + 1):
+        t_s = k * dt
+        while events and events[0].at_s <= t_s + 1e-9:
+            _apply_to_plant(plant, events.pop(0))
+        key = plant.conditions
+        if key not in maps:
+            maps[key] = _ideal_maps(plant.model.lti, dt)
+        phi, g, h = maps[key]
+        lti = plant.model.lti
+        y = lti.c[SENSOR] @ x + lti.f[SENSOR] @ plant.d
+        e = scenario.target_c - y
+        integral += e * dt
+        deriv = (tf_s * deriv + kd * (e - prev_e)) / (tf_s + dt)
+        prev_e = e
+        u = kp * e + ki * integral + deriv
+        t_rows.append(t_s)
+        temps.append(y)
+        duties.append(u)
+        if delay:
+            pending = np.vstack((pending, u[None, :]))
+            u, pending = pending[0], pending[1:]
+        x = phi @ x + np.outer(g, u) + (h @ plant.d)[:, None]
+    return Traces(np.array(t_rows), np.array(temps), np.array(duties), np.zeros(len(gains), bool))
+
+
+def run_chunk(problem: Problem, gains: np.ndarray) -> Traces:
+    """One chunk of candidates on the problem's loop (a picklable task for dask)."""
+    if problem.loop == "ideal":
+        return _run_ideal(problem, gains)
+    traces = _run_batch(problem, gains) if problem.batched else run_scalars(problem, gains)
+    if problem.loop == "marlin":  # Marlin's first reading after reset sums 15 oversamples, not 16: it reads high
+        traces = Traces(traces.t_s[1:], traces.temp_c[1:], traces.duty[1:], traces.tripped)
+    return traces
+
+
+def _chunks(gains: np.ndarray) -> Iterator[np.ndarray]:
+    for start in range(0, len(gains), CHUNK_LANES):
+        yield gains[start:start + CHUNK_LANES]
+
+
+def _join(parts: list[Traces]) -> Traces:
+    rows = min(p.t_s.size for p in parts)  # every chunk runs on the same clock; guard a ragged end
+    return Traces(parts[0].t_s[:rows], np.hstack([p.temp_c[:rows] for p in parts]),
+                  np.hstack([p.duty[:rows] for p in parts]), np.concatenate([p.tripped for p in parts]))
+
+
+def simulate(problem: Problem, gains, client=None) -> Run:
+    """Run candidate gains (N, 3) on the 0..255 scale; a dask.distributed client runs the chunks."""
+    gains = np.atleast_2d(np.asarray(gains, float))
+    if gains.ndim != 2 or gains.shape[1] != 3:
+        raise ValueError(f"gains must be an (N, 3) array of Kp, Ki, Kd, got shape {gains.shape}")
+    chunks = list(_chunks(gains))
+    if client is None:
+        parts = [run_chunk(problem, chunk) for chunk in chunks]
+    else:
+        parts = client.gather(client.map(run_chunk, [problem] * len(chunks), chunks, pure=False))
+    traces = _join(parts)
+    return Run(traces.t_s, traces.temp_c, traces.duty, problem.scenario.target_c,
+               problem.scenario.ambient_c, problem.scenario.disturbances_s, traces.tripped,
+               problem.plant_gains(gains), problem.input_full_scale)
+
+
+class Evaluator:
+    """objective(population) for the optimisers: gains (N, 3) on the 0..255 scale -> costs (N,).
+
+    Candidates outside the firmware's gain range (or negative) cost ``OUT_OF_RANGE_COST``.
+    Counts evaluations; ``on_batch`` (if given) is called with each batch's costs (progress).
+    """
+
+    def __init__(self, problem: Problem, cost: Callable[[Run], np.ndarray], client=None,
+                 on_batch: Callable[[np.ndarray], None] | None = None):
+        self.problem, self.cost, self.client, self.on_batch = problem, cost, client, on_batch
+        self.evaluations = 0
+
+    def __call__(self, gains) -> np.ndarray:
+        gains = np.atleast_2d(np.asarray(gains, float))
+        valid = np.all((gains >= 0.0) & (gains <= GAIN_MAX), axis=1) & np.all(np.isfinite(gains), axis=1)
+        costs = np.full(len(gains), OUT_OF_RANGE_COST)
+        if valid.any():
+            costs[valid] = self.cost(simulate(self.problem, gains[valid], self.client))
+        self.evaluations += len(gains)
+        if self.on_batch is not None:
+            self.on_batch(costs)
+        return costs
+
+
+# -- the firmware's own autotune ---------------------------------------------------------------------
+def marlin_autotune(problem: Problem, cycles: int = M303_CYCLES) -> Gains:
+    """M303 E0 S<target> C<cycles> on a Marlin twin of the problem's plant (at ambient, no
+    disturbances): the gains it prints. ValueError if the autotune fails."""
+    quiet = replace(problem, scenario=replace(problem.scenario, events=()))
+    twin = _marlin_twin(quiet, None)
+    tune = twin.board.start_autotune(HOTEND_CHANNEL, int(round(problem.scenario.target_c)), cycles)
+    limit_s = AUTOTUNE_TIMEOUT_S
+    while not tune.done and twin.time_s < limit_s:
+        twin.run_until(twin.time_s + AUTOTUNE_POLL_S)
+    if not tune.succeeded or tune.gains is None:
+        raise ValueError(f"M303 failed on {problem.name}: " + " | ".join(twin.console.lines()[-2:]))
+    kp, ki, kd = tune.gains
+    return Gains(kp, ki, kd)
+
+
+def klipper_autotune(problem: Problem) -> Gains:
+    """PID_CALIBRATE HEATER=extruder TARGET=<target> on a Klipper twin of the problem's plant."""
+    twin = KlipperTwin([extruder_setup(make_problem_plant(problem), max_temp_c=KLIPPER_MAX_TEMP_C)])
+    try:
+        result = twin.pid_calibrate("extruder", problem.scenario.target_c)
+    except CommandError as exc:
+        why = (twin.shutdown_message or str(exc)).splitlines()[0]
+        raise ValueError(f"PID_CALIBRATE failed on {problem.name}: {why}") from None
+    return Gains(result.kp, result.ki, result.kd)
+
+
+def firmware_autotune(problem: Problem) -> tuple[str, Gains]:
+    """The firmware's own autotune on the problem's plant: (its name, its gains)."""
+    if problem.loop == "klipper":
+        return "PID_CALIBRATE", klipper_autotune(problem)
+    return f"M303 C{M303_CYCLES}", marlin_autotune(problem)
+
+
+# -- candidates: the rules' gains, scored together ---------------------------------------------------
+@dataclass(frozen=True)
+class Candidate:
+    """One tuned result: where it came from, its gains, its cost and its run on the firmware twin."""
+
+    method: str
+    gains: Gains
+    cost: float
+    run: Run
+    history: np.ndarray | None = None  # an optimiser's best cost per iteration
+
+
+def rule_gains(problem: Problem, names: list[str]) -> tuple[dict[str, Gains], dict[str, str]]:
+    """Each named rule's gains for the problem's plant (tools/tuning/rules) as its linear model with
+    the loop's own delay added (tools/identify.py CONTROL_DELAY_S, as twin-fit tunes); and, for the
+    rules that give none on this model, why (a rule's ValueError)."""
+    model = model_of(problem.spec).delayed(CONTROL_DELAY_S)
+    gains, failures = {}, {}
+    for name in names:
+        try:
+            gains[name] = tune(name, model)
+        except ValueError as exc:
+            failures[name] = str(exc)
+    return gains, failures
+
+
+def rule_names() -> list[str]:
+    return list(RULES)
+
+
+def optimiser_names() -> list[str]:
+    return list(METHODS)
+
+
+def score(problem: Problem, cost: Callable[[Run], np.ndarray], gains: dict[str, Gains], client=None) -> list[Candidate]:
+    """Every candidate in one batch on the firmware twin, best first."""
+    names = list(gains)
+    table = np.array([[g.kp, g.ki, g.kd] for g in gains.values()])
+    run = simulate(problem, np.clip(table, 0.0, GAIN_MAX), client)
+    costs = cost(run)
+    scored = [Candidate(name, gains[name], float(costs[i]), run.lanes([i])) for i, name in enumerate(names)]
+    return sorted(scored, key=lambda c: c.cost)

@@ -1,0 +1,70 @@
+"""Differential evolution (scipy.optimize.differential_evolution), under the shared contract.
+
+The population is evaluated as one batch (``vectorized=True`` with ``updating='deferred'``, the
+mode scipy requires for it), seeded from ``rng``. Defaults are scipy's (strategy best1bin,
+mutation 0.5-1, recombination 0.7, Latin-hypercube start) except three, all so that the run
+spends the budget it is given and no more: ``polish=False`` (the L-BFGS-B polish would evaluate
+outside the budget), ``tol=0`` (run all generations, as the seeds' fixed-iteration comparisons
+do) and a population of ``population`` points (default scipy's 15 per dimension). When every
+initial cost is inf, scipy evaluates the first population again; a generation the budget cannot
+pay for ends the run with the best point so far.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from scipy.optimize import differential_evolution
+from scipy.stats import qmc
+
+from tools.tuning.optim.result import BatchObjective, Ledger, OptimResult, check_bounds
+
+SCIPY_POPSIZE_PER_DIM = 15  # scipy.optimize.differential_evolution's default popsize multiplier
+
+
+def minimize(
+    objective: BatchObjective,
+    bounds: Sequence[Sequence[float]] | np.ndarray,
+    *,
+    rng: np.random.Generator,
+    budget: int,
+    population: int | None = None,
+    **options: Any,
+) -> OptimResult:
+    """DE with a population of ``population`` points; options go to scipy (e.g. strategy, mutation)."""
+    low, high = check_bounds(bounds)
+    size = SCIPY_POPSIZE_PER_DIM * low.size if population is None else int(population)
+    if size < 5:
+        raise ValueError(f"population must be >= 5 for DE, got {size}")
+    if budget < 2 * size:
+        raise ValueError(f"budget {budget} is below two generations of DE ({2 * size} evaluations)")
+    ledger = Ledger("de", objective, budget, low.size)
+    start = qmc.scale(qmc.LatinHypercube(d=low.size, rng=rng).random(size), low, high)
+
+    def batch(columns: np.ndarray) -> np.ndarray:
+        if columns.shape[1] > ledger.remaining:
+            raise _BudgetSpent
+        return ledger(np.asarray(columns).T)
+
+    settings = {"polish": False, "tol": 0.0, **options}
+    try:
+        differential_evolution(
+            batch,
+            list(zip(low, high, strict=True)),
+            init=start,
+            maxiter=budget // size - 1,
+            vectorized=True,
+            updating="deferred",
+            rng=rng,
+            callback=lambda intermediate_result: ledger.end_iteration(),
+            **settings,
+        )
+    except _BudgetSpent:
+        ledger.end_iteration()
+    return ledger.result()
+
+
+class _BudgetSpent(Exception):
+    """scipy asked for more evaluations than the budget has left: stop with the best so far."""

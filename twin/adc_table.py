@@ -6,9 +6,12 @@ falls as the temperature rises, so it is fixed by the 1023 temperatures where it
 ``edges_c[k]`` (k = 1..1023) is the lowest double at which the chain's own float evaluation
 gives a count below k, found by bisection over the doubles with ``convert`` itself. Then the
 count of T is the number of edges above T: comparisons only, the same in numpy and in a compiled
-loop. It equals ``convert`` wherever that float evaluation falls monotonically;
-tests/test_lanes.py checks every double within 64 ulps of every edge, where a rounding wobble
-of the exponential could show, and random temperatures elsewhere.
+loop. It equals ``convert`` wherever that float evaluation falls monotonically. For a beta part
+(one exponential, correct to about an ulp) a wobble can only show within a few ulps of an edge;
+tests/test_lanes.py checks every double within 64 ulps of every edge, and random temperatures
+elsewhere. A full Steinhart-Hart part goes through Cardano's formula, whose cancellation wobbles
+far wider (the Semitec 104GT-2 disagrees 4 ulps from an edge): no table for those, the batch
+converts sample by sample.
 """
 
 from __future__ import annotations
@@ -36,8 +39,13 @@ def _from_ordered(keys: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def adc_edges_c(divider: Divider) -> np.ndarray:
-    """(ADC_MAX + 1,) float64: +inf, then the temperature below which the count is >= k, k = 1..ADC_MAX."""
+def adc_edges_c(divider: Divider) -> np.ndarray | None:
+    """(ADC_MAX + 1,) float64: +inf, then the temperature below which the count is >= k, k = 1..ADC_MAX.
+
+    None for a part that is not a beta model (see the module's docstring).
+    """
+    if divider.part.c3:
+        return None
     chain = SensorChain(divider)
 
     def count(temps_c: np.ndarray) -> np.ndarray:

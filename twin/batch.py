@@ -113,7 +113,7 @@ class BatchTwin:
         px, pdd, fx, fdd = _period_maps(model, d, n, offsets.start)
         steps, sensor_steps = _step_tables(model)
         pulses = lanes.pulses(n)
-        s = np.array(offsets)[:, None]
+        s = np.array(offsets, dtype=np.int64)[:, None]
         sensor_c = _dot(px, self.x) + pdd[:, None]
         for alpha, beta in pulses:
             sensor_c = sensor_c + (sensor_steps[np.maximum(s - alpha, 0)] - sensor_steps[np.maximum(s - beta, 0)])

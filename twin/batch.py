@@ -173,7 +173,7 @@ class BatchTwin:
                    bk.HINT: self._adc_hint}
         istate = np.zeros((self.n_lanes, bk.N_STATE), np.int64)
         for column, values in columns.items():
-            istate[:, column] = values
+            istate[:, column] = np.asarray(values)
         return istate
 
     def _unpack(self, istate: np.ndarray) -> None:
@@ -272,7 +272,8 @@ def _clock_plan(phase: int, temp_count: int, pwm_count: int, tick: int, stop: in
     """
     adc = AdcSequencer(1, port=None)
     adc.phase, adc.temp_count = phase, temp_count
-    rows, kinds = [], {}
+    rows: list[tuple[int, ...]] = []
+    kinds: dict[tuple[int, int], int] = {}
     while tick < stop:
         to_reading = adc.ticks_to_reading()
         n = min(stop - tick, to_reading)

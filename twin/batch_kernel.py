@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
 
 from firmware_port.marlin.lanes import (
     FIRST_HEATING,
@@ -38,7 +37,7 @@ from firmware_port.marlin.lanes import (
 try:
     import numba
 except ImportError:  # the optional `fast` extra
-    numba = None
+    numba = None  # type: ignore[assignment]
 
 KERNELS = ("numba", "numpy")
 KERNEL_ENV = "HEATER_TWIN_KERNEL"

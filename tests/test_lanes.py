@@ -13,6 +13,7 @@ from firmware_port.thermistor import B3950, B3950_TABLE, KLIPPER_SENSORS, MAX_RA
 from twin.adc_table import adc_edges_c
 from twin.adc_table import convert as adc_convert
 from twin.batch import BatchTwin
+from twin import batch_kernel
 from twin.batch_kernel import KERNEL_ENV, KERNELS, default_kernel
 from twin.engine import Twin
 from twin.plants import make_plant
@@ -200,4 +201,11 @@ def test_kernel_choice_comes_from_the_environment(monkeypatch):
     assert BatchTwin(make_plant("hotend"), [PidGains(1, 1, 1)]).kernel == "numpy"
     monkeypatch.setenv(KERNEL_ENV, "cuda")
     with pytest.raises(ValueError, match=f"{KERNEL_ENV}='cuda'"):
+        default_kernel()
+
+
+def test_asking_for_numba_without_it_is_a_clear_error(monkeypatch):
+    monkeypatch.setattr(batch_kernel, "numba", None)
+    monkeypatch.setenv(KERNEL_ENV, "numba")
+    with pytest.raises(ValueError, match="numba is not installed"):
         default_kernel()

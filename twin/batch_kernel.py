@@ -14,8 +14,8 @@ not contract without fastmath), and the ADC uses the same table of switching tem
 (``twin.adc_table``). tests/test_lanes.py runs both and compares every record and state.
 
 ``HEATER_TWIN_KERNEL`` picks the implementation: ``numba`` (default when numba is installed,
-``pip install heater-twin[fast]``) or ``numpy``. Without numba the loop below still runs, as
-plain Python (slow, used by the tests only).
+``pip install heater-twin[fast]``) or ``numpy``. Without numba, ``BatchTwin(kernel="numba")``
+still runs the loop below as plain Python: slow, but the tests check the same code that way.
 """
 
 from __future__ import annotations
@@ -61,11 +61,13 @@ def default_kernel() -> str:
     kernel = os.environ.get(KERNEL_ENV, "numba" if numba is not None else "numpy")
     if kernel not in KERNELS:
         raise ValueError(f"{KERNEL_ENV}={kernel!r}: must be one of {', '.join(KERNELS)}")
+    if kernel == "numba" and numba is None:
+        raise ValueError(f"{KERNEL_ENV}=numba: numba is not installed (pip install 'heater-twin[fast]')")
     return kernel
 
 
 def describe() -> str:
-    return f"numba {numba.__version__}" if numba is not None else "numba not installed: interpreted"
+    return f"numba {numba.__version__}" if numba is not None else "numba not installed"
 
 
 # The loop allocates nothing (its scratch arrays come in), so it runs without numba's reference

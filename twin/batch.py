@@ -151,7 +151,7 @@ class BatchTwin:
         istate = self._pack()
         bk.run_lanes(plan, *tables, sensor_steps, steps, _plant_io(model, d), edges, _raw_lut(lanes.table),
                      _firmware_constants(lanes), _gains(lanes), istate, self.x, *records,
-                     np.zeros((2, bk.MAX_PULSES), np.int64), np.zeros((2, len(self.x))))
+                     np.zeros((2, bk.MAX_PULSES), np.int64), np.zeros((2, len(self.x))), np.zeros(tables[0].shape[2]))
         self._unpack(istate)
         adc.phase, adc.temp_count, lanes.pwm_count = end
         adc.raw_ready = False
@@ -254,12 +254,12 @@ def _plant_io(model: TickModel, d: np.ndarray) -> np.ndarray:
 
 
 def _kind_tables(model: TickModel, d: np.ndarray, kinds: tuple) -> tuple:
-    """``_period_maps`` of each kind of period, stacked (samples padded to the longest)."""
+    """``_period_maps`` of each kind of period, stacked (samples padded to the longest; px as (n_x, J))."""
     maps = [_period_maps(model, d, n, first) for n, first in kinds]
     n_x, j_max = model.phi.shape[0], max(1, *(len(m[0]) for m in maps))
-    px, pdd = np.zeros((len(maps), j_max, n_x)), np.zeros((len(maps), j_max))
+    px, pdd = np.zeros((len(maps), n_x, j_max)), np.zeros((len(maps), j_max))
     for k, (p, q, _, _) in enumerate(maps):
-        px[k, : len(p)], pdd[k, : len(q)] = p, q
+        px[k, :, : len(p)], pdd[k, : len(q)] = p.T, q
     return px, pdd, np.array([m[2] for m in maps]), np.array([m[3] for m in maps])
 
 

@@ -211,23 +211,31 @@ def _latch(st, pwm, n, fw):
 
 
 @_inline
-def _sample_sum(st, x, px, pdd, kind, s0, n, n_pulses, alpha, beta, sstep, edges, fw):
-    """The ADC counts of the sensor node at ticks s0, s0 + 10, ... < n, summed."""
+def _sample_sum(st, x, px, pdd, kind, s0, n, n_pulses, alpha, beta, sstep, edges, fw, ys):
+    """The ADC counts of the sensor node at ticks s0, s0 + 10, ... < n, summed.
+
+    Loops over the samples innermost (vectorisable), each sample's sum in the numpy path's order.
+    """
+    step = fw[SAMPLE_EVERY]
+    n_samples = (n - s0 + step - 1) // step if n > s0 else 0
+    for j in range(n_samples):
+        ys[j] = px[kind, 0, j] * x[0]
+    for i in range(1, x.shape[0]):
+        for j in range(n_samples):
+            ys[j] = ys[j] + px[kind, i, j] * x[i]
+    for j in range(n_samples):
+        ys[j] = ys[j] + pdd[kind, j]
+    for p in range(n_pulses):
+        for j in range(n_samples):
+            s = s0 + step * j
+            ys[j] = ys[j] + (sstep[max(s - alpha[p], 0)] - sstep[max(s - beta[p], 0)])
     total, count = 0, st[HINT]
-    j = 0
-    for s in range(s0, n, fw[SAMPLE_EVERY]):
-        y = px[kind, j, 0] * x[0]
-        for i in range(1, x.shape[0]):
-            y = y + px[kind, j, i] * x[i]
-        y = y + pdd[kind, j]
-        for p in range(n_pulses):
-            y = y + (sstep[max(s - alpha[p], 0)] - sstep[max(s - beta[p], 0)])
-        while count < fw[ADC_MAX] and y < edges[count + 1]:
+    for j in range(n_samples):
+        while count < fw[ADC_MAX] and ys[j] < edges[count + 1]:
             count += 1
-        while y >= edges[count]:
+        while ys[j] >= edges[count]:
             count -= 1
         total += count
-        j += 1
     st[HINT] = count
     return total
 
@@ -247,13 +255,14 @@ def _advance(x, out, fx, fdd, kind, n, n_pulses, alpha, beta, steps):
 
 @_jit
 def run_lanes(plan, kind_px, kind_pdd, kind_fx, kind_fdd, sstep, steps, plant_io, edges, lut, fw, gains,
-              istate, x, rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair):
+              istate, x, rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair, ys):
     """Every period of ``plan`` on every lane; one record column per reading period.
 
     plan (P, 6) int64: n ticks, first sample offset, reading 0/1, soft-PWM count at the start,
     millis() at the end, kind. kind_* index the maps by kind. plant_io (3, n_x + 1): the heater
     input's one-tick response g, then the block and sensor output rows with their constant.
-    Scratch: pulses (2, MAX_PULSES) int64, x_pair (2, n_x) float64.
+    Scratch: pulses (2, MAX_PULSES) int64, x_pair (2, n_x) and ys (samples per period) float64.
+    kind_px is (kinds, n_x, samples): contiguous along the samples.
     """
     n_x = x.shape[0]
     alpha, beta, xl, xn = pulses[0], pulses[1], x_pair[0], x_pair[1]
@@ -266,7 +275,7 @@ def run_lanes(plan, kind_px, kind_pdd, kind_fx, kind_fdd, sstep, steps, plant_io
             n, s0, reading, pwm, now, kind = plan[q, 0], plan[q, 1], plan[q, 2], plan[q, 3], plan[q, 4], plan[q, 5]
             n_pulses = _pulses(st, pwm, n, fw, alpha, beta)
             st[ACC] += _sample_sum(st, xl, kind_px, kind_pdd, kind, s0, n, n_pulses, alpha, beta, sstep,
-                                   edges, fw)
+                                   edges, fw, ys)
             _latch(st, pwm, n, fw)
             pins_before = st[PINS]
             if reading:

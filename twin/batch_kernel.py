@@ -5,7 +5,7 @@ period costs some fifty numpy calls on N-element arrays, so the interpreter, not
 arithmetic, sets the pace. Here the same period (soft-PWM pulses, the sensor samples through the
 plant's exact tick maps, the ADC sums, ``updateTemperaturesFromRawValues`` and
 ``manage_hotends``: protection and the fixed-point PID) runs lane by lane over a whole stretch
-between scenario events, with each lane's state in registers.
+between scenario events, each lane's state in one cache line or two.
 
 Same results as the numpy lanes, bit for bit: the firmware is integer arithmetic (``//`` and
 ``>>`` floor in numba as in numpy); the plant's float arithmetic is written in the same order
@@ -21,7 +21,6 @@ still runs the loop below as plain Python: slow, but the tests check the same co
 from __future__ import annotations
 
 import os
-
 
 from firmware_port.marlin.lanes import (
     FIRST_HEATING,
@@ -73,7 +72,8 @@ def describe() -> str:
 # The loop allocates nothing (its scratch arrays come in), so it runs without numba's reference
 # counting: passing arrays to the inlined helpers would otherwise cost an atomic increment and
 # decrement each, per period, more than the arithmetic (0.96 s against 0.39 s of CPU for 1000
-# lanes x 600 s on the 2-core reference machine).
+# lanes x 600 s on the 2-core reference machine). ``_nrt`` is numba's own switch for that runtime
+# (underscored, so not promised: tests/test_lanes.py, run against numba in CI, would catch a change).
 NUMBA_OPTIONS = {"_nrt": False}
 
 

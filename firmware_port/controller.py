@@ -21,7 +21,9 @@ OUTPUT_MAX = 255  # Marlin's PID_MAX: the top of every controller's output
 class Controller(Protocol):
     """What the board calls: ``update`` on a fresh reading, ``reset`` when control restarts."""
 
-    check_interval_ms: int | None
+    @property
+    def check_interval_ms(self) -> int | None:
+        """None: run on every fresh reading; else at most this often (the bed's bang-bang gate)."""
 
     def reset(self) -> None: ...
 

@@ -29,6 +29,7 @@ Integer formats (why: one set step must be an exact power of two for any n, so t
 from __future__ import annotations
 
 import math
+from typing import Any
 from dataclasses import dataclass
 
 from firmware_port.fixed import INT16_MAX, clamp, div_round, shr_round, to_q, wrap_s32
@@ -73,7 +74,7 @@ class FuzzyPiConfig:
             raise ValueError(f"out_max must be an integer in 0..{OUT_MAX_COUNTS}, got {self.out_max!r}")
 
     @classmethod
-    def from_input_range(cls, input_min_c: float, input_max_c: float, **settings: float) -> FuzzyPiConfig:
+    def from_input_range(cls, input_min_c: float, input_max_c: float, **settings: Any) -> FuzzyPiConfig:
         """The paper's "input min/max" read literally: ``err_range_c = input_max - input_min``.
 
         Every error of a reading inside the input range from a setpoint inside it lies in

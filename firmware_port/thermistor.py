@@ -128,7 +128,7 @@ def _table_rows(divider: Divider, tolerance_c, hot_raw: int, cold_raw: int) -> l
     value between two chosen rows is checked against the exact curve.
     """
     raws = np.arange(hot_raw, cold_raw + 1)
-    temps = np.array([divider.temp_at_raw(r) for r in raws])
+    temps = np.array([divider.temp_at_raw(float(r)) for r in raws])
     tols = np.array([tolerance_c(t) for t in temps])
     rows = [0]
     start = 0

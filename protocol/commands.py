@@ -8,6 +8,7 @@ the ``ok`` (a kill). Reference: ../shared/reference/marlin_heater.md sections 3,
 
 from __future__ import annotations
 
+from firmware_port.fixed import wrap_s32
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
 from firmware_port.marlin.constants import (
     PREHEAT_1_TEMP_BED_C,
@@ -17,8 +18,7 @@ from firmware_port.marlin.constants import (
 )
 from firmware_port.marlin.pid import PidGains
 from firmware_port.marlin.serial import format_float
-from firmware_port.thermistor import TEMP_ONE
-from protocol.gcode import Command, unknown_command_text
+from protocol.gcode import Command, float_to_u32, unknown_command_text
 from protocol.settings import EEPROM_VERSION, Settings, crc16
 
 NO_OK = object()
@@ -43,6 +43,8 @@ MIN_COOLING_SLOPE_C = {HOTEND_CHANNEL: 1.5, BED_CHANNEL: 1.0}  # MIN_COOLING_SLO
 MIN_COOLING_SLOPE_MS = 60_000  # MIN_COOLING_SLOPE_TIME(_BED)
 WAIT_HYSTERESIS_C = {HOTEND_CHANNEL: TEMP_HYSTERESIS_C, BED_CHANNEL: TEMP_BED_HYSTERESIS_C}
 AUTOREPORT_MAX_S = 60
+DEFAULT_KEEPALIVE_S = 2  # DEFAULT_KEEPALIVE_INTERVAL
+DWELL_MAX_MS = 1 << 31  # dwell(): PENDING() compares as int32
 STR_INVALID_EXTRUDER = "Invalid extruder"
 STR_PID_BAD_HEATER_ID = "PID Autotune failed! Bad heater id"
 
@@ -95,7 +97,6 @@ def m190(p, cmd: Command):
 def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
     """wait_for_hotend / wait_for_bed: 1 s reports with W:, residency 10 s within 1 C, M108 breaks."""
     board = p.twin.board
-    heater = board.heaters[channel]
     target_c = None
     wants_to_cool = False
     residency_start_ms = next_temp_ms = next_cool_check_ms = 0
@@ -104,10 +105,10 @@ def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
     p.wait_for_heatup = True
     while True:
         now = board.now_ms
-        temp_c = heater.temp_q5 / TEMP_ONE
-        if target_c != heater.target_c:
-            wants_to_cool = heater.target_c < temp_c
-            target_c = heater.target_c
+        temp_c = board.temp_c(channel)
+        if target_c != board.target_c(channel):
+            target_c = board.target_c(channel)
+            wants_to_cool = target_c < temp_c
             if no_wait_for_cooling and wants_to_cool:
                 break
         if now >= next_temp_ms:
@@ -121,7 +122,7 @@ def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
         if board.halted:
             return False
         now = board.now_ms
-        temp_c = heater.temp_q5 / TEMP_ONE
+        temp_c = board.temp_c(channel)
         diff_c = abs(target_c - temp_c)
         if not residency_start_ms:
             if diff_c < TEMP_WINDOW_C:
@@ -150,10 +151,11 @@ def m105(p, cmd: Command):
 
 
 def m155(p, cmd: Command):
-    """Auto-report temperatures every S seconds (S0 off, at most 60)."""
-    if cmd.has("S"):
-        p.autoreport_s = min(max(cmd.value_int("S", 0), 0), AUTOREPORT_MAX_S)
+    """Auto-report temperatures every S seconds (parser.value_byte(), S0 off, at most 60)."""
+    if cmd.has_value("S"):
+        p.autoreport_s = min(cmd.value_byte("S"), AUTOREPORT_MAX_S)
         p.autoreport_tick = p.after_ms(p.autoreport_s * 1000)
+        p.autoreport_wall_s = p.wall_s() + p.autoreport_s
 
 
 def m106(p, cmd: Command):
@@ -176,16 +178,15 @@ def _pid_line(code: str, gains: PidGains) -> str:
 def _set_pid(p, channel: int, cmd: Command, code: str):
     """M301 / M304: set P, I, D (user units) or report them; Unknown without PID on that heater."""
     board = p.twin.board
-    if not board.can_autotune(channel):
+    if not board.has_gains(channel):
         p.write(unknown_command_text(cmd))
         return None
-    controller = board.heaters[channel].controller
+    g = board.gains(channel)
     if not any(cmd.has(k) for k in "PID"):
-        p.write(_pid_line(code, controller.gains))
+        p.write(_pid_line(code, g))
         return None
-    g = controller.gains
-    controller.set_gains(PidGains.clamped(cmd.value_float("P", g.kp), cmd.value_float("I", g.ki),
-                                          cmd.value_float("D", g.kd)))
+    board.set_gains(channel, PidGains.clamped(cmd.value_float("P", g.kp), cmd.value_float("I", g.ki),
+                                              cmd.value_float("D", g.kd)))
     return None
 
 
@@ -230,7 +231,7 @@ def _autotune_wait(p):
 # -- settings -----------------------------------------------------------------------------------
 def _current_settings(p) -> Settings:
     board = p.twin.board
-    pids = [h.controller.gains if board.can_autotune(c) else None for c, h in enumerate(board.heaters)]
+    pids = [board.gains(c) if board.has_gains(c) else None for c in range(len(board.heaters))]
     defaults = Settings()
     return Settings(pids[0] or defaults.hotend, (pids[1] if len(pids) > 1 else None) or defaults.bed)
 
@@ -239,7 +240,7 @@ def _apply_settings(p, settings: Settings) -> None:
     board = p.twin.board
     for channel, gains in ((HOTEND_CHANNEL, settings.hotend), (BED_CHANNEL, settings.bed)):
         if board.can_autotune(channel):
-            board.heaters[channel].controller.set_gains(gains)
+            board.set_gains(channel, gains)
 
 
 def _load_settings(p) -> str:
@@ -262,7 +263,7 @@ def _settings_report(p) -> str:
     text = ""
     for channel, code, title in ((HOTEND_CHANNEL, "M301", "Hotend PID"), (BED_CHANNEL, "M304", "Bed PID")):
         if board.can_autotune(channel):
-            text += f"echo:; {title}:\n" + _pid_line(code, board.heaters[channel].controller.gains)
+            text += f"echo:; {title}:\n" + _pid_line(code, board.gains(channel))
     return text
 
 
@@ -293,7 +294,7 @@ def m108(p, cmd: Command):
 def m113(p, cmd: Command):
     """Host keepalive interval (S0 off, at most 60); report it without S."""
     if cmd.has("S"):
-        p.keepalive_s = min(max(cmd.value_int("S", 0), 0), 60)
+        p.keepalive_s = min(cmd.value_byte("S", DEFAULT_KEEPALIVE_S), 60)  # parser.byteval('S', ...)
     else:
         p.write(f"echo:M113 S{p.keepalive_s}\n")
 
@@ -314,7 +315,7 @@ def m110(p, cmd: Command):
 def m999(p, cmd: Command):
     """Restart after a stop(): clear it and ask for the next line (a kill needs a reset)."""
     p.reader.stopped = False
-    p.write(f"Resend: {p.reader.last_n + 1}\n")
+    p.write(f"Resend: {wrap_s32(p.reader.last_n + 1)}\n")
 
 
 # -- motion ----------------------------------------------------------------------------------------
@@ -325,7 +326,7 @@ def _axes(cmd: Command) -> dict[str, float]:
 def g0_g1(p, cmd: Command):
     """A move: queued in the planner, waiting for a free block first (that is when time runs)."""
     if not p.planner.full:
-        p.planner.move(_axes(cmd))
+        p.write(p.planner.move(_axes(cmd)))
         return None
     return _move_when_free(p, _axes(cmd))
 
@@ -333,18 +334,29 @@ def g0_g1(p, cmd: Command):
 def _move_when_free(p, axes: dict[str, float]):
     while p.planner.full:
         yield p.now_tick + 1
-    p.planner.move(axes)
+    p.write(p.planner.move(axes))
 
 
 def g4(p, cmd: Command):
-    """Dwell P milliseconds or S seconds, after the moves in the planner."""
-    ms = cmd.value_int("P", 0) if cmd.has("P") else round(cmd.value_float("S", 0.0) * 1000)
+    """Dwell P milliseconds (parser.value_millis(), a uint32) or S seconds (value_millis_from_seconds(),
+    the float times 1000 cast to uint32; S wins when both are given), after the moves."""
+    ms = 0
+    if cmd.has_value("P"):
+        ms = cmd.value_ulong("P")
+    if cmd.has_value("S"):
+        ms = float_to_u32(cmd.value_float("S") * 1000.0)
     return _dwell(p, ms)
+
+
+def dwell_span_ms(ms: int) -> int:
+    """How long MarlinCore.cpp dwell(ms) waits: ``time += millis(); while (PENDING(millis(), time))``
+    with PENDING a signed 32-bit difference, so a uint32 beyond 2^31 ms has already passed."""
+    return ms if ms <= DWELL_MAX_MS else 0
 
 
 def _dwell(p, ms: int):
     yield from _synchronize(p)
-    end = p.after_ms(ms)
+    end = p.after_ms(dwell_span_ms(ms))
     while p.now_tick < end:
         yield end
 
@@ -353,6 +365,11 @@ def _synchronize(p):
     """planner.synchronize(): idle until every block has run."""
     while p.planner.blocks:
         yield p.now_tick + 1
+
+
+def m410(p, cmd: Command):
+    """Quickstop: the moves are dropped (already done when the line arrived)."""
+    p.planner.clear()
 
 
 def m400(p, cmd: Command):
@@ -391,7 +408,7 @@ HANDLERS = {
     ("M", 155): m155, ("M", 106): m106, ("M", 107): m107, ("M", 301): m301, ("M", 304): m304,
     ("M", 303): m303, ("M", 500): m500, ("M", 501): m501, ("M", 502): m502, ("M", 503): m503,
     ("M", 108): m108, ("M", 113): m113, ("M", 115): m115, ("M", 110): m110, ("M", 999): m999,
-    ("M", 400): m400, ("M", 114): m114,
+    ("M", 400): m400, ("M", 114): m114, ("M", 410): m410,
     ("G", 0): g0_g1, ("G", 1): g0_g1, ("G", 4): g4, ("G", 92): g92, ("G", 28): g28,
     ("G", 90): _mode("absolute_xyz", True), ("G", 91): _mode("absolute_xyz", False),
     ("M", 82): _mode("absolute_e", True), ("M", 83): _mode("absolute_e", False),

@@ -18,7 +18,7 @@ import re
 import struct
 from dataclasses import dataclass
 
-from firmware_port.fixed import INT32_MAX, clamp, sat_s32, wrap_s16, wrap_u8, wrap_u16
+from firmware_port.fixed import INT32_MAX, UINT32_MAX, clamp, sat_s32, wrap_s16, wrap_u8, wrap_u16, wrap_u32
 
 STR_UNKNOWN_COMMAND = 'Unknown command: "'  # core/language.h
 ECHO_START = "echo:"  # core/serial.cpp serial_echo_start()
@@ -45,6 +45,30 @@ def strtol(text: str) -> int:
     if len(digits) > len(str(INT32_MAX)):  # also keeps int() clear of its digit limit
         return sat_s32(sign * (INT32_MAX + 1))
     return sat_s32(sign * int(digits))
+
+
+def strtoul(text: str) -> int:
+    """C ``strtoul(text, nullptr, 10)`` with a 32-bit unsigned long: a minus sign negates modulo
+    2^32, beyond ULONG_MAX it saturates."""
+    body = text.lstrip(C_SPACE)
+    negative = body.startswith("-")
+    digits = body[1:] if body[:1] in "+-" else body
+    j = 0
+    while j < len(digits) and digits[j] in DIGITS:
+        j += 1
+    magnitude = digits[:j].lstrip("0") or "0"
+    if len(magnitude) > len(str(UINT32_MAX)) or int(magnitude) > UINT32_MAX:
+        return UINT32_MAX
+    return wrap_u32(-int(magnitude)) if negative else int(magnitude)
+
+
+def float_to_u32(x: float) -> int:
+    """A float cast to uint32_t (millis_t). C leaves out-of-range casts undefined; the twin
+    saturates (NaN and negatives to 0, beyond 2^32 - 1 to 2^32 - 1), so the result is a uint32
+    as Marlin's type says, whatever the value."""
+    if not x > 0:
+        return 0
+    return UINT32_MAX if x >= UINT32_MAX else int(x)
 
 
 def float32(x: float) -> float:
@@ -77,6 +101,20 @@ class Command:
     def has(self, letter: str) -> bool:
         """parser.seen(letter)."""
         return letter in self.params
+
+    def has_value(self, letter: str) -> bool:
+        """parser.seenval(letter): seen with a value."""
+        return bool(self.params.get(letter))
+
+    def value_ulong(self, letter: str, default: int = 0) -> int:
+        """parser.value_ulong() (value_millis()): the 32-bit strtoul, or ``default``."""
+        raw = self.params.get(letter)
+        return strtoul(raw) if raw else default
+
+    def value_byte(self, letter: str, default: int = 0) -> int:
+        """parser.value_byte() / byteval(): strtol clamped to 0..255, or ``default`` without a value."""
+        raw = self.params.get(letter)
+        return clamp(strtol(raw), 0, 255) if raw else default
 
     def value_long(self, letter: str, default: int = 0) -> int:
         """parser.longval(): the 32-bit strtol (M110 N, times), or ``default`` without a value."""

@@ -59,13 +59,13 @@ class Line:
 class LineReader:
     """One serial port's line buffer and line-number state (queue.cpp SerialState).
 
-    ``ok_after_resend``: the default (False) sends no ``ok`` after ``Resend: <n>``, as the
-    project's reference notes give for Marlin 2.1 (their queue.cpp behaves like 2.0.8). True sends
-    one, as Marlin 1.1 did and as bugfix-2.1.x's flush_and_request_resend() does
-    (``SERIAL_ECHOLNPGM(STR_OK)`` after the Resend line); see docs/serial.md.
+    ``ok_after_resend``: the default (True) sends ``ok`` after ``Resend: <n>``, as Marlin 2.1's
+    GCodeQueue::flush_and_request_resend() does (``SERIAL_ECHOLNPGM(STR_OK)`` after the Resend
+    line; earlier versions call ok_to_send() there, which prints it too). False leaves it out, a
+    buggy firmware for testing a host's resend handling; see docs/serial.md.
     """
 
-    def __init__(self, *, ok_after_resend: bool = False) -> None:
+    def __init__(self, *, ok_after_resend: bool = True) -> None:
         self.ok_after_resend = ok_after_resend
         self.last_n = 0  # serial.last_N, int32; M110's handler sets it too
         self.stopped = False  # IsStopped(), set and cleared by the firmware (M999)

@@ -6,6 +6,13 @@ Each G0/G1 becomes a block lasting its distance over its feed rate (Marlin's fee
 to the XYZ distance, or to E alone for an E-only move), feeding ``E / duration`` mm/s of filament.
 Blocks run one after the other while the clock runs; like Marlin's planner the buffer holds
 BLOCK_BUFFER_SIZE blocks, and a host streaming moves waits for a free slot.
+
+Marlin's widths and limits bound what a block can be (module/planner.cpp, _populate_block, with
+the stock Configuration.h): the planner's positions are int32 steps (``LROUND(mm x steps/mm)``,
+and avr-libc's lround gives LONG_MIN for a value that is not finite or overflows), the distance
+comes from the step deltas, each axis keeps to its DEFAULT_MAX_FEEDRATE, a block never steps
+slower than MINIMAL_STEP_RATE, and an extrusion longer than EXTRUDE_MAXLENGTH is dropped
+(PREVENT_LENGTHY_EXTRUDE). So every block lasts a finite time: at most 2^32 steps at 120 steps/s.
 """
 
 from __future__ import annotations
@@ -14,9 +21,27 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from firmware_port.fixed import INT32_MAX, INT32_MIN, wrap_s32
+from protocol.gcode import float32
+
 BLOCK_BUFFER_SIZE = 16  # Marlin Configuration_adv.h (AVR default)
 DEFAULT_FEEDRATE_MM_S = 25.0  # until the first F word (Marlin starts at 1500 mm/min)
-MIN_FEEDRATE_MM_S = 0.001
+AXES = "XYZE"
+STEPS_PER_MM = {"X": 80.0, "Y": 80.0, "Z": 400.0, "E": 500.0}  # DEFAULT_AXIS_STEPS_PER_UNIT
+MAX_FEEDRATE_MM_S = {"X": 300.0, "Y": 300.0, "Z": 5.0, "E": 25.0}  # DEFAULT_MAX_FEEDRATE
+MINIMAL_STEP_RATE = 120  # planner.h: the slowest a block steps, steps/s
+EXTRUDE_MAXLENGTH_MM = 200  # Configuration.h, PREVENT_LENGTHY_EXTRUDE
+STR_ERR_LONG_EXTRUDE_STOP = "echo: too long extrusion prevented\n"  # language.h, via SERIAL_ECHO_MSG
+
+
+def lround32(x: float) -> int:
+    """avr-libc ``lround`` into a 32-bit long: half away from zero; LONG_MIN when x is not finite
+    or does not fit (the avr-libc manual's stated result)."""
+    if not math.isfinite(x):
+        return INT32_MIN
+    n = math.floor(abs(x) + 0.5)
+    n = n if x >= 0 else -n
+    return n if INT32_MIN <= n <= INT32_MAX else INT32_MIN
 
 
 @dataclass
@@ -29,7 +54,8 @@ class Planner:
     """Positions, modes and the queue of blocks; the printer runs them on its clock."""
 
     def __init__(self) -> None:
-        self.position = {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
+        self.position = {axis: 0.0 for axis in AXES}  # current_position, float32 mm
+        self.steps = {axis: 0 for axis in AXES}  # planner.position, int32 steps
         self.absolute_xyz = True  # G90 / G91
         self.absolute_e = True  # M82 / M83
         self.feedrate_mm_s = DEFAULT_FEEDRATE_MM_S
@@ -45,32 +71,50 @@ class Planner:
         """Filament feed now: the head block's."""
         return self.blocks[0].flow_mm_s if self.blocks else 0.0
 
-    def move(self, params: dict[str, float]) -> None:
-        """G0/G1 with numeric parameters X Y Z E F: queue a block (the caller checks ``full``)."""
+    def move(self, params: dict[str, float]) -> str:
+        """G0/G1 with numeric parameters X Y Z E F: queue a block (the caller checks ``full``).
+
+        Returns what Marlin prints about it ('' or the too-long-extrusion message).
+        """
         if "F" in params and params["F"] > 0:
-            self.feedrate_mm_s = params["F"] / 60.0
-        delta = {}
-        for axis in "XYZE":
+            self.feedrate_mm_s = float32(params["F"] / 60.0)
+        delta_steps = {}
+        for axis in AXES:
             if axis in params:
                 absolute = self.absolute_e if axis == "E" else self.absolute_xyz
-                target = params[axis] if absolute else self.position[axis] + params[axis]
-                delta[axis] = target - self.position[axis]
+                target = params[axis] if absolute else float32(self.position[axis] + params[axis])
                 self.position[axis] = target
-        xyz = math.sqrt(sum(delta.get(a, 0.0) ** 2 for a in "XYZ"))
-        e = delta.get("E", 0.0)
-        distance = xyz if xyz > 0 else abs(e)
-        if distance == 0:
+            target_steps = lround32(self.position[axis] * STEPS_PER_MM[axis])
+            delta_steps[axis] = wrap_s32(target_steps - self.steps[axis])
+            self.steps[axis] = target_steps
+        message = ""
+        if abs(delta_steps["E"]) > STEPS_PER_MM["E"] * EXTRUDE_MAXLENGTH_MM:
+            delta_steps["E"] = 0  # "behave as if the move really took place, but ignore E"
+            message = STR_ERR_LONG_EXTRUDE_STOP
+        self._queue(delta_steps)
+        return message
+
+    def _queue(self, delta_steps: dict[str, int]) -> None:
+        step_events = max(abs(d) for d in delta_steps.values())
+        if step_events == 0:
             return
-        duration_s = distance / max(self.feedrate_mm_s, MIN_FEEDRATE_MM_S)
-        self.blocks.append(Block(duration_s, e / duration_s))
+        mm = {axis: delta_steps[axis] / STEPS_PER_MM[axis] for axis in AXES}
+        xyz = math.sqrt(sum(mm[a] ** 2 for a in "XYZ"))
+        distance = xyz if xyz > 0 else abs(mm["E"])
+        duration_s = distance / self.feedrate_mm_s
+        for axis in AXES:  # limit_and_warn / the speed factor: no axis beyond its maximum
+            duration_s = max(duration_s, abs(mm[axis]) / MAX_FEEDRATE_MM_S[axis])
+        duration_s = min(duration_s, step_events / MINIMAL_STEP_RATE)
+        self.blocks.append(Block(duration_s, mm["E"] / duration_s))
         if len(self.blocks) == 1:
             self.block_left_s = duration_s
 
     def set_position(self, params: dict[str, float]) -> None:
         """G92: the given axes take the given values (all zero when none is given)."""
-        for axis in "XYZE":
+        for axis in AXES:
             if axis in params or not params:
                 self.position[axis] = params.get(axis, 0.0)
+                self.steps[axis] = lround32(self.position[axis] * STEPS_PER_MM[axis])
 
     def time_to_next_change_s(self) -> float | None:
         """Until the head block ends (the flow may change then), or None when idle."""
@@ -87,6 +131,6 @@ class Planner:
                 self.block_left_s = self.blocks[0].duration_s if self.blocks else 0.0
 
     def clear(self) -> None:
-        """Kill or reset: the queue is gone."""
+        """Kill, reset or quickstop (M410): the queue is gone."""
         self.blocks.clear()
         self.block_left_s = 0.0

@@ -7,17 +7,26 @@ is a generator that yields the tick it wants to be resumed at, and the clock run
 Marlin's idle() duties happen on the way (busy keepalive every 2 s, M155 auto-reports).
 
 The transport decides how fast virtual time passes: ``run_for(seconds)`` for a speed of N x real
-time, ``run_until_idle()`` for ``--speed max`` (run free while a command executes, stop when
-the printer waits for the host).
+time, ``run_while_busy()`` for ``--speed max`` (run free while a command executes). A transport
+that paces to the wall clock sets ``wall_clock``: M155 reports and busy keepalives then come at
+most once per interval of virtual time *and* of wall time, so a clock running 500 x real time
+does not send a host 500 lines a second (without it, both follow virtual time only, which keeps
+host-driven runs deterministic).
+
+The receive side is an ATmega328's: a 128-byte RX ring (Marlin's RX_BUFFER_SIZE) that the main
+loop empties only while the command queue has room; bytes that arrive to a full ring are lost,
+as MarlinSerial's store_rxd_char() drops them. A command that raises is a bug of the twin, not
+of the host: it is logged, answered with ``Error:`` and ``ok``, and the printer keeps serving.
 """
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from collections.abc import Callable, Generator
 
 from firmware_port.marlin.constants import ms_to_ticks, ticks_to_ms
-from protocol.commands import HANDLERS, NO_OK, banner
+from protocol.commands import DEFAULT_KEEPALIVE_S, HANDLERS, NO_OK, banner
 from protocol.gcode import Command, parse, unknown_command_text
 from protocol.lines import Line, LineReader
 from protocol.planner import Planner
@@ -26,17 +35,19 @@ from twin.engine import Twin
 from twin.linear import TICK_S
 
 BUFSIZE = 4  # Marlin's command ring buffer
-DEFAULT_KEEPALIVE_S = 2  # DEFAULT_KEEPALIVE_INTERVAL
+RX_BUFFER_SIZE = 128  # Marlin Configuration_adv.h (AVR); the ring keeps one slot empty, so 127 bytes
+RX_CAPACITY = RX_BUFFER_SIZE - 1
 TICKS_PER_S = 1.0 / TICK_S
 BOOT_TICKS = round(1.0 * TICKS_PER_S)  # from reset to the host's first command: readings are in
 
 Task = Generator[int, None, None]  # yields the absolute tick to be resumed at
+LOG = logging.getLogger(__name__)
 
 
 class VirtualPrinter:
     """Marlin's serial front end and command loop over a twin."""
 
-    def __init__(self, make_twin: Callable[[], Twin], *, eeprom: Eeprom | None = None, ok_after_resend: bool = False):
+    def __init__(self, make_twin: Callable[[], Twin], *, eeprom: Eeprom | None = None, ok_after_resend: bool = True):
         self.twin = make_twin()
         self.twin.recording = False  # a serial session can run for days: no trace rows
         self.eeprom = eeprom if eeprom is not None else Eeprom()
@@ -44,6 +55,9 @@ class VirtualPrinter:
         self._out = bytearray()
         self.twin.console.listeners.append(lambda text: self._out.extend(text.encode("latin-1")))
         self._boots = 0
+        self.wall_clock: Callable[[], float] | None = None  # set by a transport paced to the wall
+        self.rx_dropped = 0  # bytes lost to a full RX ring since the printer was made
+        self.internal_errors = 0  # commands that raised (a bug of the twin), answered with Error:
         self.reset()
 
     # -- what a transport uses ------------------------------------------------------------
@@ -63,23 +77,42 @@ class VirtualPrinter:
         self.keepalive_tick = 0
         self.autoreport_s = 0
         self.autoreport_tick = 0
+        self.autoreport_wall_s = 0.0
+        self.keepalive_wall_s = 0.0
         self.write(banner(self, power_up=self._boots == 0))
         self._boots += 1
         self.twin.run_ticks(BOOT_TICKS)  # setup() finishes; the first readings come in
         self.twin.origin_tick = self.twin.tick  # time_s counts from here
 
-    def receive(self, data: bytes) -> None:
-        """Bytes from the host; lines are taken into the queue as it has room (Marlin's RX)."""
+    def receive(self, data: bytes, *, loop_running: bool = True) -> None:
+        """Bytes from the host into the RX ring; lines go to the queue as it has room.
+
+        The ring takes what fits; the main loop (``loop_running``) empties it line by line while
+        the queue has room, and what arrives to a full ring is dropped (``rx_dropped``). A
+        transport whose host does not read passes ``loop_running=False``: Marlin is then stuck
+        writing to a full TX buffer and only the receive interrupt runs.
+        """
         if self.halted:
             return
-        self._rx.extend(data)
-        self._read_lines()
-        self._dispatch()
+        view = memoryview(data)
+        while view:
+            taken = min(len(view), RX_CAPACITY - len(self._rx))
+            self._rx += view[:taken]
+            view = view[taken:]
+            if not loop_running:
+                break
+            before = len(self._rx)
+            self._read_lines()
+            self._dispatch()
+            if taken == 0 and len(self._rx) >= before:  # the ring is full and nothing reads it
+                break
+        self.rx_dropped += len(view)
 
     def take_output(self) -> bytes:
         """Everything printed since the last call."""
         data = bytes(self._out)
         self._out.clear()
+        self.twin.console.text = ""  # the wire is the record: a session may run for weeks
         return data
 
     @property
@@ -101,8 +134,20 @@ class VirtualPrinter:
         self._run(self.twin.tick + max(0, round(seconds * TICKS_PER_S)))
 
     def run_until_idle(self, max_seconds: float = 7200.0) -> None:
-        """``--speed max``: run free while a command executes, stop when waiting for the host."""
-        self._run(self.twin.tick + round(max_seconds * TICKS_PER_S), stop_when_idle=True)
+        """Host-driven ``max``: run free while a command executes or moves remain, stop when
+        the printer waits for the host."""
+        self._run(self.twin.tick + round(max_seconds * TICKS_PER_S), stop_when=_idle_and_still)
+
+    def run_while_busy(self, max_seconds: float) -> None:
+        """Run free while a command executes (up to ``max_seconds``); moves left over keep
+        running later, at the transport's idle speed."""
+        self._run(self.twin.tick + round(max_seconds * TICKS_PER_S), stop_when=_no_command)
+
+    @property
+    def executing(self) -> bool:
+        """A command is executing (it blocks the queue: M109, M190, M303, G4, M400, a G1 waiting
+        for the planner): what a transport runs at its busy speed."""
+        return self.current is not None and not self.halted
 
     # -- what commands use ------------------------------------------------------------------
     def write(self, text: str) -> None:
@@ -151,14 +196,30 @@ class VirtualPrinter:
             self.twin.board.kill_m112()
             self.planner.clear()
             return
+        elif line.emergency == "M410":  # quickstop_stepper()
+            self.planner.clear()
         self.queue.append(line)
 
     def _dispatch(self) -> None:
         """Start queued commands while none is executing; instant ones finish at once."""
+        self._read_lines()
         while self.current is None and self.queue and not self.halted:
             line = self.queue.popleft()
-            self._start(parse(line.text))
+            try:
+                self._start(parse(line.text))
+            except Exception as exc:  # noqa: BLE001  a bug of the twin must not end the session
+                self._internal_error(line.text, exc)
             self._read_lines()
+
+    def _internal_error(self, text: str, exc: Exception) -> None:
+        """A command raised: log it, answer as Marlin answers an error, carry on with the next."""
+        LOG.exception("command %r raised", text)
+        self.internal_errors += 1
+        self.current = None
+        self.idle_calls = True
+        self.wait_for_heatup = False
+        if not self.halted:
+            self.write(f"Error:internal error in {text.strip()[:40]!r}: {type(exc).__name__}\nok\n")
 
     def _start(self, cmd: Command) -> None:
         handler = HANDLERS.get((cmd.letter, cmd.code))
@@ -174,6 +235,7 @@ class VirtualPrinter:
             return
         self.current = result
         self.keepalive_tick = self.after_ms(self.keepalive_s * 1000)
+        self.keepalive_wall_s = self.wall_s() + self.keepalive_s
         self._resume()
 
     def _resume(self) -> None:
@@ -185,34 +247,52 @@ class VirtualPrinter:
             if not self.halted and stop.value is not False:  # a command may send its own ok
                 self.write("ok\n")
             self._dispatch()
+        except Exception as exc:  # noqa: BLE001  a bug of the twin must not end the session
+            self._internal_error("the executing command", exc)
+            self._dispatch()
 
-    def _run(self, end_tick: int, stop_when_idle: bool = False) -> None:
+    def _wall_due(self, deadline_s: float) -> bool:
+        return self.wall_clock is None or self.wall_clock() >= deadline_s
+
+    def wall_s(self) -> float:
+        """The transport's wall clock (0 when the printer is host-driven only)."""
+        return self.wall_clock() if self.wall_clock is not None else 0.0
+
+    def _run(self, end_tick: int, stop_when: Callable[[VirtualPrinter], bool] | None = None) -> None:
         twin = self.twin
         while twin.tick < end_tick:
             if self.halted:  # a dead board: the world goes on, nothing answers
                 self.current, self.queue = None, deque()
-                if not stop_when_idle:
+                if stop_when is None:
                     twin.run_ticks(end_tick - twin.tick)
                 return
             if self.current is None:
                 self._dispatch()
-            if self.current is None and stop_when_idle and not self.planner.blocks:
+            if stop_when is not None and stop_when(self):
                 return
-            target = end_tick
-            if self.current is not None:
-                target = min(target, self.wake_tick)
-            if self.idle_calls:
-                if self.current is not None and self.keepalive_s:
-                    target = min(target, self.keepalive_tick)
-                if self.autoreport_s:
-                    target = min(target, self.autoreport_tick)
-            change_s = self.planner.time_to_next_change_s()
-            if change_s is not None:
-                target = min(target, twin.tick + max(1, round(change_s * TICKS_PER_S)))
+            target = min(end_tick, self._next_event_tick())
             self._advance(max(target, twin.tick) - twin.tick)
             self._idle()
             if self.current is not None and twin.tick >= self.wake_tick and not self.halted:
                 self._resume()
+
+    def _next_event_tick(self) -> int:
+        """The next tick something happens: a command wakes, a report is due, a block ends.
+
+        A report due in virtual time but not yet in wall time is left to the next call
+        (the transport calls again within its pacing step).
+        """
+        tick = self.twin.tick
+        target = self.wake_tick if self.current is not None else _FAR
+        if self.idle_calls:
+            if self.current is not None and self.keepalive_s and self.keepalive_tick > tick:
+                target = min(target, self.keepalive_tick)
+            if self.autoreport_s and self.autoreport_tick > tick:
+                target = min(target, self.autoreport_tick)
+        change_s = self.planner.time_to_next_change_s()
+        if change_s is not None:
+            target = min(target, tick + max(1, round(change_s * TICKS_PER_S)))
+        return target
 
     def _advance(self, n_ticks: int) -> None:
         if n_ticks <= 0:
@@ -226,13 +306,27 @@ class VirtualPrinter:
         """Marlin's idle(): M155 auto-report, then the busy keepalive while a command runs."""
         if self.halted or not self.idle_calls:
             return
-        tick = self.twin.tick
-        if self.autoreport_s and tick >= self.autoreport_tick:
+        tick, wall_s = self.twin.tick, self.wall_s()
+        if self.autoreport_s and tick >= self.autoreport_tick and self._wall_due(self.autoreport_wall_s):
             self.write(self.twin.board.heater_states() + "\n")
             self.autoreport_tick = self.after_ms(self.autoreport_s * 1000)
-        if self.current is not None and self.keepalive_s and tick >= self.keepalive_tick:
+            self.autoreport_wall_s = wall_s + self.autoreport_s
+        busy = self.current is not None and self.keepalive_s
+        if busy and tick >= self.keepalive_tick and self._wall_due(self.keepalive_wall_s):
             self.write("echo:busy: processing\n")
             self.keepalive_tick = self.after_ms(self.keepalive_s * 1000)
+            self.keepalive_wall_s = wall_s + self.keepalive_s
+
+
+_FAR = 1 << 62  # no event: a tick no run reaches
+
+
+def _idle_and_still(p: VirtualPrinter) -> bool:
+    return p.current is None and not p.planner.blocks
+
+
+def _no_command(p: VirtualPrinter) -> bool:
+    return p.current is None
 
 
 def _first_eol(data: bytearray) -> int:

@@ -49,12 +49,42 @@ class Settings:
             raise ValueError(f"unreadable settings: {exc}") from exc
 
 
+def is_settings_image(data: bytes) -> bool:
+    """The bytes are a JSON object of the shape M500 writes (any version: M501 then reports a
+    version mismatch, as Marlin does for an old EEPROM layout)."""
+    try:
+        doc = json.loads(data.decode())
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return isinstance(doc, dict) and {"version", "hotend_pid", "bed_pid"} <= doc.keys()
+
+
 class Eeprom:
     """A settings file; without a path the EEPROM is lost when the program ends."""
 
     def __init__(self, path: str | Path | None = None):
         self.path = Path(path) if path is not None else None
         self._memory: bytes | None = None
+
+    @classmethod
+    def open(cls, path: str | Path) -> Eeprom:
+        """The settings file ``path``: new, empty, or one M500 wrote. ValueError otherwise, so
+        M500 never overwrites a file the twin did not write."""
+        path = Path(path)
+        if not path.resolve().parent.is_dir():
+            raise ValueError(f"settings file {path}: its directory does not exist")
+        if path.is_dir():
+            raise ValueError(f"settings file {path}: is a directory")
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            return cls(path)
+        except OSError as exc:
+            raise ValueError(f"settings file {path}: cannot read it ({exc.strerror})") from None
+        if data and not is_settings_image(data):
+            raise ValueError(f"settings file {path}: not a heater-twin settings file (M500 writes JSON with "
+                             "version, hotend_pid and bed_pid); refusing to overwrite it")
+        return cls(path)
 
     def read(self) -> bytes | None:
         if self.path is None:

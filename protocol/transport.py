@@ -53,15 +53,37 @@ from twin.scenario import parse_scenario, scenario_for, with_overrides
 
 MAX: Literal["max"] = "max"
 Speed = float | Literal["max"]
+# Idle clock speed for twin-serial and twin://: real time. OctoPrint's and Pronterface's graphs,
+# timeouts and heat-up expectations are in wall seconds, so an idle printer behaves as the real
+# one does; the long waits (M109, M190, M303, G4, M400) are where speed matters, and they run free.
+DEFAULT_IDLE_SPEED = 1.0
 
 PACE_S = 0.01  # speed N: wall seconds between clock updates, the timing resolution a host sees
 CATCH_UP_S = 0.05  # speed N: one update runs at most this much wall time's worth of virtual time
 FREE_STEP_S = 1.0  # speed max: virtual seconds per update (M109 reports once a second)
 BOOT_DELAY_S = 0.2  # host connects -> board reset, unless its first bytes come sooner (a bootloader: ~1 s)
 READ_SIZE = 4096
+HOST_BUFFER_BYTES = 4096  # output a host may leave unread before Marlin's writes block (Linux N_TTY_BUF_SIZE)
 
 # A serial printer has no setpoints of its own: the host sets them.
 SERIAL_SCENARIO = parse_scenario('name = "serial"\nduration_s = 86400\n', "serial")
+
+
+def default_idle_speed(speed: Speed) -> float:
+    """The idle clock when none is given: DEFAULT_IDLE_SPEED under ``--speed max``, else the same
+    N as ``--speed N`` (one speed for the whole session, as ``--speed N`` always meant)."""
+    return DEFAULT_IDLE_SPEED if speed == MAX else speed
+
+
+def parse_idle_speed(text: str) -> float:
+    """A factor of real time >= 0; 0 is the host-driven clock (stopped while the host is idle)."""
+    try:
+        speed = float(text)
+    except ValueError:
+        speed = math.nan
+    if not (math.isfinite(speed) and speed >= 0):
+        raise ValueError(f"idle speed must be a number >= 0 (1 = real time, 0 = host-driven clock), not {text!r}")
+    return speed
 
 
 def parse_speed(text: str) -> Speed:
@@ -79,7 +101,7 @@ def parse_speed(text: str) -> Speed:
 
 def build_printer(*, firmware: str = "pid", plant: str | None = None, bed_plant: str | None = None,
                   with_bed: bool = True, scenario: str | None = None, settings: str | None = None,
-                  ok_after_resend: bool = False) -> VirtualPrinter:
+                  ok_after_resend: bool = True) -> VirtualPrinter:
     """The printer twin-serial and twin:// serve; ValueError names a bad option.
 
     ``scenario`` (a preset name or TOML file) brings faults, ambient and plant overrides;
@@ -90,45 +112,78 @@ def build_printer(*, firmware: str = "pid", plant: str | None = None, bed_plant:
     presets = {heater: {"preset": name} for heater, name in (("hotend", plant), ("bed", bed_plant)) if name}
     if presets:
         chosen = with_overrides(chosen, plant=presets)
-    if settings and not Path(settings).resolve().parent.is_dir():
-        raise ValueError(f"settings file {settings}: its directory does not exist")
-    eeprom = Eeprom(settings) if settings else None
+    eeprom = Eeprom.open(settings) if settings else None
     return VirtualPrinter(lambda: build_twin(chosen, firmware, with_bed=with_bed, engine="fast"),
                           eeprom=eeprom, ok_after_resend=ok_after_resend)
 
 
 class Pacer:
-    """Turns wall time into the printer's virtual time at one speed.
+    """Turns wall time into the printer's virtual time: the clock that keeps running.
 
-    Speed N keeps the clock at N x the wall time since the Pacer was made, in steps of at most
-    CATCH_UP_S of wall time's worth, so a twin slower than N still serves its host in between.
+    While a command executes (M109, M190, M303, G4, M400, a G1 waiting for the planner) the
+    clock runs at ``speed``: ``max`` runs it free, a virtual second per call, so such commands
+    end in seconds; N runs it at N x the wall time. Otherwise it runs at ``idle_speed`` x the
+    wall time, so a target set with M104 heats and M155 reports come while the host only
+    listens. ``idle_speed`` 0 is the host-driven clock: it stops while the printer waits for the
+    host (at ``max``, moves left in the planner still run free), which makes a session a pure
+    function of the bytes sent: the deterministic mode for tests. A paced step runs at most
+    CATCH_UP_S of wall time's worth, so a twin slower than asked still serves its host between.
     """
 
-    def __init__(self, printer: VirtualPrinter, speed: Speed, clock: Callable[[], float] = time.monotonic):
+    def __init__(self, printer: VirtualPrinter, speed: Speed = MAX, idle_speed: float | None = None,
+                 clock: Callable[[], float] = time.monotonic):
         self.printer = printer
         self.speed = speed
+        self.idle_speed = default_idle_speed(speed) if idle_speed is None else idle_speed
         self.clock = clock
-        self._wall0_s = clock()
-        self._virtual0_s = printer.time_s
+        self._accounted_s = clock()  # wall time already turned into virtual time
+        if not self.host_driven:
+            printer.wall_clock = clock  # reports and keepalives: at most once per wall interval too
+
+    @property
+    def host_driven(self) -> bool:
+        """The clock stops while the printer waits for the host (``idle_speed`` 0)."""
+        return self.idle_speed == 0
+
+    @property
+    def runs_free(self) -> bool:
+        """The next advance() runs the clock free (one FREE_STEP_S of virtual time)."""
+        return self.speed == MAX and (self.printer.executing or self.host_driven)
 
     def advance(self) -> float | None:
-        """Run the clock as far as the speed allows now.
+        """Run the clock as far as the speeds allow now.
 
         Returns how long the caller may wait for the host before the next call: 0 when there
         is more to run at once, None when nothing happens until the host sends something.
         """
         printer = self.printer
-        if self.speed == MAX:
-            start_s = printer.time_s
-            printer.run_until_idle(FREE_STEP_S)
-            # It returns early once the printer waits for the host; a halted board runs nothing.
-            still_busy = printer.time_s - start_s > FREE_STEP_S - TICK_S / 2 and not printer.halted
-            return 0.0 if still_busy else None
-        due_s = self._virtual0_s + (self.clock() - self._wall0_s) * self.speed - printer.time_s
-        step_s = min(due_s, CATCH_UP_S * self.speed)
+        if self.runs_free:
+            return self._run_free()
+        speed = self.speed if printer.executing else self.idle_speed
+        now_s = self.clock()
+        if speed == 0:  # host-driven and idle: the clock waits, and owes the wall nothing
+            self._accounted_s = now_s
+            return None
+        due_s = (now_s - self._accounted_s) * speed
+        step_s = min(due_s, CATCH_UP_S * speed)
         if step_s > 0:
             printer.run_for(step_s)
+            self._accounted_s += step_s / speed
         return 0.0 if due_s > step_s else PACE_S
+
+    def _run_free(self) -> float | None:
+        printer = self.printer
+        start_s = printer.time_s
+        if self.host_driven:
+            printer.run_until_idle(FREE_STEP_S)
+        else:
+            printer.run_while_busy(FREE_STEP_S)
+        self._accounted_s = self.clock()  # free time owes the wall nothing
+        # It returns early once the printer waits for the host; a halted board runs nothing.
+        still_busy = printer.time_s - start_s > FREE_STEP_S - TICK_S / 2 and not printer.halted
+        if still_busy:
+            return 0.0
+        return None if self.host_driven else PACE_S
 
 
 class Transcript:
@@ -208,10 +263,10 @@ class _Server(ABC):
     yet stops the printer's clock until it drains, as Marlin waits on a full TX buffer.
     """
 
-    def __init__(self, printer: VirtualPrinter, speed: Speed, transcript: Transcript | None,
+    def __init__(self, printer: VirtualPrinter, pacer: Pacer | None, transcript: Transcript | None,
                  corruptor: RxCorruptor | None):
         self.printer = printer
-        self.pacer = Pacer(printer, speed)
+        self.pacer = pacer if pacer is not None else Pacer(printer)
         self.transcript = transcript
         self.corruptor = corruptor
         self._unsent = bytearray()
@@ -291,7 +346,9 @@ class _Server(ABC):
             if not data:
                 return
         self._record(">", data)
-        self.printer.receive(data)
+        # A host that does not read fills Marlin's TX side: the main loop stalls in a write and
+        # only the RX interrupt runs (the ring fills, the rest is lost) until the host reads.
+        self.printer.receive(data, loop_running=len(self._unsent) < HOST_BUFFER_BYTES)
 
     def _flush(self) -> None:
         """Write what the host takes now; the rest waits for POLLOUT."""
@@ -320,9 +377,9 @@ class PtyServer(_Server):
     master's POLLHUP (EIO on read) only shows a hang-up that lasts until the loop looks.
     """
 
-    def __init__(self, printer: VirtualPrinter, speed: Speed, *, link: str | None = None,
+    def __init__(self, printer: VirtualPrinter, pacer: Pacer | None = None, *, link: str | None = None,
                  transcript: Transcript | None = None, corruptor: RxCorruptor | None = None):
-        super().__init__(printer, speed, transcript, corruptor)
+        super().__init__(printer, pacer, transcript, corruptor)
         self._master, slave = os.openpty()
         try:
             tty.setraw(slave)  # no echo, no CR/LF translation, 8 bits; the setting outlives the fd
@@ -409,9 +466,9 @@ class TcpServer(_Server):
     One client at a time; others wait in the listen backlog. Each connection resets the board.
     """
 
-    def __init__(self, printer: VirtualPrinter, speed: Speed, host: str = "127.0.0.1", port: int = 0, *,
+    def __init__(self, printer: VirtualPrinter, pacer: Pacer | None = None, host: str = "127.0.0.1", port: int = 0, *,
                  transcript: Transcript | None = None, corruptor: RxCorruptor | None = None):
-        super().__init__(printer, speed, transcript, corruptor)
+        super().__init__(printer, pacer, transcript, corruptor)
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         self._listener = socket.create_server((host, port), family=family)
         self._listener.setblocking(False)

@@ -114,8 +114,8 @@ target_c = 220
 """)
     results = run_both(sc, noise_lsb=0.0)
     fast, ref = results["fast"][0], results["reference"][0]
-    block_f = fast.trace.column("hotend_block_c")
-    block_r = ref.trace.column("hotend_block_c")
+    block_f = fast.result().hotend.block_c
+    block_r = ref.result().hotend.block_c
     assert not fast.plants[0].linear
     assert np.max(np.abs(block_f - block_r)) < 0.05
     assert abs(block_f[-1] - 220) < 5
@@ -127,7 +127,7 @@ def test_same_seed_same_trace_bit_for_bit_and_other_seed_differs():
         twin = build_twin(parse_scenario('duration_s = 30\nseed = %d\n[[setpoint]]\nat_s = 0\nheater = "hotend"\n'
                                          'target_c = 200\n' % seed, "s.toml"), noise_lsb=1.0)
         twin.run_until(30)
-        csv.append(twin.trace.to_csv())
+        csv.append(twin.result().to_csv())
     assert csv[0] == csv[1]
     assert csv[0] != csv[2]
 
@@ -140,10 +140,10 @@ def _trip_run(text, firmware="pid"):
 
 
 def _assert_dead_after(twin, t_trip_s):
-    t = twin.trace.column("t_s")
-    after = t > t_trip_s + 0.2
-    assert np.all(twin.trace.column("hotend_duty")[after] == 0)
-    assert np.all(twin.trace.column("hotend_target_c")[after] == 0)
+    hotend = twin.result().hotend
+    after = hotend.t_s > t_trip_s + 0.2
+    assert np.all(hotend.duty[after] == 0)
+    assert np.all(hotend.target_c[after] == 0)
     assert twin.board.halted and not any(twin.board.pwm.pins)
 
 
@@ -167,8 +167,8 @@ def test_thermistor_falls_out_trips_thermal_runaway_while_the_block_overheats():
     twin.run_until(PRESETS["thermistor_falls_out"].duration_s)
     trips = [(t, line) for t, line in twin.trace.events if line.startswith("Error:Thermal Runaway")]
     assert trips and 340 < trips[0][0] < 380
-    t = twin.trace.column("t_s")
-    block = twin.trace.column("hotend_block_c")
+    hotend = twin.result().hotend
+    t, block = hotend.t_s, hotend.block_c
     assert block[np.searchsorted(t, trips[0][0])] > 230  # flat out on a false reading
     _assert_dead_after(twin, trips[0][0])
 
@@ -243,6 +243,7 @@ def test_batch_lanes_equal_scalar_twins():
         twin.board.hotend.controller.set_gains(g)
         twin.schedule(0.5, lambda tw: tw.board.set_target(0, 210))
         twin.run_until(150)
-        assert np.array_equal(twin.trace.column("hotend_measured_c"), batch.measured_c[:, lane])
-        assert np.array_equal(twin.trace.column("hotend_duty"), batch.duty[:, lane])
-        assert np.allclose(twin.trace.column("hotend_block_c"), batch.block_c[:, lane], atol=1e-9)
+        hotend = twin.result().hotend
+        assert np.array_equal(hotend.measured_c, batch.measured_c[:, lane])
+        assert np.array_equal(hotend.duty, batch.duty[:, lane])
+        assert np.allclose(hotend.block_c, batch.block_c[:, lane], atol=1e-9)

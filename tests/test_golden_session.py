@@ -20,3 +20,5 @@ def test_the_golden_session_covers_what_the_issue_asks_for():
                    "< Error:Printer halted. kill() called!"):
         assert any(needle in line for line in lines), needle
     assert lines[-1] == "> M105"  # a killed board answers nothing
+    resend = lines.index("< Resend: 4")
+    assert lines[resend + 1] == "< ok"  # Marlin 2.1's flush_and_request_resend() ends with ok

@@ -184,8 +184,9 @@ def test_every_kernel_equals_scalar_twins(kernel):
         twin.board.hotend.controller.set_gains(g)
         twin.schedule(0.5, lambda tw: tw.board.set_target(0, 210))
         twin.run_until(120.0)
-        assert np.array_equal(twin.trace.column("hotend_measured_c"), batch.measured_c[:, lane])
-        assert np.array_equal(twin.trace.column("hotend_duty"), batch.duty[:, lane])
+        hotend = twin.result().hotend
+        assert np.array_equal(hotend.measured_c, batch.measured_c[:, lane])
+        assert np.array_equal(hotend.duty, batch.duty[:, lane])
 
 
 def test_noisy_sensor_takes_the_numpy_path_with_either_kernel():

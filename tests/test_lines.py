@@ -145,9 +145,10 @@ def test_missing_checksum_error_resend_and_ok():
         (b"N1 M105\n", "Error:No Checksum with line number, Last Line: 0"),
     ],
 )
-def test_by_default_no_ok_after_resend(data, error):
-    """The reference's Marlin 2.1 (queue.cpp as Marlin 2.0.8 has it): Error, Resend, no ok."""
-    assert LineReader().feed(data) == [f"{error}\nResend: 1\n"]
+def test_by_default_ok_after_resend(data, error):
+    """Marlin 2.1's flush_and_request_resend(): Error, Resend, then ok; the option leaves it out."""
+    assert LineReader().feed(data) == [f"{error}\nResend: 1\nok\n"]
+    assert LineReader(ok_after_resend=False).feed(data) == [f"{error}\nResend: 1\n"]
 
 
 def test_an_error_discards_the_rest_of_the_rx_buffer_but_not_later_data():

@@ -29,7 +29,7 @@ from tools.logs import (
     parse_m303,
     parse_plain_csv,
 )
-from twin.trace import COLUMNS, Trace
+from twin.result import RunResult
 
 
 def _log(name: str) -> Path:
@@ -441,15 +441,13 @@ def test_malformed_stats_line(tmp_path, line, what):
 
 
 def test_the_twins_klipper_stats_parse(tmp_path):
-    """twin.trace's Stats lines read back: one session, one line per second, values as printed."""
-    trace = Trace()
-    for k in range(60):
-        t_s = k * 0.16384
-        values = {"t_s": t_s, "hotend_target_c": 210.0, "hotend_measured_c": 25.0 + 2.0 * t_s,
-                  "hotend_duty": 1.0 if t_s < 5.0 else 0.5, "bed_target_c": 60.0, "bed_measured_c": 24.0,
-                  "bed_duty": 0.25}
-        trace.append(tuple(values.get(name, 0.0) for name in COLUMNS))
-    log = load_log(_write(tmp_path, "twin.log", trace.to_klipper_stats()))
+    """A run result's Stats lines read back: one session, one line per second, values as printed."""
+    t_s = np.arange(60) * 0.16384
+    result = RunResult.from_columns(t_s, {
+        "hotend": {"target_c": np.full(60, 210.0), "measured_c": 25.0 + 2.0 * t_s,
+                   "duty": np.where(t_s < 5.0, 1.0, 0.5)},
+        "bed": {"target_c": np.full(60, 60.0), "measured_c": np.full(60, 24.0), "duty": np.full(60, 0.25)}})
+    log = load_log(_write(tmp_path, "twin.log", result.to_klipper_stats()))
     assert isinstance(log, StatsLog) and len(log.sessions) == 1
     hotend, bed = log.sessions[0]["extruder"], log.sessions[0]["heater_bed"]
     assert list(np.floor(hotend.t_s)) == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]

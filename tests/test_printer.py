@@ -187,17 +187,17 @@ def test_checksum_error_asks_for_a_resend_and_the_line_runs_once():
     printer = make_printer()
     good = with_checksum("M104 S150", 1)
     bad = good[:-1] + str((int(good[-1]) + 1) % 10)
-    assert send(printer, bad) == ["Error:checksum mismatch, Last Line: 0", "Resend: 1"]
+    assert send(printer, bad) == ["Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok"]
     assert send(printer, good) == ["ok"]
     assert send(printer, with_checksum("M105", 3)) == [
-        "Error:Line Number is not Last Line Number+1, Last Line: 1", "Resend: 2"]
-    assert send(printer, "N2 M105") == ["Error:No Checksum with line number, Last Line: 1", "Resend: 2"]
+        "Error:Line Number is not Last Line Number+1, Last Line: 1", "Resend: 2", "ok"]
+    assert send(printer, "N2 M105") == ["Error:No Checksum with line number, Last Line: 1", "Resend: 2", "ok"]
     assert printer.twin.board.hotend.target_c == 150
 
 
-def test_ok_after_resend_option():
-    printer = make_printer(ok_after_resend=True)
-    assert send(printer, "N1 M105*1") == ["Error:checksum mismatch, Last Line: 0", "Resend: 1", "ok"]
+def test_no_ok_after_resend_option():
+    printer = make_printer(ok_after_resend=False)
+    assert send(printer, "N1 M105*1") == ["Error:checksum mismatch, Last Line: 0", "Resend: 1"]
 
 
 def test_m112_kills_and_nothing_answers_until_reset():

@@ -23,6 +23,7 @@ from twin.scenario import (
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "scenarios.md"
 EVENT_FIELDS = {
+    "pid": ("at_s", "heater", "kp", "ki", "kd"),
     "setpoint": ("at_s", "heater", "target_c"),
     "fan": ("at_s", "speed"),
     "flow": ("at_s", "mm_s"),
@@ -65,7 +66,7 @@ def test_presets_do_what_their_names_say():
 def test_docs_example_parses_and_uses_every_table():
     (example,) = docs_toml_blocks()
     scenario = parse_scenario(example, "example.toml")
-    assert {event.kind for event in scenario.events} == {"target", "fan", "flow", "ambient", "fault"}
+    assert {event.kind for event in scenario.events} == {"gains", "target", "fan", "flow", "ambient", "fault"}
     assert scenario.plant == {"hotend": {"preset": "hotend", "power_w": 40.0}, "bed": {"power_w": 220.0}}
     assert scenario.initial_c == {"hotend": 25.0, "bed": 25.0} and scenario.seed == 1
     assert parse_scenario(dump_scenario(scenario), "dumped.toml") == scenario
@@ -359,6 +360,8 @@ def test_mangled_presets_give_only_scenario_errors(name, data):
 
 
 VALID_EVENTS = {
+    "pid": st.fixed_dictionaries({"heater": st.sampled_from(HEATERS), "kp": st.floats(0, 1000),
+                                  "ki": st.floats(0, 100), "kd": st.floats(0, 5000)}),
     "setpoint": st.fixed_dictionaries({"heater": st.sampled_from(HEATERS), "target_c": st.integers(0, 400)}),
     "fan": st.fixed_dictionaries({"speed": st.floats(0, 1)}),
     "flow": st.fixed_dictionaries({"mm_s": st.floats(0, 50)}),

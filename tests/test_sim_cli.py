@@ -82,3 +82,59 @@ def test_help_lists_firmwares_plants_and_scenarios(capsys):
     out = capsys.readouterr().out
     for word in ("fuzzy_pi", "bangbang", "seed001_fopdt", "thermistor_falls_out", "--engine", "--noise"):
         assert word in out
+
+
+def test_gains_flags_set_the_pid_at_zero_and_are_printed(capsys, tmp_path):
+    code, out, err = run(capsys, "--gains", "12.6,0.39,103", "--bed-gains", "50,1.5,400", "--duration", "30",
+                         "--no-plot", "--out", str(tmp_path))
+    assert code == 0, err
+    assert "gains: hotend Kp 12.6 Ki 0.39 Kd 103; bed Kp 50 Ki 1.5 Kd 400\n" in out
+
+
+def test_default_gains_are_printed(capsys, tmp_path):
+    code, out, _ = run(capsys, "--duration", "5", "--no-plot", "--out", str(tmp_path))
+    assert code == 0 and "gains: hotend Kp 22.2 Ki 1.08 Kd 114; bed Kp 10 Ki 0.023 Kd 305.4\n" in out
+
+
+def test_scenario_pid_timeline_changes_gains_like_m301(capsys, tmp_path):
+    """A [[pid]] entry later in the run is M301 in the timeline: the run differs from then on only."""
+    text = ('duration_s = 200\n[[setpoint]]\nat_s = 0\nheater = "hotend"\ntarget_c = 200\n'
+            '[[pid]]\nat_s = 150\nheater = "hotend"\nkp = 5\nki = 0.1\nkd = 10\n')
+    path = tmp_path / "gains.toml"
+    path.write_text(text)
+    csvs = []
+    for scenario in (str(path), None):
+        args = ["--no-bed", "--no-plot", "--out", str(tmp_path), "--csv", str(tmp_path / f"{len(csvs)}.csv")]
+        args += ["--scenario", scenario] if scenario else ["--duration", "200", "--target", "200"]
+        assert run(capsys, *args)[0] == 0
+        csvs.append((tmp_path / f"{len(csvs)}.csv").read_text().splitlines())
+    first_diff = next(i for i, (a, b) in enumerate(zip(*csvs, strict=False)) if a != b)
+    assert float(csvs[0][first_diff].split(",")[0]) >= 150.0
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--gains", "1,2"], "--gains '1,2': expected three numbers KP,KI,KD"),
+    (["--gains", "2000,1,1"], "gains.hotend.kp: must be in 0..1000"),
+    (["--gains", "1,2,3", "--firmware", "bangbang"], "firmware 'bangbang' has no PID on that heater"),
+    (["--duration", "1e300"], "duration_s: must be at most 4.29497e+06 s"),
+    (["--set", "power_w=1e308"], "plant parameter power_w=1e+308: beyond"),
+    (["--noise", "nan"], "--noise nan: must be a number of LSB"),
+    (["--plot", "x.svg"], "the plot is written as PNG"),
+])
+def test_impossible_values_get_one_line_naming_the_field(capsys, tmp_path, argv, message):
+    code, out, err = run(capsys, *argv, "--out", str(tmp_path))
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert not list(tmp_path.iterdir())  # refused before any work or output
+
+
+def test_unwritable_output_is_refused_before_the_run(capsys, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    code, out, err = run(capsys, "--out", str(blocker / "sub"))
+    assert code == 2 and "cannot create the output folder" in err and out == ""
+
+
+def test_a_clamped_target_is_said(capsys, tmp_path):
+    code, out, _ = run(capsys, "--target", "300", "--duration", "5", "--no-plot", "--no-bed", "--out", str(tmp_path))
+    assert code == 0
+    assert "note: hotend target 300 C at 0 s is clamped to 260 C by the firmware" in out

@@ -31,7 +31,7 @@ RAW_20 = math.floor(16 * DIVIDER.adc_exact(20.0))
     [(25, 978.0), (100, 611.8), (150, 305.3), (200, 140.0), (250, 68.2), (300, 36.5)],
 )
 def test_beta_divider_matches_marlin_type_11_check_values(temp_c, adc10):
-    # reference section 5: the beta model with a 4.7k pull-up regenerates table 11
+    # Marlin 2.1.x Marlin/src/module/thermistor/thermistors.h: the beta model with a 4.7k pull-up regenerates table 11
     assert round(DIVIDER.adc_exact(temp_c), 1) == adc10
 
 

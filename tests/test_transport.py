@@ -239,9 +239,9 @@ def test_pacer_catches_up_in_bounded_steps():
     assert printer.time_s == pytest.approx(20.0, abs=0.01)
 
 
-def test_pacer_at_max_waits_for_the_host_when_idle():
+def test_pacer_host_driven_at_max_waits_for_the_host_when_idle():
     printer = build_printer(with_bed=False)
-    pacer = Pacer(printer, MAX)
+    pacer = Pacer(printer, MAX, idle_speed=0)
     assert pacer.advance() is None and printer.time_s == 0
     printer.receive(b"G4 S3\n")
     waits = [pacer.advance() for _ in range(4)]

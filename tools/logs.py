@@ -447,7 +447,7 @@ def _stats_heaters(path: str | Path, line_no: int, body: str) -> dict[str, tuple
 
 def parse_klippy_log(path: str | Path) -> StatsLog:
     """klippy.log's "Stats <t>:" lines (optionally "INFO:root:Stats"), e.g. from Klipper or from
-    twin.trace's to_klipper_stats(). A new session starts at each "Start printer at" line and
+    RunResult.to_klipper_stats(). A new session starts at each "Start printer at" line and
     where the host time does not increase (a reboot resets it). Other lines are ignored."""
     lines = _read_lines(path)
     rows = []

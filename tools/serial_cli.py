@@ -9,11 +9,23 @@ the board like a USB printer's DTR auto-reset. In-process, without a pty:
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
 import sys
+import textwrap
 
 from firmware_port.firmwares import FIRMWARES
-from protocol.transport import MAX, PtyServer, RxCorruptor, TcpServer, Transcript, build_printer, parse_speed
+from protocol.transport import (
+    MAX,
+    Pacer,
+    PtyServer,
+    RxCorruptor,
+    TcpServer,
+    Transcript,
+    build_printer,
+    parse_idle_speed,
+    parse_speed,
+)
 from twin.plants import PRESETS as PLANT_PRESETS
 
 DEFAULT_TCP_HOST = "127.0.0.1"
@@ -24,6 +36,25 @@ def _speed(text: str):
         return parse_speed(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _idle_speed(text: str) -> float:
+    try:
+        return parse_idle_speed(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+EXAMPLES = """examples:
+  twin-serial --link /tmp/printer          OctoPrint or Pronterface: connect to /tmp/printer, any baud;
+                                           M109/M303 finish in seconds, an idle printer runs in real time
+  twin-serial --tcp 127.0.0.1:8250         pyserial socket://127.0.0.1:8250, or Pronterface's host:port
+  twin-serial --idle-speed 10              idle heating and M155 reports at 10 x real time
+  twin-serial --idle-speed 0 --log s.log   host-driven clock (stops while the host is idle): a session
+                                           is a pure function of the bytes sent; transcript in s.log
+  twin-serial --settings eeprom.json       M500 keeps the PID gains across runs
+  twin-serial --corrupt-rx 0.05 --seed 3   a noisy wire: exercise the host's resend handling
+"""
 
 
 def _tcp_address(text: str) -> tuple[str, int]:
@@ -38,18 +69,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="twin-serial",
         description=__doc__.split("\n\n")[0].replace("\n", " "),
-        epilog=(
-            "speed: 'max' runs the virtual clock free while a command executes (M109, M190, M303, G4) "
-            "and stops it while the printer waits for the host; N runs it at N x real time (1 = real time). "
-            "firmwares: " + ", ".join(FIRMWARES) + ". plants: " + ", ".join(PLANT_PRESETS) + ". "
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EXAMPLES + "\n" + textwrap.fill(
+            "clock: while a command executes (M109, M190, M303, G4, M400, a G1 waiting for the planner) "
+            "it runs at --speed: 'max' runs free, N at N x real time. While the printer waits for the host "
+            "it runs at --idle-speed x real time, so M104 heats and M155 reports arrive; 0 stops it there "
+            "(host-driven). M155 reports and busy keepalives come at most once per interval of wall time "
+            "as well. firmwares: " + ", ".join(FIRMWARES) + ". plants: " + ", ".join(PLANT_PRESETS) + ". "
             "--log writes one line per chunk: DIR VIRTUAL_S WALL_S DATA, DIR '>' host to printer, "
             "'<' printer to host, '*' connect/reset/corruption; DATA a Python literal. "
             "--corrupt-rx flips, in that fraction of the host's lines, one random bit of one random byte "
             "(the end of line included) before the printer reads it: Marlin's checksum and line-number "
             "checks answer with Resend. A flipped end of line leaves the line open until the host sends "
             "more, and a line number flipped to the last one is dropped silently: a host that waits for "
-            "'ok' without a timeout stalls there, as on a real printer."
-        ),
+            "'ok' without a timeout stalls there, as on a real printer.", width=100),
     )
     parser.add_argument("--firmware", choices=list(FIRMWARES), default="pid", help="firmware build (default pid)")
     parser.add_argument("--plant", choices=list(PLANT_PRESETS), help="hotend plant preset (default hotend)")
@@ -59,18 +92,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="scenario preset or TOML file for faults, ambient and plant overrides "
                              "(default: none; the host sets every target)")
     parser.add_argument("--speed", type=_speed, default=MAX, metavar="{1,N,max}",
-                        help="virtual clock speed (default max)")
+                        help="clock speed while a command executes (default max: free)")
+    parser.add_argument("--idle-speed", type=_idle_speed, metavar="N",
+                        help="clock speed while the printer waits for the host, x real time; 0: stopped, "
+                             "the host-driven clock (default 1 with --speed max, else the --speed N)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--link", metavar="PATH",
                        help="also make PATH a symlink to the pty (replaced if it is one; removed on exit)")
     where.add_argument("--tcp", type=_tcp_address, metavar="HOST:PORT",
                        help="serve on TCP instead of a pty, one client at a time (port 0: any free port)")
-    parser.add_argument("--settings", metavar="FILE", help="EEPROM file that M500 writes and M501 reads "
-                        "(default: in memory, lost on exit)")
+    parser.add_argument("--settings", metavar="FILE", help="EEPROM file that M500 writes and M501 reads; "
+                        "an existing file must be one M500 wrote (default: in memory, lost on exit)")
     parser.add_argument("--log", metavar="FILE", help="transcript of both directions with virtual and wall times")
-    parser.add_argument("--ok-after-resend", action="store_true",
-                        help="answer a line error with 'ok' after 'Resend:' (Marlin 1.1, and bugfix-2.1.x's source; "
-                             "default: no 'ok' there, as the reference notes give for 2.1)")
+    parser.add_argument("--no-ok-after-resend", dest="ok_after_resend", action="store_false",
+                        help="no 'ok' after 'Resend:' (a buggy firmware, to test a host's handling; "
+                             "default: 'ok' follows, as GCodeQueue::flush_and_request_resend() sends in Marlin 2.1)")
     parser.add_argument("--corrupt-rx", type=float, default=0.0, metavar="P",
                         help="probability per received line of one flipped bit (default 0: a clean wire)")
     parser.add_argument("--seed", type=int, default=0, metavar="N",
@@ -87,20 +123,22 @@ def run(args: argparse.Namespace) -> int:
     )
     transcript = Transcript(args.log) if args.log else None
     corruptor = RxCorruptor(args.corrupt_rx, args.seed) if args.corrupt_rx else None
+    pacer = Pacer(printer, args.speed, args.idle_speed)
     try:
         if args.tcp:
             host, port = args.tcp
             try:
-                server = TcpServer(printer, args.speed, host, port, transcript=transcript, corruptor=corruptor)
+                server = TcpServer(printer, pacer, host, port, transcript=transcript, corruptor=corruptor)
             except OSError as exc:
                 raise OSError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         else:
-            server = PtyServer(printer, args.speed, link=args.link, transcript=transcript, corruptor=corruptor)
+            server = PtyServer(printer, pacer, link=args.link, transcript=transcript, corruptor=corruptor)
         with server:
             print(server.address, flush=True)
             link = f" (link {args.link})" if args.link else ""
             noise = f", rx corruption {args.corrupt_rx:g} (seed {args.seed})" if corruptor else ""
-            print(f"twin-serial: {server.address}{link}, firmware {args.firmware}, speed {args.speed}{noise}; "
+            idle = f"idle {pacer.idle_speed:g}" if pacer.idle_speed else "idle clock stopped (host-driven)"
+            print(f"twin-serial: {server.address}{link}, firmware {args.firmware}, speed {args.speed}, {idle}{noise}; "
                   "Ctrl-C stops", file=sys.stderr, flush=True)
             server.serve_forever()
     finally:
@@ -117,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     for signum in (signal.SIGINT, signal.SIGTERM):  # SIGINT too: a background job starts with it ignored
         signal.signal(signum, _stop)
     args = parse_args(argv)
+    logging.basicConfig(format="twin-serial: %(levelname)s: %(message)s", stream=sys.stderr)
     try:
         return run(args)
     except (ValueError, OSError) as exc:

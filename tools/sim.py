@@ -8,18 +8,19 @@ and a plot into ./twin-out/.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
 from firmware_port.firmwares import FIRMWARES
 from twin.build import build_twin
 from twin.engine import ENGINES
-from twin.metrics import format_metrics_table, max_deviation_c, recovery_time_s, segments, step_metrics
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
 from twin.scenario import ScenarioError, scenario_for, with_overrides
 
 PROGRESS_SLICES = 20
+NOISE_MAX_LSB = 100.0  # ADC noise beyond this is no sensor, it is a broken wire
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -45,6 +46,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="hotend plant parameter, e.g. --set power_w=50 (repeatable)")
     parser.add_argument("--bed-set", action="append", default=[], metavar="KEY=VALUE", help="bed plant parameter")
+    parser.add_argument("--gains", metavar="KP,KI,KD", help="hotend PID gains at 0 s, M301 units (PID firmwares)")
+    parser.add_argument("--bed-gains", metavar="KP,KI,KD", help="bed PID gains at 0 s, M304 units")
     parser.add_argument("--seed", type=int, help="seed of every random source (default: the scenario's, else 0)")
     parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default 0)")
     parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default) or the tick-by-tick reference")
@@ -70,6 +73,58 @@ def parse_settings(items: list[str], option: str) -> dict[str, float | str]:
     return settings
 
 
+def parse_gains(text: str | None, option: str) -> dict[str, float] | None:
+    """"KP,KI,KD" -> {"kp", "ki", "kd"}; ValueError names the option."""
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        values = [float(part) for part in parts]
+    except ValueError:
+        values = []
+    if len(values) != 3:
+        raise ValueError(f"{option} {text!r}: expected three numbers KP,KI,KD")
+    return dict(zip(("kp", "ki", "kd"), values, strict=True))
+
+
+def check_outputs(paths: list[str | None], plot_path: str | None) -> None:
+    """Before any work: each output's folder can be made and written, the plot is a PNG."""
+    if plot_path is not None and not plot_path.lower().endswith(".png"):
+        raise ValueError(f"--plot {plot_path!r}: the plot is written as PNG, give a .png path")
+    for path in paths:
+        if path is None:
+            continue
+        folder = os.path.dirname(os.path.abspath(path))
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"cannot create the output folder {folder!r}: {exc.strerror or exc}") from None
+        if not os.access(folder, os.W_OK) or os.path.isdir(path):
+            raise ValueError(f"cannot write {path!r}")
+
+
+def clamp_notes(twin, scenario) -> list[str]:
+    """Setpoints the firmware clamps (Marlin: maxtemp - 15 hotend, - 10 bed), said out loud."""
+    notes = []
+    for event in scenario.events:
+        channel = {"hotend": 0, "bed": 1}.get(str(event.heater))
+        if event.kind != "target" or channel is None or channel >= len(twin.plants):
+            continue
+        top_c = twin.board.heaters[channel].temp_range.clamp_target(10_000)
+        if int(event.value) > top_c:
+            notes.append(f"note: {event.heater} target {event.value} C at {event.at_s:g} s is clamped to {top_c} C "
+                         "by the firmware, as Marlin clamps M104/M140")
+    return notes
+
+
+def gains_line(twin) -> str:
+    """The gains each heater runs with now (after the scenario's 0 s events)."""
+    names = ("hotend", "bed")[: len(twin.plants)]
+    parts = [f"{name} Kp {g.kp:g} Ki {g.ki:g} Kd {g.kd:g}" for channel, name in enumerate(names)
+             if twin.board.has_gains(channel) for g in [twin.board.gains(channel)]]
+    return "gains: " + ("; ".join(parts) if parts else "none (no PID in this firmware)")
+
+
 def run(args: argparse.Namespace) -> int:
     scenario = scenario_for(args.scenario)
     plant = {heater: dict(params) for heater, params in scenario.plant.items()}
@@ -83,37 +138,49 @@ def run(args: argparse.Namespace) -> int:
         params.update(parse_settings(items, option))
     targets = {k: v for k, v in (("hotend", args.target), ("bed", args.bed_target)) if v is not None}
     initial = {k: v for k, v in (("hotend", args.initial), ("bed", args.bed_initial)) if v is not None}
+    gains = {k: v for k, v in (("hotend", parse_gains(args.gains, "--gains")),
+                               ("bed", parse_gains(args.bed_gains, "--bed-gains"))) if v is not None}
     scenario = with_overrides(
         scenario, duration_s=args.duration, ambient_c=args.ambient, initial_c=initial or None,
-        targets=targets or None, seed=args.seed, plant=plant,
+        targets=targets or None, seed=args.seed, plant=plant, gains=gains or None,
     )
+    if not (math.isfinite(args.noise) and 0.0 <= args.noise <= NOISE_MAX_LSB):
+        raise ValueError(f"--noise {args.noise}: must be a number of LSB in 0..{NOISE_MAX_LSB:g}")
+    stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
+    plot_path = None if args.no_plot else (args.plot or os.path.join(args.out, stem + ".png"))
+    csv_path = args.csv or os.path.join(args.out, stem + ".csv")
+    check_outputs([csv_path, args.klipper_log, plot_path], plot_path)
     twin = build_twin(scenario, args.firmware, with_bed=not args.no_bed, engine=args.engine, noise_lsb=args.noise)
+    twin.run_until(0.0)  # the scenario's 0 s events: targets and gains in force
+    print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
+    print(gains_line(twin))
+    for note in clamp_notes(twin, scenario):
+        print(note)
     _run_with_progress(twin, scenario.duration_s)
 
-    heaters = ("hotend",) if args.no_bed else ("hotend", "bed")
-    print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
-    print(_metrics_report(twin.trace, scenario, heaters))
-    for t, what, heater_id in twin.trace.protection_trips():
+    result = twin.result()
+    print(result.report(_disturbances(scenario)))
+    for t, what, heater_id in result.protection_trips():
         print(f"protection at {t:.1f} s: {what} on {heater_id}; the board halted (heaters off until reset)")
 
-    stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
-    csv_path = args.csv or os.path.join(args.out, stem + ".csv")
-    _write(csv_path, twin.trace.to_csv())
+    _write(csv_path, result.to_csv())
     print(f"trace: {csv_path}")
     if args.klipper_log:
-        _write(args.klipper_log, twin.trace.to_klipper_stats(heaters))
+        _write(args.klipper_log, result.to_klipper_stats())
         print(f"klipper stats log: {args.klipper_log}")
-    if not args.no_plot:
-        plot_path = args.plot or os.path.join(args.out, stem + ".png")
+    if plot_path is not None:
         try:
-            from tools.plot import plot_trace
-
             os.makedirs(os.path.dirname(plot_path) or ".", exist_ok=True)
-            plot_trace(twin.trace, plot_path, f"{scenario.name}: {args.firmware}", heaters)
+            result.plot(plot_path, f"{scenario.name}: {result.label}")
             print(f"plot: {plot_path}")
         except ImportError as exc:
             print(f"plot skipped: {exc}")
     return 0
+
+
+def _disturbances(scenario) -> list[tuple[float, str]]:
+    """The scenario's fan and flow changes, whose recovery the report measures."""
+    return [(e.at_s, f"{e.kind} {e.value}") for e in scenario.events if e.kind in ("fan", "flow")]
 
 
 def _run_with_progress(twin, duration_s: float) -> None:
@@ -125,33 +192,6 @@ def _run_with_progress(twin, duration_s: float) -> None:
             print(f"\r  {100 * k // PROGRESS_SLICES:3d}% ({twin.time_s:.0f}/{duration_s:g} s virtual)", end="", file=sys.stderr)
     if show:
         print(file=sys.stderr)
-
-
-def _metrics_report(trace, scenario, heaters: tuple[str, ...]) -> str:
-    """Step metrics per setpoint of each heater, then recovery after fan/flow disturbances."""
-    t_s = trace.column("t_s")
-    out = []
-    for heater in heaters:
-        target = trace.column(f"{heater}_target_c")
-        temp = trace.column(f"{heater}_measured_c")
-        duty = trace.column(f"{heater}_duty")
-        steps = [
-            step_metrics(t_s, temp, target, duty, start_s=start, end_s=end)
-            for start, end in segments(t_s, target)
-            if target[t_s >= start][0] > 0 and (t_s[(t_s >= start) & (t_s < end)].size > 2)
-        ]
-        if steps:
-            out.append(f"{heater} (firmware-measured temperature):")
-            out.append(format_metrics_table(steps))
-        for event in scenario.events:
-            if event.kind in ("fan", "flow") and (heater == "hotend") and event.at_s < t_s[-1]:
-                after = t_s >= event.at_s
-                rec = recovery_time_s(t_s, temp, target, event.at_s)
-                dev = max_deviation_c(t_s[after], temp[after], target[after], event.at_s)
-                rec_text = f"{rec:.1f} s" if rec is not None else "not recovered"
-                out.append(f"{heater} after {event.kind} {event.value} at {event.at_s:g} s: "
-                           f"max deviation {dev:.2f} C, recovery to +-2 C {rec_text}")
-    return "\n".join(out) if out else "no heater had a target"
 
 
 def _write(path: str, text: str) -> None:

@@ -16,12 +16,11 @@ sensor chain always takes the numpy path (its conversions draw from the chain's 
 from __future__ import annotations
 
 import functools
-import heapq
-import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from firmware_port.controller import Tunable
 from firmware_port.marlin.adc import AdcSequencer
 from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, SOFT_PWM_MAX, SOFT_PWM_PERIOD_TICKS, \
     TICKS_PER_READING, ticks_to_ms
@@ -36,15 +35,32 @@ from firmware_port.marlin.pid import (
     OUT_MAX_Q8,
     P_SHIFT,
     PREV_TEMP_EVERY_SAMPLE,
+    PidFixed,
     PidGains,
 )
 from firmware_port.thermistor import ADC_MAX, MAX_RAW_THERMISTOR_VALUE, TEMP_FRAC_BITS, TEMP_ONE, TempTable
 from twin import adc_table, batch_kernel as bk
-from twin.engine import ticks_at
-from twin.linear import BLOCK, SENSOR, TICK_S, TickModel
+from twin.clock import TICK_S, EventQueue, ticks_at
+from twin.linear import BLOCK, SENSOR, TickModel
+from twin.result import RunResult
 from twin.sensor import SensorChain
 
 PLAN_COLUMNS = 6  # n ticks, first sample offset, reading, soft-PWM count at start, millis at end, kind
+
+
+def lane_gains(controllers: Sequence[PidGains | Tunable], prev_temp_mode: str) -> list[PidGains]:
+    """Each lane's gains: given directly, or taken from an injected fixed-point PID controller
+    (the lanes vectorise exactly that law, so its derivative mode must match the batch's)."""
+    gains = []
+    for lane, item in enumerate(controllers):
+        if isinstance(item, PidGains):
+            gains.append(item)
+        elif isinstance(item, PidFixed) and item.prev_temp_mode == prev_temp_mode:
+            gains.append(item.gains)
+        else:
+            raise TypeError(f"lane {lane}: a batch runs PidGains or PidFixed controllers with prev_temp_mode "
+                            f"{prev_temp_mode!r}, not {item!r}")
+    return gains
 
 
 class BatchTwin:
@@ -54,7 +70,7 @@ class BatchTwin:
     temperature, the true block and sensor temperatures and the duty (amount / 127).
     """
 
-    def __init__(self, plant, gains: list[PidGains], *, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE,
+    def __init__(self, plant, gains: Sequence[PidGains | Tunable], *, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE,
                  sensor: SensorChain | None = None, kernel: str | None = None):
         if not plant.linear or plant.delay_ticks:
             raise ValueError("batch twins need a linear plant without dead time")
@@ -65,26 +81,39 @@ class BatchTwin:
         self.n_lanes = len(gains)
         self.x = np.repeat(plant.x[:, None], self.n_lanes, axis=1)  # (n_x, N)
         self.sensor = sensor if sensor is not None else SensorChain()
-        self.lanes = HotendLanes(gains, prev_temp_mode)
+        self.lanes = HotendLanes(lane_gains(gains, prev_temp_mode), prev_temp_mode)
         self.tick = 0
-        self._events: list = []
-        self._seq = itertools.count()
+        self._events = EventQueue()
         self._chunks: list[tuple] = []  # records: (t_s (R,), temp_q5, amount, block_c, sensor_c (N, R))
+        self._targets: list[int] = []  # the target in force at each row
         self._adc_hint = np.zeros(self.n_lanes, np.int64)  # the kernel's last ADC count: a search start
 
     def schedule(self, at_s: float, action: Callable[[BatchTwin], None]) -> None:
         """Run ``action(batch)`` at the first tick at or after ``at_s``."""
-        heapq.heappush(self._events, (ticks_at(at_s), next(self._seq), action))
+        self._events.push(ticks_at(at_s), action, self)
 
     def set_target(self, target_c: int) -> None:
         self.lanes.set_target(target_c)
 
+    def run(self, seconds: float) -> RunResult:
+        """Run ``seconds`` more; the result of every lane since time 0 (arrays (rows, lanes))."""
+        self.run_until(self.tick * TICK_S + seconds)
+        return self.result()
+
+    def result(self, label: str = "batch") -> RunResult:
+        n = len(self._targets)
+        target = np.repeat(np.array(self._targets, dtype=float)[:, None], self.n_lanes, axis=1).reshape(n, -1)
+        hotend = {"target_c": target, "measured_c": self.measured_c, "block_c": self.block_c,
+                  "sensor_c": self.sensor_c, "duty": self.duty}
+        return RunResult.from_columns(self.t_s, {"hotend": hotend}, label=f"{label}, {self.n_lanes} lanes")
+
     def run_until(self, t_s: float) -> None:
         end = ticks_at(t_s)
         while self.tick < end:
-            while self._events and self._events[0][0] <= self.tick:
-                heapq.heappop(self._events)[2](self)
-            stop = min(end, self._events[0][0]) if self._events else end
+            for _, action, args in self._events.pop_due(self.tick):
+                action(*args)
+            due = self._events.next_at()
+            stop = end if due is None else min(end, due)
             if stop > self.tick:
                 self._run_to(stop)
 
@@ -133,6 +162,7 @@ class BatchTwin:
         self.tick += n
         if reading:
             io = _plant_io(model, d)
+            self._targets.append(lanes.target_c)
             self._chunks.append((np.array([self.tick * TICK_S]), lanes.temp_q5[:, None].astype(np.int16),
                                  lanes.amount[:, None].astype(np.int16), _output(io[1], self.x)[:, None],
                                  _output(io[2], self.x)[:, None]))
@@ -159,6 +189,7 @@ class BatchTwin:
             lanes.runaway_c = lanes.target_c
             t_s = (self.tick + np.cumsum(plan[:, 0]))[reading] * TICK_S
             self._chunks.append((t_s, *records))
+            self._targets.extend([lanes.target_c] * n_rows)
         lanes.ticks += stop - self.tick
         self.tick = stop
 

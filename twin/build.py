@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Sequence
+from typing import Any, cast
+
+from firmware_port.controller import ControllerSpec
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
-from twin.engine import Twin
+from firmware_port.marlin.pid import PidGains
+from twin.engine import BOOT_S, Twin
 from twin.plants import make_plant
 from twin.scenario import Event, Scenario
 from twin.sensor import DETACHED, OPEN, SHORT
 
 CHANNELS = {"hotend": HOTEND_CHANNEL, "bed": BED_CHANNEL}
-BOOT_S = 2.0  # the board runs this long before scenario time 0
 DEFAULT_PRESETS = {"hotend": "hotend", "bed": "bed"}
 
 
@@ -17,12 +22,14 @@ def build_twin(
     scenario: Scenario,
     firmware: str = "pid",
     *,
+    controllers: Sequence[ControllerSpec | None] = (),
     with_bed: bool = True,
     engine: str = "fast",
     noise_lsb: float = 0.0,
     board_options: dict | None = None,
 ) -> Twin:
-    """A twin ready to run ``scenario``: plants from its [plant] tables, its events scheduled."""
+    """A twin ready to run ``scenario``: plants from its [plant] tables, its events scheduled;
+    ``controllers`` (per heater: an instance, a factory or None) replace the firmware's."""
     heaters = ("hotend", "bed") if with_bed else ("hotend",)
     plants = []
     for heater in heaters:
@@ -34,6 +41,7 @@ def build_twin(
     twin = Twin(
         plants,
         firmware,
+        controllers=controllers,
         seed=scenario.seed or 0,
         noise_lsb=noise_lsb,
         engine=engine,
@@ -44,15 +52,21 @@ def build_twin(
     for event in scenario.events:
         if event.heater == "bed" and not with_bed:
             continue
-        twin.schedule(event.at_s, lambda tw, ev=event: apply_event(tw, ev))
+        if event.kind == "gains" and not twin.board.has_gains(CHANNELS[str(event.heater)]):
+            raise ValueError(f"{scenario.name}: pid gains for the {event.heater} at {event.at_s:g} s, but firmware "
+                             f"{firmware!r} has no PID on that heater")
+        twin.schedule(event.at_s, functools.partial(apply_event, event=event))
     return twin
 
 
 def apply_event(twin: Twin, event: Event) -> None:
     """What a scenario event does to the printer and its world, noted in the trace."""
-    channel = CHANNELS.get(event.heater) if event.heater else None
-    kind, value = event.kind, event.value
-    if kind == "target":
+    # parse_scenario checked each kind's heater and value types
+    channel: Any = CHANNELS.get(event.heater) if event.heater else None
+    kind, value = event.kind, cast(Any, event.value)
+    if kind == "gains":
+        twin.board.set_gains(channel, PidGains(*value))
+    elif kind == "target":
         twin.board.set_target(channel, int(value))
     elif kind == "fan":
         twin.board.fan_speed = round(255 * float(value))

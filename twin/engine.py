@@ -17,28 +17,71 @@ Two engines drive the same state:
 
 from __future__ import annotations
 
-import heapq
-import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from firmware_port.controller import Controller, ControllerSpec
 from firmware_port.firmwares import build_controllers
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL, MarlinBoard
+from firmware_port.marlin.pid import PidGains
 from firmware_port.marlin.serial import Console
 from firmware_port.thermistor import TEMP_ONE
-from twin.linear import BLOCK, SENSOR, TICK_S
+from twin.clock import TICK_S, EventQueue, ticks_at
+from twin.linear import BLOCK, SENSOR
+from twin.result import RunResult
 from twin.sensor import SensorChain
 from twin.trace import Trace
 
 ENGINES = ("fast", "reference")
 HALTED_RUN_TICKS = 160  # record cadence while the board is dead
 NORMAL, DISCONNECTED, STUCK_ON = "normal", "heater_disconnected", "heater_stuck_on"
+HEATER_NAMES = ("hotend", "bed")  # by channel
+BOOT_S = 2.0  # Twin.create: the board runs this long before time 0
 
 
-def ticks_at(t_s: float) -> int:
-    """The first tick at or after ``t_s`` seconds."""
-    return int(np.ceil(round(t_s / TICK_S, 9)))
+class HeaterHandle:
+    """One heater of a twin, as a user sees it: ``target_c``, ``gains``, ``temp_c``."""
+
+    def __init__(self, twin: Twin, channel: int):
+        self._twin, self.channel = twin, channel
+
+    @property
+    def target_c(self) -> int:
+        return self._twin.board.target_c(self.channel)
+
+    @target_c.setter
+    def target_c(self, value: float) -> None:
+        """M104/M140 S<value>: the firmware clamps to its maximum as Marlin does."""
+        self._twin.board.set_target(self.channel, int(value))
+
+    @property
+    def gains(self) -> PidGains:
+        """PID gains in user units (M301/M304); ValueError for a controller without gains."""
+        return self._twin.board.gains(self.channel)
+
+    @gains.setter
+    def gains(self, gains: PidGains) -> None:
+        self._twin.board.set_gains(self.channel, gains)
+
+    @property
+    def temp_c(self) -> float:
+        """What the firmware reads now (degC)."""
+        return self._twin.board.temp_c(self.channel)
+
+    @property
+    def true_c(self) -> float:
+        """The plant's sensor-node temperature now (degC)."""
+        return float(self._twin.plants[self.channel].temps_c()[SENSOR])
+
+    @property
+    def duty(self) -> float:
+        """Soft-PWM amount / 127."""
+        return self._twin.board.amount(self.channel) / 127
+
+    @property
+    def controller(self) -> Controller:
+        return self._twin.board.heaters[self.channel].controller
 
 
 class Twin:
@@ -49,6 +92,7 @@ class Twin:
         plants: list,
         firmware: str = "pid",
         *,
+        controllers: Sequence[ControllerSpec | None] = (),
         sensors: list[SensorChain] | None = None,
         seed: int = 0,
         noise_lsb: float = 0.0,
@@ -64,6 +108,9 @@ class Twin:
             sensors = [SensorChain(noise_lsb=noise_lsb, rng=np.random.default_rng(s)) for s in streams]
         self.sensors = sensors
         self.firmware = firmware
+        if len(controllers) > len(plants):
+            raise ValueError(f"{len(controllers)} controllers for {len(plants)} heaters")
+        self.controllers = tuple(controllers)  # per channel: instance, factory or None (the firmware's)
         self.board_options = board_options or {}
         self.console = Console()
         self.reset_board()
@@ -73,21 +120,72 @@ class Twin:
         self.ambient_c = float(plants[0].d[0])
         self.heater_mode = [NORMAL] * len(plants)
         self.fan_failed = False
-        self._applied_inputs = None
+        self._applied_inputs: tuple[float, float, float] | None = None
         self.trace = Trace()
         self.recording = True  # trace rows and events (a serial session turns it off)
         self.console.listeners.append(self._console_to_trace)
         self._partial_line = ""
         self._task_tick: int | None = None  # while the main loop runs: the tick it runs at
-        self._events: list = []  # heap of (tick, seq, action)
-        self._seq = itertools.count()
+        self._events = EventQueue()  # actions due at a tick
+
+    @classmethod
+    def create(cls, firmware: str = "pid", hotend: str = "hotend", bed: str | None = None, *,
+               controllers: Sequence[ControllerSpec | None] = (), ambient_c: float = 25.0,
+               boot_s: float = BOOT_S, **options) -> Twin:
+        """A twin on plant presets (twin.plants.PRESETS), booted so that time 0 is a running board."""
+        from twin.plants import make_plant
+
+        plants = [make_plant(hotend, ambient_c=ambient_c)]
+        if bed is not None:
+            plants.append(make_plant(bed, ambient_c=ambient_c))
+        twin = cls(plants, firmware, controllers=controllers, **options)
+        twin.boot(boot_s)
+        return twin
 
     def reset_board(self) -> None:
-        """Power-cycle or reset the MCU: a fresh board and firmware; the plants keep their heat."""
-        hotend_ctrl, bed_ctrl = build_controllers(self.firmware)
+        """Power-cycle or reset the MCU: a fresh board and firmware; the plants keep their heat.
+
+        Injected controller instances survive (reset, with their gains, as if from EEPROM);
+        factories are called again."""
+        built = list(build_controllers(self.firmware))
+        for channel, spec in enumerate(self.controllers):
+            if spec is None:
+                continue
+            if isinstance(spec, Controller):
+                spec.reset()
+                built[channel] = spec
+            else:
+                built[channel] = spec()
         self.board = MarlinBoard(
-            self, hotend_ctrl, bed_ctrl, has_bed=len(self.plants) > 1, console=self.console, **self.board_options
+            self, built[0], built[1], has_bed=len(self.plants) > 1, console=self.console, **self.board_options
         )
+
+    # -- the user's view --------------------------------------------------------------------
+    @property
+    def hotend(self) -> HeaterHandle:
+        return HeaterHandle(self, HOTEND_CHANNEL)
+
+    @property
+    def bed(self) -> HeaterHandle:
+        if len(self.plants) <= BED_CHANNEL:
+            raise AttributeError("this twin has no bed")
+        return HeaterHandle(self, BED_CHANNEL)
+
+    def run(self, seconds: float) -> RunResult:
+        """Run ``seconds`` more of virtual time; the result of everything recorded since time 0."""
+        if not seconds >= 0:
+            raise ValueError(f"seconds must be >= 0, not {seconds}")
+        self.run_until(self.time_s + seconds)
+        return self.result()
+
+    def result(self, label: str | None = None) -> RunResult:
+        names = HEATER_NAMES[: len(self.plants)]
+        if label is None:
+            plants = ", ".join(f"{n} {getattr(p, 'preset', '?')}" for n, p in zip(names, self.plants))
+            gains = "; ".join(f"{n} Kp {g.kp:g} Ki {g.ki:g} Kd {g.kd:g}" for c, n in enumerate(names)
+                              if self.board.has_gains(c) for g in [self.board.gains(c)])
+            label = f"{self.firmware}: {plants}" + (f" ({gains})" if gains else "")
+        return self.trace.result(names, label)
 
     # -- the outside world ----------------------------------------------------------------
     @property
@@ -109,7 +207,7 @@ class Twin:
 
     def schedule(self, at_s: float, action: Callable[[Twin], None]) -> None:
         """Run ``action(twin)`` at the first tick at or after ``at_s`` (before that tick's ISR)."""
-        heapq.heappush(self._events, (self.origin_tick + ticks_at(at_s), next(self._seq), action))
+        self._events.push(self.origin_tick + ticks_at(at_s), action, self)
 
     def set_heater_mode(self, channel: int, mode: str) -> None:
         """Heater wiring faults: normal, heater_disconnected (no power), heater_stuck_on (MOSFET shorted)."""
@@ -142,7 +240,8 @@ class Twin:
         end = self.tick + n_ticks
         while self.tick < end:
             self._apply_due_events()
-            stop = min(end, self._events[0][0]) if self._events else end
+            due = self._events.next_at()
+            stop = end if due is None else min(end, due)
             if stop <= self.tick:
                 continue
             if self.engine == "reference":
@@ -152,9 +251,8 @@ class Twin:
         self._apply_due_events()
 
     def _apply_due_events(self) -> None:
-        while self._events and self._events[0][0] <= self.tick:
-            _, _, action = heapq.heappop(self._events)
-            action(self)
+        for _, action, args in self._events.pop_due(self.tick):
+            action(*args)
 
     def _update_plant_inputs(self) -> None:
         inputs = (self.fan, self.flow_mm_s, self.ambient_c)

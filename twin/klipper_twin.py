@@ -30,8 +30,6 @@ latency, and the toolhead (``print_time`` in the Stats line is the twin's time).
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -52,9 +50,11 @@ from firmware_port.klipper import (
 )
 from firmware_port.klipper.heater import REPORT_TIME, SAMPLE_COUNT, SAMPLE_TIME
 from firmware_port.thermistor import KLIPPER_SENSORS, SteinhartHart
+from twin.clock import TICK_S, EventQueue, tick_near
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
-from twin.linear import BLOCK, SENSOR, TICK_S
+from twin.linear import BLOCK, SENSOR
 from twin.plants import make_plant
+from twin.result import KLIPPER_NAMES, RunResult
 
 # klippy/extras/adc_temperature.py and klippy/mcu.py
 RANGE_CHECK_COUNT = 4  # summed readings in a row outside the limits before "ADC out of range"
@@ -65,6 +65,7 @@ ADC_SUM_LIMIT = 1 << 16  # mcu.py: "ADC sample_count=%d too large for MCU" at sa
 PULLUP_OHM = 4700.0
 ADC_CLAMP = (0.00001, 0.99999)  # calc_temp clamps the normalised reading
 DEFAULT_SENSOR = "EPCOS 100K B57560G104F"  # config/example-cartesian.cfg, extruder and bed
+KLIPPER_HEATERS = {klipper: ours for ours, klipper in KLIPPER_NAMES.items()}  # Klipper's names -> the result's
 # klippy/extras/heaters.py
 PWM_CYCLE_TIME_S = 0.100  # pwm_cycle_time default; must be <= pwm_delay
 # klippy/extras/statistics.py
@@ -289,11 +290,6 @@ class _Channel:
         self.pwm.prune(tick * TICK_S)
 
 
-def tick_near(t_s: float) -> int:
-    """The plant tick nearest to a time."""
-    return round(t_s / TICK_S)
-
-
 class _LogList(logging.Handler):
     """Collects the Klipper port's log messages as klippy.log lines."""
 
@@ -318,10 +314,9 @@ class KlipperTwin:
         self.halted = False
         self.shutdown_message: str | None = None
         self.shutdown_time_s: float | None = None
-        self._events: list = []
-        self._seq = itertools.count()
+        self._events = EventQueue()  # actions due at a time in seconds
         with self._klippy_logging():
-            self.channels = {}
+            self.channels: dict[str, _Channel] = {}
             for index, setup in enumerate(heaters):
                 channel = _Channel(index, setup, mcu)
                 if channel.name in self.channels:
@@ -396,8 +391,7 @@ class KlipperTwin:
         if t_s < self.time_s:
             raise ValueError(f"cannot run back to {t_s} s from {self.time_s} s")
         with self._klippy_logging():
-            while self._events and self._events[0][0] <= t_s:
-                time_s, _, _, action, args = heapq.heappop(self._events)
+            for time_s, action, args in self._events.pop_due(t_s):
                 self.time_s = time_s
                 action(*args)
         self.time_s = t_s
@@ -466,6 +460,22 @@ class KlipperTwin:
         index = ReportRow._fields.index(field_name)
         return np.array([row[index] for row in self._channel(name).reports], dtype=float)
 
+    def result(self) -> RunResult:
+        """Every heater's reports as one RunResult on the first heater's report times (the others
+        held from their last report): target, the raw reading (what Stats prints) as measured_c,
+        the true sensor and block temperatures and the duty in force."""
+        names = list(self.channels)
+        t_s = self.column(names[0], "t_s")
+        columns = {}
+        for name in names:
+            own_t = self.column(name, "t_s")
+            at = np.clip(np.searchsorted(own_t, t_s, side="right") - 1, 0, max(len(own_t) - 1, 0))
+            fields = {"target_c": "target_c", "measured_c": "temp_c", "block_c": "block_c",
+                      "sensor_c": "sensor_c", "duty": "duty"}
+            columns[KLIPPER_HEATERS.get(name, name)] = {f: self.column(name, src)[at] if len(own_t) else
+                                                        np.full(len(t_s), np.nan) for f, src in fields.items()}
+        return RunResult.from_columns(t_s, columns, events=list(self.log), label="klipper")
+
     def sends(self, name: str) -> list[tuple[float, float, float]]:
         """(read_time, pwm_time, value) of every PWM value the host sent to the MCU."""
         return self._channel(name).sends
@@ -478,7 +488,7 @@ class KlipperTwin:
             raise ValueError(f"unknown heater {name!r}; valid: {', '.join(self.channels)}") from None
 
     def _push(self, time_s: float, prio: int, action: Callable, *args) -> None:
-        heapq.heappush(self._events, (time_s, prio, next(self._seq), action, args))
+        self._events.push(time_s, action, *args, priority=prio)
 
     def _adc_sample(self, channel: _Channel, k: int) -> None:
         """The MCU's k-th summed reading: 8 conversions from the first sample time on."""
@@ -532,7 +542,7 @@ class KlipperTwin:
         if self.halted:
             return
         try:
-            next_s = channel.verify.check_event(self.time_s)
+            next_s = channel.verify.check_event(self.time_s)  # type: ignore[union-attr]  # pushed only with a verify
         except HeaterFault as fault:
             self._shutdown(str(fault), str(fault))
             return

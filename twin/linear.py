@@ -15,15 +15,17 @@ A dead time shifts ``u`` by whole ticks (1.024 ms resolution).
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 
-from firmware_port.marlin.constants import ISR_PERIOD_S
+from twin.clock import TICK_S
 
-TICK_S = float(ISR_PERIOD_S)
+MAX_CACHED_MODELS = 32  # discretisations a LinearPlant keeps (LRU): a few fan x flow x radiation-bin states
 SENSOR, BLOCK = 0, 1  # output rows
 
 
@@ -56,7 +58,7 @@ class TickModel:
         self._powers = [np.eye(n)]  # Phi^k
         self._u_resp = [np.zeros(n)]  # sum_{j<k} Phi^j g: response to u = 1 over k ticks
         self._d_resp = [np.zeros((n, m))]  # sum_{j<k} Phi^j H
-        self._runs: dict[tuple, tuple] = {}
+        self._runs: dict[tuple, Any] = {}  # (kind, n_ticks[, offsets]) -> cached maps
 
     def _extend(self, k: int) -> None:
         while len(self._powers) <= k:
@@ -111,12 +113,15 @@ class LinearPlant:
     """A linear plant whose model depends on the conditions; stepped by runs of ticks.
 
     ``model_for(conditions)`` builds the continuous model for a hashable conditions key (fan,
-    flow); discretisations are cached per key. ``d`` holds the disturbances (ambient).
+    flow); discretisations are cached per key, the MAX_CACHED_MODELS most recently used ones
+    (each holds its multi-tick maps, about 1 MB: a host streaming moves at ever new feed rates
+    must not grow the cache without end). An evicted key is rebuilt by the same deterministic
+    computation, so the bound changes no result. ``d`` holds the disturbances (ambient).
     """
 
     def __init__(self, model_for: Callable[[Hashable], Lti], conditions: Hashable, x0, d, delay_ticks: int = 0):
         self._model_for = model_for
-        self._models: dict[Hashable, TickModel] = {}
+        self._models: OrderedDict[Hashable, TickModel] = OrderedDict()
         self.set_conditions(conditions)
         self.x = np.array(x0, dtype=float)
         self.d = np.array(d, dtype=float)
@@ -128,6 +133,10 @@ class LinearPlant:
         model = self._models.get(conditions)
         if model is None:
             model = self._models[conditions] = TickModel(self._model_for(conditions))
+            if len(self._models) > MAX_CACHED_MODELS:
+                self._models.popitem(last=False)
+        else:
+            self._models.move_to_end(conditions)
         self.conditions = conditions
         self.model = model
 

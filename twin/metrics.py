@@ -200,8 +200,9 @@ def step_metrics(
         size_c = abs(step_c)
         progress_c = math.copysign(1.0, step_c) * (temp - start)
         reach_to = _first_reach(t, progress_c, RISE_TO * size_c)
-        if reach_to is not None:
-            rise = reach_to - _first_reach(t, progress_c, RISE_FROM * size_c)
+        reach_from = _first_reach(t, progress_c, RISE_FROM * size_c)
+        if reach_to is not None and reach_from is not None:  # reaching 90 % implies reaching 10 %
+            rise = reach_to - reach_from
         beyond_c = progress_c - size_c
         i_peak = int(np.argmax(beyond_c))
         overshoot = max(0.0, float(beyond_c[i_peak]))

@@ -1,7 +1,7 @@
 """Thermal plants: the hotends and beds the firmware heats, as named presets with their sources.
 
 Two model families, one builder each:
-- ``Lumped``: lumped thermal nodes with Marlin's MPC model as the template (reference section 8):
+- ``Lumped``: lumped thermal nodes with Marlin's MPC model as the template (Marlin 2.1.x Marlin/src/module/temperature.cpp MPC and Configuration.h):
   heater block and sensor, optionally a heater-cartridge node and radiation; states are absolute
   temperatures in degC.
 - ``TransferFunction``: a seed paper's transfer function from heater input to temperature rise
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, NamedTuple
 
@@ -26,7 +27,9 @@ import scipy.signal
 
 from twin.linear import BLOCK, SENSOR, TICK_S, LinearPlant, Lti
 
-# Marlin 2.1 MPC defaults (Configuration.h, reference section 8).
+PARAMETER_MAX = 1e9  # any plant parameter's magnitude: far beyond physics, far below float overflow
+
+# Marlin 2.1 MPC defaults (Configuration.h, Marlin 2.1.x Marlin/src/module/temperature.cpp MPC and Configuration.h).
 MPC_HEATER_POWER_W = 40.0
 MPC_BLOCK_HEAT_CAPACITY_J_K = 16.7
 MPC_SENSOR_RESPONSIVENESS_PER_S = 0.22
@@ -142,7 +145,7 @@ class Lumped:
     def lti(self, key: Conditions) -> Lti:
         k_w_k = (self.ambient_xfer_w_k + key.fan * (self.fan_ambient_xfer_w_k - self.ambient_xfer_w_k)
                  + self.filament_heat_capacity_j_k_mm * key.flow_mm_s)
-        if key.block_bin_c is not None:
+        if key.block_bin_c is not None and key.ambient_c is not None:  # both set for radiating plants
             k_w_k += self.radiation_w_k(key.block_bin_c, key.ambient_c)
         c_b, r = self.block_heat_capacity_j_k, self.sensor_responsiveness_per_s
         n = 3 if self.cartridge_heat_capacity_j_k else 2
@@ -243,7 +246,8 @@ class Plant(LinearPlant):
         self.linear = spec.linear
         self.fan = 0.0
         self.flow_mm_s = 0.0
-        super().__init__(spec.lti, spec.conditions(0.0, 0.0, ambient_c, start_c),
+        model_for: Callable = spec.lti  # each spec's lti takes its own conditions key
+        super().__init__(model_for, spec.conditions(0.0, 0.0, ambient_c, start_c),
                          spec.initial_state(ambient_c, start_c), [ambient_c], spec.delay_ticks)
 
     @property
@@ -356,5 +360,8 @@ def make_plant(preset: str = "hotend", *, ambient_c: float = 25.0, initial_c: fl
             raise ValueError(f"unknown parameter {name!r} for plant preset {preset!r}; valid: {', '.join(names)}")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ValueError(f"plant parameter {name}={value!r}: must be a finite number")
-    return Plant(preset, dataclasses.replace(spec, **{name: float(value) for name, value in params.items()}),
+        if abs(value) > PARAMETER_MAX:
+            raise ValueError(f"plant parameter {name}={value!r}: beyond {PARAMETER_MAX:g}, no heater's (the model "
+                             "would overflow)")
+    return Plant(preset, dataclasses.replace(spec, **{name: float(value) for name, value in params.items()}),  # type: ignore[arg-type]
                  ambient_c, initial_c)

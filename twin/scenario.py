@@ -18,7 +18,9 @@ import textwrap
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NoReturn, cast
+
+from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX
 
 HEATERS = ("hotend", "bed")
 FAULT_KINDS = (
@@ -33,10 +35,12 @@ TARGET_RANGE_C = (0, 400)  # setpoints; the firmware clamps further (Marlin: hot
 AMBIENT_RANGE_C = (-40.0, 120.0)  # a cold garage to a heated industrial chamber
 INITIAL_RANGE_C = (-40.0, 400.0)
 DEFAULT_AMBIENT_C = 25.0
+DURATION_MAX_S = 2**32 / 1000  # Marlin's millis() is a uint32
 OVERRIDES_SOURCE = "overrides"  # the "file" named in errors from with_overrides
 
 # TOML array of tables -> its fields; each entry becomes one Event (see _read_event).
 _EVENT_TABLES = {
+    "pid": ("at_s", "heater", "kp", "ki", "kd"),
     "setpoint": ("at_s", "heater", "target_c"),
     "fan": ("at_s", "speed"),
     "flow": ("at_s", "mm_s"),
@@ -54,9 +58,9 @@ class ScenarioError(ValueError):
 
 @dataclass(frozen=True)
 class Event:
-    """One change at `at_s` seconds: kind "target", "fan", "flow", "ambient" or "fault".
+    """One change at `at_s` seconds: kind "gains", "target", "fan", "flow", "ambient" or "fault".
 
-    value: target degC (int) for "target", part-fan fraction 0..1 for "fan", filament feed mm/s
+    value: (kp, ki, kd) in M301/M304 units for "gains", target degC (int) for "target", part-fan fraction 0..1 for "fan", filament feed mm/s
     for "flow" (heater "hotend"), degC for "ambient", a FAULT_KINDS name for "fault".
     heater: "hotend"/"bed", or None for "fan", "ambient" and the "fan_failure" fault.
     """
@@ -64,12 +68,12 @@ class Event:
     at_s: float
     kind: str
     heater: str | None
-    value: float | str | None
+    value: float | str | tuple[float, float, float] | None
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """One run: events sorted by time (ties: setpoint, fan, flow, ambient, fault, then file order)."""
+    """One run: events sorted by time (ties: pid, setpoint, fan, flow, ambient, fault, then file order)."""
 
     name: str
     duration_s: float
@@ -204,6 +208,9 @@ def _read_duration(top: _Table) -> float:
     duration_s = top.number("duration_s")
     if duration_s <= 0.0:
         top.fail("duration_s", f"must be > 0, got {_show(top.data['duration_s'])}")
+    if duration_s > DURATION_MAX_S:
+        top.fail("duration_s", f"must be at most {DURATION_MAX_S:g} s (49.7 days, when Marlin's 32-bit millis() "
+                 f"wraps), got {_show(top.data['duration_s'])}")
     return duration_s
 
 
@@ -228,11 +235,18 @@ def _read_seed(top: _Table) -> int | None:
     return seed
 
 
+def _read_gains(entry: _Table) -> tuple[float, float, float]:
+    """M301/M304 gains within the range the firmware's fixed-point PID supports."""
+    return (entry.number("kp", 0.0, KP_MAX), entry.number("ki", 0.0, KI_MAX), entry.number("kd", 0.0, KD_MAX))
+
+
 def _read_event(table: str, entry: _Table, duration_s: float) -> Event:
     at_s = entry.number("at_s", 0.0)
     if at_s > duration_s:
         entry.fail("at_s", f"{at_s:g} s is after the end of the run (duration_s = {duration_s:g})")
     match table:
+        case "pid":
+            return Event(at_s, "gains", entry.choice("heater", HEATERS, "heater"), _read_gains(entry))
         case "setpoint":
             return Event(at_s, "target", entry.choice("heater", HEATERS, "heater"),
                          entry.whole("target_c", *TARGET_RANGE_C))
@@ -299,9 +313,12 @@ def _toml_value(value: float | str) -> str:
     return _toml_string(value) if isinstance(value, str) else repr(value)
 
 
-def _event_fields(event: Event) -> tuple[str, dict[str, float | str]]:
+def _event_fields(event: Event) -> tuple[str, dict[str, Any]]:
     """The array of tables an event is written to, and its fields."""
     match event.kind:
+        case "gains":
+            kp, ki, kd = cast(tuple[float, float, float], event.value)
+            return "pid", {"heater": event.heater, "kp": kp, "ki": ki, "kd": kd}
         case "target":
             return "setpoint", {"heater": event.heater, "target_c": event.value}
         case "fan":
@@ -322,10 +339,10 @@ def dump_scenario(scenario: Scenario) -> str:
              f"ambient_c = {scenario.ambient_c!r}"]
     if scenario.seed is not None:
         lines.append(f"seed = {scenario.seed}")
-    sections = [("initial_c", scenario.initial_c)]
-    sections += [(f"plant.{heater}", params) for heater, params in scenario.plant.items()]
-    for header, table in sections:
-        lines += ["", f"[{header}]"] + [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in table.items()]
+    sections: list[tuple[str, dict[str, Any]]] = [("initial_c", dict(scenario.initial_c))]
+    sections += [(f"plant.{heater}", dict(params)) for heater, params in scenario.plant.items()]
+    for header, values in sections:
+        lines += ["", f"[{header}]"] + [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in values.items()]
     for table in _EVENT_TABLES:  # the tie order of parse_scenario, so the round trip is exact
         for event in scenario.events:
             name, fields = _event_fields(event)
@@ -338,16 +355,18 @@ def dump_scenario(scenario: Scenario) -> str:
 def with_overrides(scenario: Scenario, *, duration_s: float | None = None,
                    ambient_c: float | None = None, initial_c: dict[str, float] | None = None,
                    targets: dict[str, int] | None = None, seed: int | None = None,
-                   plant: dict[str, dict[str, float | str]] | None = None) -> Scenario:
+                   plant: dict[str, dict[str, float | str]] | None = None,
+                   gains: dict[str, dict[str, float]] | None = None) -> Scenario:
     """The scenario with command-line values in place of the file's, checked like the file's.
 
     duration_s drops the events after it; ambient_c also moves the heaters that started at the
     old ambient; targets[heater] replaces that heater's first setpoint, or adds one at 0 s;
-    plant parameters are merged into the file's, heater by heater.
+    plant parameters are merged into the file's, heater by heater; gains[heater] ({"kp", "ki",
+    "kd"}) replace that heater's gains at 0 s (the firmware's or the file's).
     """
     given = {key: value for key, value in dict(
         duration_s=duration_s, ambient_c=ambient_c, initial_c=initial_c, targets=targets,
-        seed=seed, plant=plant).items() if value is not None}
+        seed=seed, plant=plant, gains=gains).items() if value is not None}
     cli = _Table(given, OVERRIDES_SOURCE, "", tuple(given))
     changes: dict[str, Any] = {}
     events = list(scenario.events)
@@ -369,6 +388,11 @@ def with_overrides(scenario: Scenario, *, duration_s: float | None = None,
             events.insert(0, Event(0.0, "target", heater, target_c))
         else:
             events[first] = dataclasses.replace(events[first], value=target_c)
+    new_gains = cli.table("gains", HEATERS)
+    for heater in new_gains.data:
+        value = _read_gains(new_gains.table(heater, ("kp", "ki", "kd")))
+        events = [Event(0.0, "gains", heater, value)] + [
+            event for event in events if not (event.kind == "gains" and event.heater == heater and event.at_s == 0)]
     changes["events"] = tuple(events)
     if seed is not None:
         changes["seed"] = _read_seed(cli)

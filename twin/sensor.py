@@ -18,6 +18,7 @@ from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, Divider
 from twin.linear import TICK_S
 
 OPEN, SHORT, DETACHED = "thermistor_open", "thermistor_short", "thermistor_detached"
+DEFAULT_DIVIDER = Divider()  # frozen: a B3950 NTC with the board pull-up (firmware_port.thermistor)
 DETACHED_TAU_S = 15.0  # a glass-bead thermistor in still air: tens of seconds
 
 
@@ -26,7 +27,7 @@ class SensorChain:
 
     def __init__(
         self,
-        divider: Divider = Divider(),
+        divider: Divider = DEFAULT_DIVIDER,
         noise_lsb: float = 0.0,
         rng: np.random.Generator | None = None,
         detached_tau_s: float = DETACHED_TAU_S,

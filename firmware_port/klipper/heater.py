@@ -130,7 +130,7 @@ class KlipperHeater:
         self.last_temp_time = 0.0
         self.next_pwm_time = 0.0
         self.last_pwm_value = 0.0  # the last value sent to the MCU
-        self.control: Control = CONTROLS[config.control](self, config)
+        self.control: Control = CONTROLS[config.control](self, config)  # type: ignore[assignment]
 
     def set_pwm(self, read_time: float, value: float) -> PwmEvent | None:
         """Send ``value`` for ``read_time + pwm_delay`` unless the change is too small to send."""
@@ -234,6 +234,7 @@ class ControlPID:
         self.heater = heater
         self.heater_max_power = heater.max_power
         # duty fraction per degC (per degC*s, per degC/s): the config gains / PID_PARAM_BASE
+        assert config.pid_kp is not None and config.pid_ki is not None and config.pid_kd is not None  # HeaterConfig checks
         self.kp = config.pid_kp / PID_PARAM_BASE
         self.ki = config.pid_ki / PID_PARAM_BASE
         self.kd = config.pid_kd / PID_PARAM_BASE

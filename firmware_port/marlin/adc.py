@@ -1,4 +1,4 @@
-"""Marlin's ADC state machine in the temperature ISR (reference section 0), for AVR.
+"""Marlin's ADC state machine in the temperature ISR (Marlin 2.1.x Marlin/src/HAL/AVR/timers.h and module/temperature.cpp Temperature::isr()), for AVR.
 
 One round is MIN_ADC_ISR_LOOPS = 10 ISRs: StartSampling, then a Prepare/Measure pair per
 sensor (the conversion starts in Prepare and is read in Measure), then SensorsReady padding.
@@ -14,7 +14,8 @@ many ISRs at once from samples taken in bulk.
 
 from __future__ import annotations
 
-from typing import Protocol, Sequence
+from collections.abc import Sequence
+from typing import Protocol
 
 from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, OVERSAMPLENR
 

@@ -8,8 +8,7 @@ heating watch inside it; the 20 min timeout; the finish.
 
 Sources: MarlinFirmware/Marlin bugfix-2.1.x (000b347) Marlin/src/module/temperature.cpp
 `PID_autotune` and Marlin/src/core/language.h (STR_PID_*, STR_BIAS ...); for the "1.1" option
-the spring-2017 1.1.x Marlin/temperature.cpp (the firmware of issue #6316). Summarised in
-../shared/reference/marlin_heater.md, section 3.
+the spring-2017 1.1.x Marlin/temperature.cpp (the firmware of issue #6316).
 
 Units: temperatures celsius_q5 (1/32 degC), targets whole degC, times millis(). Marlin keeps
 the temperatures in float; a celsius_q5 value converts to float32 exactly, so comparisons and
@@ -40,6 +39,7 @@ from firmware_port.marlin.constants import (
 )
 from firmware_port.marlin.protection import TempError, time_elapsed
 from firmware_port.marlin.serial import Console, format_float
+from firmware_port.marlin.versions import DEFAULT_VERSION, MarlinVersion
 from firmware_port.thermistor import TEMP_ONE
 
 _F32 = np.float32
@@ -77,7 +77,7 @@ class VersionRules:
 
 
 VERSIONS = {
-    "2.1": VersionRules(
+    MarlinVersion.V2_1: VersionRules(
         min_cycles=3,
         define_prefix="#define DEFAULT_",
         bed_no_overshoot=True,
@@ -88,7 +88,7 @@ VERSIONS = {
         abort_disables_heaters=True,
         timeout_sums_both=False,
     ),
-    "1.1": VersionRules(
+    MarlinVersion.V1_1: VersionRules(
         min_cycles=0,
         define_prefix="#define  DEFAULT_",
         bed_no_overshoot=False,
@@ -171,7 +171,7 @@ class Autotune:
         heater_states: Callable[[], str],
         temp_error: Callable[[str], None],
         maxtemp_c: int,
-        version: str = "2.1",
+        version: str = DEFAULT_VERSION,
     ) -> None:
         if version not in VERSIONS:
             raise ValueError(f"unknown Marlin version {version!r}; expected {list(VERSIONS)}")
@@ -182,7 +182,7 @@ class Autotune:
         self.console = console
         self.heater_states = heater_states
         self.temp_error = temp_error
-        self.rules = VERSIONS[version]
+        self.rules = VERSIONS[MarlinVersion(version)]
         self.max_target_c = maxtemp_c - (BED_OVERSHOOT_C if is_bed else HOTEND_OVERSHOOT_C)
         self.max_pow = MAX_BED_POWER if is_bed else PID_MAX
         self.no_overshoot = is_bed and self.rules.bed_no_overshoot
@@ -341,7 +341,8 @@ class Autotune:
         heater = "bed" if self.is_bed else ""
         for name, value in zip(("Kp", "Ki", "Kd"), self.tune):
             self.console.writeln(f"{self.rules.define_prefix}{heater}{name} {format_float(value)}")
-        self.gains = tuple(float(value) for value in self.tune)
+        kp, ki, kd = self.tune
+        self.gains = (float(kp), float(ki), float(kd))
         self.succeeded = True
         self.done = True
 

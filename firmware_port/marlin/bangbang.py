@@ -1,4 +1,4 @@
-"""Marlin's bang-bang heater control (reference section 2): no PID, full power or nothing."""
+"""Marlin's bang-bang heater control (Marlin 2.1.x Marlin/src/module/temperature.cpp manage_heated_bed()): no PID, full power or nothing."""
 
 from __future__ import annotations
 

@@ -10,6 +10,7 @@ MIN/MAXTEMP checks, and runs each heater's controller and protection on fresh re
 
 from __future__ import annotations
 
+from firmware_port.controller import Controller, is_tunable
 from firmware_port.marlin.adc import AdcPort, AdcSequencer
 from firmware_port.marlin.autotune import Autotune
 from firmware_port.marlin.constants import ms_to_ticks, ticks_to_ms
@@ -27,6 +28,7 @@ from firmware_port.marlin.protection import (
 )
 from firmware_port.marlin.serial import Console, format_float
 from firmware_port.marlin.softpwm import SoftPwm
+from firmware_port.marlin.versions import DEFAULT_VERSION, MarlinVersion
 from firmware_port.thermistor import B3950_TABLE, TEMP_ONE, TempTable
 
 HOTEND_CHANNEL = 0
@@ -36,7 +38,7 @@ BED_CHANNEL = 1
 class Heater:
     """One heater: sensor channel + controller + soft-PWM slot + protection state."""
 
-    def __init__(self, heater_id: int, controller, table: TempTable, temp_range: TempRange, runaway, watch):
+    def __init__(self, heater_id: int, controller: Controller, table: TempTable, temp_range: TempRange, runaway, watch):
         self.heater_id = heater_id  # 0 = hotend E0, H_BED = -1
         self.controller = controller
         self.table = table
@@ -59,14 +61,14 @@ class MarlinBoard:
     def __init__(
         self,
         adc_port: AdcPort,
-        hotend_controller=None,
-        bed_controller=None,
+        hotend_controller: Controller | None = None,
+        bed_controller: Controller | None = None,
         *,
         has_bed: bool = True,
         hotend_table: TempTable = B3950_TABLE,
         bed_table: TempTable = B3950_TABLE,
         console: Console | None = None,
-        version: str = "2.1",
+        version: str = DEFAULT_VERSION,
     ):
         self.console = console if console is not None else Console()
         self.version = version
@@ -189,12 +191,38 @@ class MarlinBoard:
             self.set_target(channel, 0)
         self.pwm.all_off()
 
+    def temp_c(self, channel: int) -> float:
+        """The heater's current reading in degC (celsius_q5 / 32), as M105 prints it."""
+        return self.heaters[channel].temp_q5 / TEMP_ONE
+
+    def target_c(self, channel: int) -> int:
+        return self.heaters[channel].target_c
+
+    def has_gains(self, channel: int) -> bool:
+        """PIDTEMP (hotend) / PIDTEMPBED (bed): the heater's controller takes PID gains."""
+        return channel < len(self.heaters) and is_tunable(self.heaters[channel].controller)
+
+    def gains(self, channel: int) -> PidGains:
+        """The heater's PID gains (M301/M304); ValueError if its controller has none."""
+        self._check_gains(channel)
+        return self.heaters[channel].controller.gains  # type: ignore[attr-defined]
+
+    def set_gains(self, channel: int, gains: PidGains) -> None:
+        """M301/M304: new gains (the controller resets its loop)."""
+        self._check_gains(channel)
+        self.heaters[channel].controller.set_gains(gains)  # type: ignore[attr-defined]
+
+    def _check_gains(self, channel: int) -> None:
+        if not self.has_gains(channel):
+            controller = type(self.heaters[channel].controller).__name__ if channel < len(self.heaters) else None
+            raise ValueError(f"heater {channel} has no PID gains (controller {controller})")
+
     def can_autotune(self, channel: int) -> bool:
         """M303 needs PIDTEMP (hotend) or PIDTEMPBED (bed): a controller with PID gains."""
-        return channel < len(self.heaters) and hasattr(self.heaters[channel].controller, "set_gains")
+        return self.has_gains(channel)
 
     def start_autotune(self, channel: int, target_c: int, ncycles: int, apply: bool = False,
-                       version: str = "2.1") -> Autotune:
+                       version: str = DEFAULT_VERSION) -> Autotune:
         """M303: Marlin's relay autotune on one heater; the board runs it until it is done."""
         heater = self.heaters[channel]
         tune = Autotune(
@@ -224,18 +252,20 @@ class MarlinBoard:
 
     def _run_autotune(self, fresh: bool) -> None:
         tune, channel = self.autotune, self.autotune_channel
+        assert tune is not None  # task() runs this only during M303
         tune.poll(self.now_ms, self.heaters[channel].temp_q5 if fresh else None)
         if self.halted:  # a temperature error inside M303 killed the board
             self.autotune = None
             return
         self.pwm.set_amount(channel, tune.amount)
         if tune.done:
-            if tune.succeeded and self.autotune_apply:
-                self.heaters[channel].controller.set_gains(PidGains.clamped(*tune.gains))
+            if tune.succeeded and self.autotune_apply and tune.gains is not None:
+                self.set_gains(channel, PidGains.clamped(*tune.gains))
             self._end_autotune()
 
     def _end_autotune(self) -> None:
-        self.pwm.set_amount(self.autotune_channel, self.autotune.amount)
+        if self.autotune is not None:
+            self.pwm.set_amount(self.autotune_channel, self.autotune.amount)
         self.autotune = None
 
     def kill_m112(self) -> None:
@@ -277,7 +307,7 @@ class MarlinBoard:
 
     def _heater_on_version(self, heater: Heater) -> str:
         """The bed's MINTEMP looks at the target only, in every version."""
-        return "2.1" if heater.is_bed else self.version
+        return MarlinVersion.V2_1 if heater.is_bed else self.version
 
     def _manage_hotend(self, heater: Heater, now_ms: int) -> None:
         """manage_hotends(): MAXTEMP, runaway, the controller, then the heating watch."""

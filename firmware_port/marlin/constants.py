@@ -1,13 +1,13 @@
 """Marlin 2.1.x compile-time constants for an AVR board with a hotend and a bed.
 
-Sources (paraphrased in ../shared/reference/marlin_heater.md): HAL/AVR/timers.h,
+Sources (Marlin 2.1.x): HAL/AVR/timers.h,
 module/temperature.h/.cpp, module/thermistor/thermistors.h, Configuration.h,
 Configuration_adv.h.
 """
 
 from fractions import Fraction
 
-# Timing (reference section 0). The ISR runs on Timer0 compare A: 16 MHz / 64 / 256.
+# Timing (Marlin 2.1.x Marlin/src/HAL/AVR/timers.h and module/temperature.cpp Temperature::isr()). The ISR runs on Timer0 compare A: 16 MHz / 64 / 256.
 ISR_HZ = Fraction(16_000_000, 64 * 256)  # 976.5625 Hz exactly
 ISR_PERIOD_S = 1 / ISR_HZ  # 1.024 ms
 TEMP_TIMER_FREQUENCY = (16_000_000 + 0x2000) // 0x4000  # 977, Marlin's nominal integer
@@ -17,11 +17,11 @@ ACTUAL_ADC_SAMPLES = MIN_ADC_ISR_LOOPS  # hotend + bed: SensorsReady = 5 < 10
 TICKS_PER_READING = OVERSAMPLENR * ACTUAL_ADC_SAMPLES  # 160 ISRs = 0.16384 s
 PID_DT_S = Fraction(OVERSAMPLENR * ACTUAL_ADC_SAMPLES, TEMP_TIMER_FREQUENCY)  # 160/977 s
 
-# Soft PWM (reference section 6): 7-bit, one period is 127 ISRs.
+# Soft PWM (Marlin 2.1.x Marlin/src/module/temperature.cpp Temperature::isr() SoftPWM): 7-bit, one period is 127 ISRs.
 SOFT_PWM_PERIOD_TICKS = 127
 SOFT_PWM_MAX = 127
 
-# PID (reference section 1).
+# PID (Marlin 2.1.x Marlin/src/module/temperature.h PID_t::get_pid_output()).
 PID_MAX = 255
 BANG_MAX = 255
 MAX_BED_POWER = 255
@@ -30,17 +30,17 @@ PID_K1 = Fraction(95, 100)
 DEFAULT_KP, DEFAULT_KI, DEFAULT_KD = 22.20, 1.08, 114.00
 DEFAULT_BED_KP, DEFAULT_BED_KI, DEFAULT_BED_KD = 10.00, 0.023, 305.4
 
-# Bang-bang bed (reference section 2).
+# Bang-bang bed (Marlin 2.1.x Marlin/src/module/temperature.cpp manage_heated_bed()).
 BED_CHECK_INTERVAL_MS = 5000
 BED_HYSTERESIS_C = 2
 
-# Temperature limits (reference section 4).
+# Temperature limits (Marlin 2.1.x Marlin/src/module/temperature.cpp tr_state_machine_t, HeaterWatch, _temp_error()).
 HEATER_0_MINTEMP_C, HEATER_0_MAXTEMP_C = 5, 275
 BED_MINTEMP_C, BED_MAXTEMP_C = 5, 150
 HOTEND_OVERSHOOT_C = 15
 BED_OVERSHOOT_C = 10
 
-# Thermal protection (reference section 4).
+# Thermal protection (Marlin 2.1.x Marlin/src/module/temperature.cpp tr_state_machine_t, HeaterWatch, _temp_error()).
 THERMAL_PROTECTION_PERIOD_S, THERMAL_PROTECTION_HYSTERESIS_C = 40, 4
 WATCH_TEMP_PERIOD_S, WATCH_TEMP_INCREASE_C = 40, 2
 THERMAL_PROTECTION_BED_PERIOD_S, THERMAL_PROTECTION_BED_HYSTERESIS_C = 20, 2
@@ -48,7 +48,7 @@ WATCH_BED_TEMP_PERIOD_S, WATCH_BED_TEMP_INCREASE_C = 60, 2
 TEMP_HYSTERESIS_C = 3
 TEMP_BED_HYSTERESIS_C = 3
 
-# M303 (reference section 3).
+# M303 (Marlin 2.1.x Marlin/src/module/temperature.cpp Temperature::PID_autotune()).
 MAX_OVERSHOOT_PID_AUTOTUNE_C = 30
 MAX_CYCLE_TIME_PID_AUTOTUNE_MIN = 20
 PREHEAT_1_TEMP_HOTEND_C = 180

@@ -1,6 +1,6 @@
 """Marlin's hotend/bed PID law in integer fixed point, as an ATmega328 would run it.
 
-The law is Marlin 2.1's ``PID_t::get_pid_output`` (reference section 1): bang-bang outside
+The law is Marlin 2.1's ``PID_t::get_pid_output`` (Marlin 2.1.x Marlin/src/module/temperature.h PID_t::get_pid_output()): bang-bang outside
 +-PID_FUNCTIONAL_RANGE, a one-sided sum of errors clamped so ``Ki * i_sum <= PID_MAX``,
 derivative on measurement through the ``PID_K1 = 0.95`` filter, output 0..255. Gains come in user
 units (M301) and are scaled by ``PID_dT = 160/977 s`` as Marlin stores them.
@@ -32,6 +32,7 @@ from firmware_port.marlin.constants import (
     PID_K1,
     PID_MAX,
 )
+from firmware_port.marlin.versions import MarlinVersion
 from firmware_port.thermistor import TEMP_FRAC_BITS
 
 KP_FRAC_BITS = 12  # kp_q12: int32 Q.12, Kp in user units (Kp is not scaled by PID_dT)
@@ -79,8 +80,8 @@ class PidGains:
 HOTEND_GAINS = PidGains(DEFAULT_KP, DEFAULT_KI, DEFAULT_KD)
 BED_GAINS = PidGains(DEFAULT_BED_KP, DEFAULT_BED_KI, DEFAULT_BED_KD)
 
-PREV_TEMP_EVERY_SAMPLE = "2.0.x"  # Marlin 2.0.x: previous temperature updated on every call
-PREV_TEMP_IN_BAND = "2.1.x"  # Marlin 2.1.x: only in band, so re-entering the band kicks D
+PREV_TEMP_EVERY_SAMPLE = MarlinVersion.V2_0  # Marlin 2.0.x: previous temperature updated on every call
+PREV_TEMP_IN_BAND = MarlinVersion.V2_1  # Marlin 2.1.x: only in band, so re-entering the band kicks D
 
 
 def _scaled(value: float, scale: Fraction, frac_bits: int) -> int:

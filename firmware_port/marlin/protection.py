@@ -4,7 +4,7 @@ Sources (MarlinFirmware/Marlin bugfix-2.1.x): module/temperature.h (HeaterWatch,
 tr_state_machine_t, setTargetHotend/Bed), module/temperature.cpp (tr_state_machine_t::run,
 manage_hotends, manage_heated_bed, updateTemperaturesFromRawValues, init, _temp_error,
 loud_kill), MarlinCore.cpp (kill, minkill, M112_KILL_STR), core/language.h (STR_*),
-lcd/language/language_en.h (MSG_*). Paraphrased in ../shared/reference/marlin_heater.md, section 4.
+lcd/language/language_en.h (MSG_*).
 
 Marlin checks, on each fresh sample, in this order:
 1. updateTemperaturesFromRawValues: hotend raw MAXTEMP, raw MINTEMP (if the heater is on),
@@ -19,7 +19,7 @@ Units: temperatures are celsius_q5 (1/32 degC), targets celsius_t whole degrees,
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import Enum, StrEnum
 
 from firmware_port.fixed import c_div, wrap_s32, wrap_u32
 from firmware_port.marlin.constants import (
@@ -40,10 +40,11 @@ from firmware_port.marlin.constants import (
     WATCH_TEMP_INCREASE_C,
     WATCH_TEMP_PERIOD_S,
 )
+from firmware_port.marlin.versions import DEFAULT_VERSION, MarlinVersion
 from firmware_port.thermistor import TEMP_ONE, TempTable
 
 H_BED = -1  # heater id of the bed; hotends are 0, 1, ... (Marlin's heater_id_t)
-VERSIONS = ("2.1", "2.0")  # "2.1" is the default everywhere
+VERSIONS = (MarlinVersion.V2_1, MarlinVersion.V2_0)  # 2.1 is the default everywhere
 
 
 def time_pending(now_ms: int, deadline_ms: int) -> bool:
@@ -178,7 +179,7 @@ class HeaterWatch:
         return True
 
 
-def heater_on(target_c: int, soft_pwm_amount: int = 0, *, version: str = "2.1") -> bool:
+def heater_on(target_c: int, soft_pwm_amount: int = 0, *, version: str = DEFAULT_VERSION) -> bool:
     """Whether the hotend MINTEMP check applies.
 
     2.1.x: `target > 0`. 2.0.x also counted a PID hotend still driving its heater
@@ -186,7 +187,7 @@ def heater_on(target_c: int, soft_pwm_amount: int = 0, *, version: str = "2.1") 
     Preheating (PREHEAT_TIME_HOTEND_MS, 0 by default) is not modelled.
     """
     _check_version(version)
-    return target_c > 0 or (version == "2.0" and soft_pwm_amount > 0)
+    return target_c > 0 or (version == MarlinVersion.V2_0 and soft_pwm_amount > 0)
 
 
 class TempRange:
@@ -245,7 +246,7 @@ class TempRange:
         return min(target_c, self.max_target_c)
 
 
-class TempError(str, Enum):
+class TempError(StrEnum):
     """The temperature errors, valued by their serial text (core/language.h STR_T_*)."""
 
     THERMAL_RUNAWAY = "Thermal Runaway"
@@ -270,18 +271,18 @@ def _check_version(version: str) -> None:
         raise ValueError(f"unknown Marlin version {version!r}; expected one of {VERSIONS}")
 
 
-def kill_text(lcd_msg: str | None, *, version: str = "2.1") -> str:
+def kill_text(lcd_msg: str | None, *, version: str = DEFAULT_VERSION) -> str:
     """What kill() prints on a board with no display, before minkill() halts it silently.
 
     2.1.x echoes the LCD message to serial whether or not a display exists; 2.0.x (before
     2.0.9) printed only the halted line. ACTION_ON_KILL is off by default, so no //action:kill.
     """
     _check_version(version)
-    echo = f"echo:{lcd_msg}\n" if lcd_msg is not None and version == "2.1" else ""
+    echo = f"echo:{lcd_msg}\n" if lcd_msg is not None and version == MarlinVersion.V2_1 else ""
     return f"{echo}Error:{STR_ERR_KILLED}\n"
 
 
-def temp_error_text(kind: TempError | str, heater_id: int, *, version: str = "2.1") -> str:
+def temp_error_text(kind: TempError | str, heater_id: int, *, version: str = DEFAULT_VERSION) -> str:
     """The serial text of _temp_error then loud_kill -> kill, for hotend heater_id >= 0 or H_BED.
 
     2.1.x names a hotend `E<n>` with SERIAL_ECHOLNPGM and then adds SERIAL_EOL, so a blank
@@ -293,7 +294,7 @@ def temp_error_text(kind: TempError | str, heater_id: int, *, version: str = "2.
         heater = "bed\n"
     elif heater_id < 0:
         raise ValueError(f"heater_id must be a hotend index >= 0 or H_BED, not {heater_id}")
-    elif version == "2.1":
+    elif version == MarlinVersion.V2_1:
         heater = f"E{heater_id}\n\n"
     else:
         heater = f"{heater_id}\n"
@@ -301,6 +302,6 @@ def temp_error_text(kind: TempError | str, heater_id: int, *, version: str = "2.
     return error + kill_text(_LCD_TEXT[kind], version=version)
 
 
-def m112_text(*, version: str = "2.1") -> str:
+def m112_text(*, version: str = DEFAULT_VERSION) -> str:
     """M112 (emergency stop): kill(M112_KILL_STR)."""
     return kill_text(M112_KILL_STR, version=version)

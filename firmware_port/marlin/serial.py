@@ -2,18 +2,27 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 _F32 = np.float32
+PRINT_FLOAT_MAX = 4294967040.0  # Print::printFloat's "ovf" bound ("determined empirically" there)
 
 
-def format_float(value: float, digits: int = 2) -> str:
+def format_float(value: float | np.floating, digits: int = 2) -> str:
     """Arduino ``Print::printFloat`` in float32 (avr-gcc's double), as Marlin's SERIAL_ECHO prints.
 
     The rounding constant 0.5/10**digits is added in float32, the integer part printed, then each
     digit taken from the float32 remainder; this is not always Python's round-half-even.
     """
     number = _F32(value)
+    if np.isnan(number):
+        return "nan"
+    if np.isinf(number):
+        return "inf"
+    if abs(number) > PRINT_FLOAT_MAX:  # Arduino's guard: the integer part is an unsigned long
+        return "ovf"
     out = ""
     if number < 0:
         out = "-"
@@ -44,7 +53,7 @@ class Console:
 
     def __init__(self) -> None:
         self.text = ""
-        self.listeners = []  # callables(text) told of every write (the twin's trace, a transport)
+        self.listeners: list[Callable[[str], None]] = []  # callables(text) told of every write (the twin's trace, a transport)
 
     def write(self, text: str) -> None:
         self.text += text

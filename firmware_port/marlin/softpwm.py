@@ -1,4 +1,4 @@
-"""Marlin's software PWM for heaters (reference section 6), SOFT_PWM_SCALE 0, no dither.
+"""Marlin's software PWM for heaters (Marlin 2.1.x Marlin/src/module/temperature.cpp Temperature::isr() SoftPWM), SOFT_PWM_SCALE 0, no dither.
 
 Heaters are always driven by digital writes in the temperature ISR: a 7-bit counter runs
 0..126 (one period = 127 ISRs = 130 ms); at the wrap each channel latches its amount and goes

@@ -5,11 +5,15 @@
     port = serial.serial_for_url("twin://?firmware=pid&speed=max", timeout=2)
 
 Query parameters (all optional): firmware, plant, bed_plant (``none``: a hotend-only board),
-scenario (preset name or TOML file), speed (``max``, the default, or N x real time), settings
-(the EEPROM file M500 writes), ok_after_resend (``1``/``0``). The virtual clock advances when
-the caller reads or asks for ``in_waiting``: at speed N to N x the wall time since the port
-opened; at ``max`` by up to a virtual second of an executing command each time the received
-output has run out. Asserting DTR again (``port.dtr = False; port.dtr = True``) resets the board.
+scenario (preset name or TOML file), speed (the clock while a command executes: ``max``, the
+default, or N x real time), idle_speed (the clock while the printer waits for the host: N x real
+time, 1 by default under ``speed=max``; 0 stops it, the deterministic host-driven clock), settings
+(the EEPROM file M500 writes), ok_after_resend (``1``, the default, or ``0``). The virtual clock
+advances when the caller reads, writes or asks for ``in_waiting`` (see ``transport.Pacer``); at
+``max`` a command runs up to a virtual second each time the received output has run out.
+Output the caller leaves unread beyond HOST_BUFFER_BYTES stalls the printer's main loop as a
+full TX buffer stalls Marlin. Asserting DTR again (``port.dtr = False; port.dtr = True``) resets
+the board.
 """
 
 from __future__ import annotations
@@ -19,9 +23,9 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout, to_bytes
 
-from protocol.transport import MAX, Pacer, build_printer, parse_speed
+from protocol.transport import HOST_BUFFER_BYTES, Pacer, build_printer, parse_idle_speed, parse_speed
 
-PARAMETERS = ("firmware", "plant", "bed_plant", "scenario", "speed", "settings", "ok_after_resend")
+PARAMETERS = ("firmware", "plant", "bed_plant", "scenario", "speed", "idle_speed", "settings", "ok_after_resend")
 FLAGS = {"": True, "1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}
 URL_FORM = "twin://?firmware=pid&speed=max (parameters: " + ", ".join(PARAMETERS) + ")"
 
@@ -51,8 +55,9 @@ class Serial(SerialBase):
             raise SerialException("Port is already open.")
         options = parse_url(self.portstr)
         try:
-            speed = parse_speed(options.get("speed", MAX))
-            ok_after_resend = FLAGS.get(options.get("ok_after_resend", "0").lower())
+            speed = parse_speed(options.get("speed", "max"))
+            idle_speed = parse_idle_speed(options["idle_speed"]) if "idle_speed" in options else None
+            ok_after_resend = FLAGS.get(options.get("ok_after_resend", "1").lower())
             if ok_after_resend is None:
                 raise ValueError(f"ok_after_resend must be 1 or 0, not {options['ok_after_resend']!r}")
             bed_plant = options.get("bed_plant")
@@ -64,7 +69,7 @@ class Serial(SerialBase):
             )
         except ValueError as exc:
             raise SerialException(f"{self.portstr!r}: {exc}") from exc
-        self._pacer = Pacer(self.printer, speed)
+        self._pacer = Pacer(self.printer, speed, idle_speed)
         self._received = bytearray()  # the printer's output, not yet read
         self._dtr_asserted = self._dtr_state
         self.is_open = True
@@ -79,7 +84,7 @@ class Serial(SerialBase):
     @property
     def in_waiting(self) -> int:
         self._check_open()
-        if self._pacer.speed != MAX or not self._received:  # at max the clock waits for the reader
+        if not self._pacer.host_driven or not self._received:  # host-driven, the clock waits for the reader
             self._pump()
         return len(self._received)
 
@@ -91,7 +96,7 @@ class Serial(SerialBase):
             wait_s = self._pump()
             if len(self._received) >= size or timeout.expired():
                 break
-            if wait_s is None:  # idle at speed max: nothing comes until the host writes
+            if wait_s is None:  # host-driven and idle: nothing comes until the host writes
                 if timeout.is_infinite:
                     raise SerialException("twin:// read would wait forever: the printer is idle at speed "
                                           "max and waits for the host (set a read timeout)")
@@ -106,9 +111,9 @@ class Serial(SerialBase):
         """Hand the bytes to the printer (at speed N, once its clock has caught up)."""
         self._check_open()
         data = to_bytes(data)
-        if self._pacer.speed != MAX:
+        if not self._pacer.host_driven:
             self._pump()
-        self.printer.receive(data)
+        self.printer.receive(data, loop_running=len(self._received) < HOST_BUFFER_BYTES)
         return len(data)
 
     def reset_input_buffer(self) -> None:
@@ -162,10 +167,10 @@ class Serial(SerialBase):
     def _pump(self) -> float | None:
         """Let virtual time pass as the speed says, collect the output; return the pacer's wait.
 
-        Speed N catches up with the wall clock in full; max runs one step of a command at most.
+        A paced clock catches up with the wall clock in full; a free one runs one step at most.
         """
         wait_s = self._pacer.advance()
-        while wait_s == 0.0 and self._pacer.speed != MAX:
+        while wait_s == 0.0 and not self._pacer.runs_free:
             wait_s = self._pacer.advance()
         self._received += self.printer.take_output()
         return wait_s

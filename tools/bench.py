@@ -8,6 +8,15 @@
 - the same linear plant open loop on a PWM input: the engine's exact tick maps vs
   scipy.signal.lsim on the same 1.024 ms grid, time ratio and largest difference.
 
+``tune``: what a tuner pays for an evaluation, in one run:
+- a batch of 1000 hotend twins (the tuning plant) x 600 s, full ISR fidelity: the cost of one
+  600-s firmware-in-the-loop evaluation, against one evaluation of seed 000's idealised loop
+  (its second-order plant closed with a PID by scipy.signal, step over 50 s, 1000 points), and
+  their ratio; firmware control periods per second; memory per lane; the same batch on the
+  numpy lanes for comparison;
+- the wall time of a differential-evolution tune of the three gains (population 45, 100
+  generations, every population one batch) with a placeholder ITAE objective.
+
 ``protocol``: twin-serial ``--speed max`` in its own process, pyserial on its pty, as a host:
 - M105 round trip, wall milliseconds, median and 99th percentile;
 - numbered, checksummed G1 lines streamed with 1 and with BUFSIZE (4) lines awaiting their ok:
@@ -24,8 +33,11 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Callable
+from typing import TypeVar, cast
 
 import numpy as np
+import scipy.optimize
 import scipy.signal
 import serial
 
@@ -33,11 +45,15 @@ from firmware_port.marlin.constants import SOFT_PWM_PERIOD_TICKS, TICKS_PER_READ
 from firmware_port.marlin.pid import PidGains
 from protocol.lines import with_checksum
 from protocol.printer import BUFSIZE
+from twin import batch_kernel
 from twin.batch import BatchTwin
 from twin.build import build_twin
 from twin.linear import SENSOR, TICK_S
-from twin.plants import make_plant
+from twin.plants import SPECS, TransferFunction, make_plant
 from twin.scenario import PRESETS, with_overrides
+
+
+T = TypeVar("T")
 
 
 def _timed(fn) -> float:
@@ -105,6 +121,111 @@ def bench_open_loop(duration_s: float) -> list[str]:
         f"  engine {wall_engine:.3f} s, scipy.signal.lsim {wall_lsim:.3f} s, "
         f"lsim / engine {wall_lsim / wall_engine:.1f} x, largest difference {diff:.2e} C",
     ]
+
+
+TUNE_TARGET_C = 210
+TUNE_PRESET = "hotend_cartridge"  # linear without dead time, fitted to a real printer (twin/plants.py)
+TUNE_BOUNDS = [(1.0, 100.0), (0.01, 10.0), (1.0, 500.0)]  # Kp, Ki /s, Kd s on Marlin's 0..255 scale
+OVERSHOOT_LIMIT_C = 5.0
+OVERSHOOT_PENALTY = 1e7  # C s^2 per C beyond the limit: a 1 C excess outweighs a bad ITAE (~1e6 here)
+SEED000_HORIZON_S, SEED000_POINTS = 50.0, 1000
+# Seed 000's Nelder-Mead bounds for its PID on the 5 C/W second-order extruder.
+SEED000_BOUNDS = [(0.01, 10.0), (0.001, 1.0), (0.001, 1.0)]
+
+
+def itae_cost(batch: BatchTwin, target_c: float) -> np.ndarray:
+    """Per lane: ITAE of the measured temperature (C s^2, rectangle rule on the readings), plus
+    a large penalty per degree of overshoot beyond 5 C. A placeholder objective."""
+    t_s = batch.t_s
+    error_c = np.abs(batch.measured_c - target_c)
+    itae = (t_s * np.diff(t_s, prepend=0.0)) @ error_c
+    excess_c = np.maximum(batch.measured_c.max(axis=0) - target_c - OVERSHOOT_LIMIT_C, 0.0)
+    return itae + OVERSHOOT_PENALTY * excess_c
+
+
+def _timed_value(fn: Callable[[], T]) -> tuple[T, float, float]:
+    """fn's value, its wall time and this process's CPU time (what a busy machine inflates less)."""
+    start, start_cpu = time.perf_counter(), time.process_time()
+    value = fn()
+    return value, time.perf_counter() - start, time.process_time() - start_cpu
+
+
+def _heat_and_hold(plant, gains: list[PidGains], duration_s: float, kernel: str | None = None) -> BatchTwin:
+    batch = BatchTwin(plant, gains, kernel=kernel)
+    batch.schedule(0.0, lambda b: b.set_target(TUNE_TARGET_C))
+    batch.run_until(duration_s)
+    return batch
+
+
+def _random_gains(rng: np.random.Generator, bounds: list[tuple[float, float]], n: int) -> np.ndarray:
+    """(n, 3) gains drawn uniformly within bounds."""
+    lows, highs = np.array(bounds).T
+    return rng.uniform(lows, highs, (n, len(bounds)))
+
+
+def _seed000_evaluation(kp: float, ki: float, kd: float, t: np.ndarray) -> np.ndarray:
+    """Seed 000's loop: its second-order plant under a parallel PID, closed (CG / (1 + CG)), step."""
+    plant_num, plant_den = cast(TransferFunction, SPECS["seed000_second"]).polynomials()
+    pid_num, pid_den = [kd, kp, ki], [1.0, 0.0]
+    closed = scipy.signal.lti(np.polymul(pid_num, plant_num),
+                              np.polyadd(np.polymul(pid_den, plant_den), np.polymul(pid_num, plant_num)))
+    return scipy.signal.step(closed, T=t)[1]
+
+
+def bench_evaluation_cost(plant, n_lanes: int, duration_s: float, seed: int, n_seed000: int) -> list[str]:
+    """One 600-s evaluation in the batch against one seed-000 evaluation, measured in this run."""
+    rng = np.random.default_rng(seed)
+    gains = [PidGains(*map(float, g)) for g in _random_gains(rng, TUNE_BOUNDS, n_lanes)]
+    _heat_and_hold(plant, gains[:2], 1.0)  # loads the compiled kernel from numba's cache (or compiles it)
+    batch, wall_s, cpu_s = _timed_value(lambda: _heat_and_hold(plant, gains, duration_s))
+    wall_numpy_s = _timed(lambda: _heat_and_hold(plant, gains, duration_s, kernel="numpy"))
+    t = np.linspace(0.0, SEED000_HORIZON_S, SEED000_POINTS)
+    seed_gains = _random_gains(rng, SEED000_BOUNDS, n_seed000)
+    wall_seed000_s = _timed(lambda: [_seed000_evaluation(kp, ki, kd, t) for kp, ki, kd in seed_gains])
+    twin_ms, seed000_ms = wall_s / n_lanes * 1e3, wall_seed000_s / n_seed000 * 1e3
+    periods = n_lanes * len(batch.t_s)
+    return [
+        f"evaluation cost, {n_lanes} lanes of {plant.preset} x {duration_s:g} s, full ISR fidelity, random gains "
+        f"(seed {seed}), kernel {batch.kernel} ({batch_kernel.describe()}):",
+        f"  seed 000 comparison: {twin_ms:.3f} ms per {duration_s:g}-s firmware-in-the-loop evaluation in the batch, "
+        f"{seed000_ms:.3f} ms per seed-000 evaluation (scipy.signal.step, {SEED000_HORIZON_S:g} s, "
+        f"{SEED000_POINTS} points, mean of {n_seed000}): ratio {seed000_ms / twin_ms:.1f} x (target >= 10)",
+        f"  {periods / wall_s:,.0f} firmware control periods per second ({wall_s:.3f} s wall, {cpu_s:.3f} s CPU "
+        f"for the batch; "
+        f"numpy lanes {wall_numpy_s:.3f} s, {wall_numpy_s / wall_s:.1f} x slower)",
+        f"  memory per lane: {batch.bytes_per_lane() / 1024:.1f} KiB ({len(batch.t_s)} readings recorded: "
+        f"temperature and duty as int16, block and sensor as float64, plus state)",
+    ]
+
+
+def bench_de_tune(plant, duration_s: float, seed: int, popsize: int = 15, generations: int = 100) -> list[str]:
+    """scipy's differential evolution on the firmware twin, one batch per population."""
+    evaluations = []
+
+    def cost(params: np.ndarray) -> np.ndarray:
+        evaluations.append(params.shape[1])
+        batch = _heat_and_hold(plant, [PidGains(*map(float, g)) for g in params.T], duration_s)
+        return itae_cost(batch, TUNE_TARGET_C)
+
+    de, wall_s, cpu_s = _timed_value(lambda: scipy.optimize.differential_evolution(
+        cost, TUNE_BOUNDS, popsize=popsize, maxiter=generations, tol=0.0, polish=False, vectorized=True,
+        updating="deferred", rng=np.random.default_rng(seed)))
+    kp, ki, kd = de.x
+    best = _heat_and_hold(plant, [PidGains(kp, ki, kd)], duration_s)
+    overshoot_c = best.measured_c.max() - TUNE_TARGET_C
+    return [
+        f"DE tune of {plant.preset} (3 gains, population {popsize * len(TUNE_BOUNDS)}, {de.nit} generations, "
+        f"{sum(evaluations)} evaluations of {duration_s:g} s, seed {seed}): {wall_s:.3f} s wall (target < 5 s), "
+        f"{cpu_s:.3f} s CPU",
+        f"  best Kp {kp:.3f} Ki {ki:.4f} Kd {kd:.2f}: cost {de.fun:,.0f} C s^2 against {TUNE_TARGET_C} C, "
+        f"overshoot {overshoot_c:.2f} C",
+    ]
+
+
+def tune_plant():
+    """The tuning preset if it is linear without dead time (what a batch needs), else the default hotend."""
+    plant = make_plant(TUNE_PRESET)
+    return plant if plant.linear and not plant.delay_ticks else make_plant("hotend")
 
 
 SERIAL_CLI = [sys.executable, "-m", "tools.serial_cli", "--speed", "max"]
@@ -201,16 +322,20 @@ def bench_protocol(n_requests: int, n_lines: int) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=["twin", "protocol"], help="what to benchmark")
+    parser.add_argument("what", choices=["twin", "tune", "protocol"], help="what to benchmark")
     parser.add_argument("--duration", type=float, default=600.0, help="twin: virtual seconds (default 600)")
-    parser.add_argument("--lanes", type=int, default=1000, help="twin: batch lanes (default 1000)")
-    parser.add_argument("--seed", type=int, default=1, help="twin: seed of the batch's random gains (default 1)")
+    parser.add_argument("--lanes", type=int, default=1000, help="twin, tune: batch lanes (default 1000)")
+    parser.add_argument("--seed", type=int, default=1, help="twin, tune: seed of the random gains and of DE (default 1)")
     parser.add_argument("--requests", type=int, default=500, help="protocol: M105 round trips (default 500)")
     parser.add_argument("--lines", type=int, default=5000, help="protocol: G1 lines per stream (default 5000)")
     args = parser.parse_args(argv)
     if args.what == "twin":
         lines = bench_single(args.duration) + bench_batch(args.lanes, args.duration, args.seed)
         lines += bench_open_loop(args.duration)
+    elif args.what == "tune":
+        plant = tune_plant()
+        lines = bench_evaluation_cost(plant, args.lanes, args.duration, args.seed, n_seed000=200)
+        lines += bench_de_tune(plant, args.duration, args.seed)
     else:
         lines = [f"python -m tools.bench protocol --requests {args.requests} --lines {args.lines}"]
         lines += bench_protocol(args.requests, args.lines)

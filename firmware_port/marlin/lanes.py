@@ -33,6 +33,9 @@ from firmware_port.marlin.protection import HeaterWatch, RunawayMonitor, TempRan
 from firmware_port.thermistor import B3950_TABLE, TEMP_FRAC_BITS, TempTable
 
 INACTIVE, FIRST_HEATING, STABLE, RUNAWAY = 0, 1, 2, 3
+# What a lane died of: codes into TRIP_TEXTS (the TempError texts), 0 while it runs.
+MAXTEMP_TRIP, MINTEMP_TRIP, RUNAWAY_TRIP, WATCH_TRIP = 1, 2, 3, 4
+TRIP_TEXTS = ("", "MAXTEMP triggered", "MINTEMP triggered", "Thermal Runaway", "Heating failed")
 
 
 def shr_round(x: np.ndarray, n: int) -> np.ndarray:
@@ -122,12 +125,17 @@ class HotendLanes:
         self.target_c = 0
         self.temp_q5 = np.zeros(n, np.int64)
         self.halted = np.zeros(n, bool)
-        self.trip = np.full(n, "", dtype=object)  # the TempError text a lane died of
+        self.trip_code = np.zeros(n, np.int64)
         self.runaway_state = np.full(n, INACTIVE)
         self.runaway_c = 0
         self.runaway_timer_ms = np.zeros(n, np.int64)
         self.watch_target_c = np.zeros(n, np.int64)
         self.watch_next_ms = np.zeros(n, np.int64)
+
+    @property
+    def trip(self) -> np.ndarray:
+        """The TempError text each lane died of ("" while it runs)."""
+        return np.array(TRIP_TEXTS, dtype=object)[self.trip_code]
 
     @property
     def now_ms(self) -> int:
@@ -179,20 +187,20 @@ class HotendLanes:
         live = ~self.halted
         self.temp_q5 = np.where(live, lookup_q5(self.table, raw), self.temp_q5)
         limits, now, temp, target = self.temp_range, self.now_ms, self.temp_q5, self.target_c
-        self._trip(live & (raw < limits.raw_max), "MAXTEMP triggered")
-        self._trip(~self.halted & (target > 0) & (raw > limits.raw_min), "MINTEMP triggered")
-        self._trip(~self.halted & (temp > limits.maxtemp_c << TEMP_FRAC_BITS), "MAXTEMP triggered")
-        self._trip(~self.halted & self._runaway(temp, target, now), "Thermal Runaway")
+        self._trip(live & (raw < limits.raw_max), MAXTEMP_TRIP)
+        self._trip(~self.halted & (target > 0) & (raw > limits.raw_min), MINTEMP_TRIP)
+        self._trip(~self.halted & (temp > limits.maxtemp_c << TEMP_FRAC_BITS), MAXTEMP_TRIP)
+        self._trip(~self.halted & self._runaway(temp, target, now), RUNAWAY_TRIP)
         live = ~self.halted
         in_range = live & (temp > limits.mintemp_c << TEMP_FRAC_BITS) & (temp < limits.maxtemp_c << TEMP_FRAC_BITS)
         out_q8 = self.pid.update_q8(temp, target, in_range)
         self.amount = np.where(in_range, (out_q8 >> OUT_FRAC_BITS) >> 1, 0)
-        self._trip(~self.halted & self._heating_failed(temp, target, now), "Heating failed")
+        self._trip(~self.halted & self._heating_failed(temp, target, now), WATCH_TRIP)
 
-    def _trip(self, lanes: np.ndarray, kind: str) -> None:
+    def _trip(self, lanes: np.ndarray, code: int) -> None:
         """_temp_error on some lanes: heater off, board halted."""
         if lanes.any():
-            self.trip = np.where(lanes, kind, self.trip)
+            self.trip_code = np.where(lanes, code, self.trip_code)
             self.halted |= lanes
             self.amount = np.where(lanes, 0, self.amount)
             self.count = np.where(lanes, 0, self.count)

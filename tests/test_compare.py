@@ -93,3 +93,21 @@ def test_doc_compare_rejects_real_changes(changed):
 
 def test_doc_compare_counts_lines():
     assert compare_docs("a\nb", "a")
+
+
+@pytest.mark.parametrize("plot, says", [("missing_folder/replay.png", "does not exist"),
+                                        ("replay.xyz", "unknown plot format")])
+def test_twin_compare_bad_plot_path_fails_before_the_work(logs, tmp_path, capsys, plot, says):
+    """Checked by argparse before the log is even read: no traceback after 15 s of replay."""
+    with pytest.raises(SystemExit) as stop:
+        compare_cli.main([str(logs / CHES), "--plot", str(tmp_path / plot)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert says in err and "--plot" in err and len(err.strip().splitlines()) == 1
+    assert not list(tmp_path.iterdir())
+
+
+def test_twin_compare_help_has_examples(capsys):
+    with pytest.raises(SystemExit):
+        compare_cli.main(["--help"])
+    assert "examples:\n  twin-compare " in capsys.readouterr().out

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from tools import compare
+from tools.cli_args import OneLineParser, plot_path
 from tools.identify import NotFittable
 from tools.logs import HeattestLog, LogError, StatsLog, load_log
 
@@ -79,11 +80,23 @@ def _plot(file: str, traces) -> None:
     plt.close(fig)
 
 
+EXAMPLES = """examples:
+  twin-compare klippy_stats.csv                    closed-loop replay and PID_CALIBRATE cross-check
+  twin-compare klippy_stats.csv --plot replay.png  the same, with logged vs twin plotted
+  twin-compare heattest_200.csv                    the onionheater open-loop fan prediction
+"""
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = OneLineParser(prog="twin-compare", description=__doc__, epilog=EXAMPLES)
+    parser.add_argument("log", type=Path, metavar="LOG", help="the hardware log")
+    parser.add_argument("--plot", metavar="FILE", type=plot_path,
+                        help="write logged vs twin to FILE (png, pdf, svg, ...); its folder must exist")
+    return parser.parse_args(argv)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="twin-compare", description=__doc__.split("\n")[0])
-    parser.add_argument("log", type=Path)
-    parser.add_argument("--plot", metavar="FILE", help="write logged vs twin to FILE (png, pdf, svg)")
-    args = parser.parse_args(argv)
+    args = parse_args(argv)
     try:
         log = load_log(args.log)
         if isinstance(log, StatsLog):
@@ -98,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_UNUSABLE
     print(text)
     if args.plot:
-        _plot(args.plot, traces)
+        _plot(str(args.plot), traces)
         print(f"plot written to {args.plot}")
     return 0
 

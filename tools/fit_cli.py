@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 
+from tools.cli_args import OneLineParser, ranged_float
 from tools.identify import (
     CONTROL_DELAY_S,
     MODELS,
@@ -33,6 +34,7 @@ from tools.logs import MARLIN_POWER_MAX, HeattestLog, LogError, M303Log, PlainLo
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 BED = "heater_bed"
+HEATER_NAMES = ("extruder", BED)  # the heaters a log here can hold
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
 ASSUMED_POWER_W = {BED: BED_POWER_W}  # else MPC_HEATER_POWER_W; twin/plants.py says where both come from
 KINDS = {StatsLog: "Klipper Stats", HeattestLog: "Klipper heattest (open loop)", M303Log: "Marlin M303 console text",
@@ -43,18 +45,33 @@ ERRORS_NOTE = ("standard errors: from the Jacobian, for independent residuals; a
                "(model error, quantised readings), so take them as lower bounds")
 
 
+EXAMPLES = """examples:
+  twin-fit klippy.log                                   the extruder's heat-up, two_node (gives M306)
+  twin-fit klippy.log --heater heater_bed --power-w 250 the bed, with its real wattage
+  twin-fit heattest.csv --model three_node --ambient 21.4
+  twin-fit m303_capture.txt --ambient 24                an M303 console capture (relay trace)
+  twin-fit m303_bed.txt --heater heater_bed             a capture without its M303 E-1 line
+"""
+AMBIENT_RANGE_C = (-40.0, 100.0)  # a room, a heated enclosure: a wider value is a typo
+POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="twin-fit", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="twin-fit", description=__doc__, epilog=EXAMPLES)
     parser.add_argument("log", metavar="LOG", help="the log file")
     parser.add_argument("--model", choices=MODELS, default="two_node",
                         help="two_node (default: Marlin's MPC model, gives M306), three_node (plus the heater "
                              "cartridge), fopdt or sopdt (first/second order plus dead time)")
-    parser.add_argument("--heater", help="extruder or heater_bed (default: extruder, or the log's only heater)")
+    parser.add_argument("--heater", choices=HEATER_NAMES,
+                        help="extruder or heater_bed (default: extruder, or the log's only heater; for an M303 "
+                             "capture without its M303 line, which heater it tuned)")
     parser.add_argument("--session", type=int, help="only this session of a Klipper log (0-based, as listed)")
-    parser.add_argument("--segment", type=int, help="the segment to fit (as listed; default: see above)")
-    parser.add_argument("--ambient", type=float, help="ambient temperature in C (default: fitted, at most the "
-                        "segment's lowest reading)")
-    parser.add_argument("--power-w", type=float, help="heater power in W for two_node/three_node (default: assumed "
+    parser.add_argument("--segment", type=int, help="the segment to fit (as listed; default: the first with at "
+                        "least half the longest time at full power)")
+    parser.add_argument("--ambient", type=ranged_float(*AMBIENT_RANGE_C, "C"),
+                        help="ambient temperature in C (default: fitted, at most the segment's lowest reading)")
+    parser.add_argument("--power-w", type=ranged_float(*POWER_RANGE_W, "W"),
+                        help="heater power in W for two_node/three_node (default: assumed "
                         f"{MPC_HEATER_POWER_W:g} W for a hotend, {BED_POWER_W:g} W for a bed)")
     return parser.parse_args(argv)
 

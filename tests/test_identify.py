@@ -245,7 +245,7 @@ def test_twin_fit_marlin_m303_trace(capsys):
 
 @pytest.mark.parametrize("name, why", [
     ("m303_bed_artillery_genius_pro_S60_configs641.txt", ": not usable for fitting: Marlin autotune output with 8 "
-                                                          "relay cycles and 2 status lines.*no run of 20 or more"),
+                                                          "relay cycles and 2 status lines.*no run of 12 or more"),
     ("klipper_pid_calibrate_results_collection.txt", ": not usable for fitting: Klipper PID_CALIBRATE results"),
     ("README.md", ":3: not a log of a known kind"),
     ("rrf_m303_fopdt_models_prusa_mk3s_duet3.txt", r":\d+: RepRapFirmware heater model results"),

@@ -44,6 +44,9 @@ def test_autotune_cross_check_returns_tu(logs):
     r = compare.autotune_check(logs / CHES, "extruder")
     assert r.tu_log_s == pytest.approx(2 * 29.229 / 3.360)
     assert math.isfinite(r.tu_twin_s) and r.tu_twin_s > 0
+    assert all(math.isfinite(t) and t > 0 for t in r.tu_band_s)  # 180 and 240 C, both within max_temp
+    low, high = sorted(r.tu_band_s)
+    assert r.passed_in_band == (0.85 * low <= r.tu_log_s <= 1.15 * high)
 
 
 @pytest.mark.parametrize("name", ["m303_hotend_C1_degenerate_marlin6316.txt",

@@ -50,11 +50,11 @@ def compare_docs(new: str, old: str, rel_tol: float = REL_TOL, units: float = UN
     if len(new_lines) != len(old_lines):
         return [Mismatch(0, f"{len(new_lines)} lines against {len(old_lines)}")]
     out = []
-    for no, (a, b) in enumerate(zip(new_lines, old_lines), start=1):
+    for no, (a, b) in enumerate(zip(new_lines, old_lines, strict=True), start=1):
         if NUMBER_RE.sub("#", a) != NUMBER_RE.sub("#", b):
             out.append(Mismatch(no, f"text differs: {a!r} against {b!r}"))
             continue
-        for x, y in zip(NUMBER_RE.findall(a), NUMBER_RE.findall(b)):
+        for x, y in zip(NUMBER_RE.findall(a), NUMBER_RE.findall(b), strict=True):
             if not _close(x, y, rel_tol, units):
                 out.append(Mismatch(no, f"{x} against {y}"))
     return out

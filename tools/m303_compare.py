@@ -161,9 +161,18 @@ def m303_row(r: M303Comparison) -> str:
             f"{_gains(r.twin.gains)} | {verdict} |")
 
 
+UNDETERMINED_REL = 1.0  # a standard error beyond the value itself: the trace does not determine it
+
+
+def _spread(error: float, value: float) -> str:
+    """A relative standard error; beyond 100 % only that (its digits depend on the BLAS kernel)."""
+    rel = abs(error / value)
+    return "> 100 % (undetermined)" if rel > UNDETERMINED_REL else f"{100 * rel:.1f} %"
+
+
 def spread_note(r: M303Comparison) -> str:
     """How well the trace determines the fitted lags: each parameter's standard error relative to it."""
-    parts = [f"{name} {100 * r.fit.std_errors[name] / value:.0f} %" for name, value in r.fit.params.items()
+    parts = [f"{name} {_spread(r.fit.std_errors[name], value)}" for name, value in r.fit.params.items()
              if name not in ("initial_c", "ambient_c") and value and np.isfinite(r.fit.std_errors[name])]
     seen = int(np.sum(r.segment.observed)) if r.segment.observed is not None else len(r.segment.t_s)
     return (f"`{r.file}` ({r.fit.model} on {seen} compared status lines): relative standard errors "

@@ -245,7 +245,7 @@ def test_twin_fit_marlin_m303_trace(capsys):
 
 @pytest.mark.parametrize("name, why", [
     ("m303_bed_artillery_genius_pro_S60_configs641.txt", ": not usable for fitting: Marlin autotune output with 8 "
-                                                          "relay cycles and 2 status lines.*no run of 20 or more"),
+                                                          "relay cycles and 2 status lines.*no run of 12 or more"),
     ("klipper_pid_calibrate_results_collection.txt", ": not usable for fitting: Klipper PID_CALIBRATE results"),
     ("README.md", ":3: not a log of a known kind"),
     ("rrf_m303_fopdt_models_prusa_mk3s_duet3.txt", r":\d+: RepRapFirmware heater model results"),
@@ -266,3 +266,21 @@ def test_twin_fit_errors_name_file_and_line(capsys, tmp_path):
     assert code == 2 and err == f"twin-fit: error: {tmp_path / 'missing.csv'}: No such file or directory\n"
     code, _, err = twin_fit(capsys, str(hardware_logs_dir() / ONION), "--segment", "9")
     assert code == 2 and "--segment 9: the segments are 0..1" in err
+
+
+@pytest.mark.parametrize("flags, flag", [(["--heater", "chamber"], "--heater"), (["--ambient", "nan"], "--ambient"),
+                                         (["--ambient", "inf"], "--ambient"), (["--power-w", "-40"], "--power-w"),
+                                         (["--power-w", "nan"], "--power-w")])
+def test_twin_fit_bad_flag_one_line_naming_it(flags, flag, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([str(hardware_logs_dir() / ONION), *flags])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"twin-fit: error: argument {flag}:") and len(err.strip().splitlines()) == 1
+
+
+def test_twin_fit_help_has_examples(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert "examples:\n  twin-fit " in out and "see above" not in out

@@ -65,6 +65,9 @@ HOLD_S = 300.0  # a replay runs this long after the log first reaches target - 2
 
 FALLBACK_SENSOR = "Generic 3950"  # for a custom thermistor table the twin does not have (a B3950)
 CALIBRATION_TARGET_C = {"extruder": 200.0, "heater_bed": 60.0}  # not stated in any log here
+# No log states its calibration temperature: the twin's Tu is also given at the ends of the band
+# where printers are usually calibrated (PLA to PETG/ABS hotend temperatures, PLA to ABS beds).
+CALIBRATION_BAND_C = {"extruder": (180.0, 240.0), "heater_bed": (50.0, 100.0)}
 
 # The Stats printers (README A); (file, heater) pairs for the closed-loop and autotune checks.
 STATS_FILES = (
@@ -393,6 +396,7 @@ class AutotuneResult:
     p2p_log_c: float
     p2p_twin_c: float
     twin_gains: tuple[float, float, float]
+    tu_band_s: tuple[float, float] = (math.nan, math.nan)  # the twin's Tu at the CALIBRATION_BAND_C ends
 
     @property
     def tu_rel(self) -> float:
@@ -401,6 +405,12 @@ class AutotuneResult:
     @property
     def passed(self) -> bool:
         return _finite(self.tu_rel) and abs(self.tu_rel) <= GOAL_TU_REL
+
+    @property
+    def passed_in_band(self) -> bool:
+        """The log's Tu within 15 % of the range the twin's Tu spans at the band's two ends."""
+        ends = [t for t in self.tu_band_s if _finite(t)]
+        return bool(ends) and min(ends) * (1 - GOAL_TU_REL) <= self.tu_log_s <= max(ends) * (1 + GOAL_TU_REL)
 
 
 def autotune_check(path: str | Path, heater: str, fit: FitResult | None = None,
@@ -412,7 +422,23 @@ def autotune_check(path: str | Path, heater: str, fit: FitResult | None = None,
     info = heater_info(log, heater)
     if fit is None:
         fit, _, _ = fit_heater(log, heater, model)
-    target = CALIBRATION_TARGET_C[heater]
+    tu_s, p2p_c, gains = _pid_calibrate(fit, info, heater, CALIBRATION_TARGET_C[heater])
+    band = tuple(_band_tu(fit, info, heater, t) for t in CALIBRATION_BAND_C[heater])
+    p2p_log = 8.0 * info.max_power * 0.6 * 255.0 / (math.pi * info.kp)
+    return AutotuneResult(path.name, heater, CALIBRATION_TARGET_C[heater], 2.0 * info.kp / info.ki, tu_s, p2p_log,
+                          p2p_c, gains, band)  # type: ignore[arg-type]
+
+
+def _band_tu(fit: FitResult, info: HeaterInfo, heater: str, target: float) -> float:
+    """The twin's Tu at a band end; NaN where the heater cannot calibrate there (beyond its max_temp)."""
+    try:
+        return _pid_calibrate(fit, info, heater, target)[0]
+    except Unusable:
+        return math.nan
+
+
+def _pid_calibrate(fit: FitResult, info: HeaterInfo, heater: str, target: float):
+    """KlipperTwin.pid_calibrate on the fitted plant from ambient: (Tu, peak-to-peak, gains)."""
     ambient = fit.values["ambient_c"]
     plant = Plant(fit.model, fit.spec(), ambient, ambient)
     twin = KlipperTwin([make_setup(info, heater, plant)])
@@ -421,9 +447,7 @@ def autotune_check(path: str | Path, heater: str, fit: FitResult | None = None,
     except CommandError as error:  # e.g. verify_heater or the ADC range check stopped the twin
         why = f"; {twin.shutdown_message.splitlines()[0]}" if twin.shutdown_message else ""
         raise Unusable(f"PID_CALIBRATE at {target} C did not finish in the twin: {error}{why}") from None
-    p2p_log = 8.0 * info.max_power * 0.6 * 255.0 / (math.pi * info.kp)
-    return AutotuneResult(path.name, heater, target, 2.0 * info.kp / info.ki, result.tu_s, p2p_log,
-                          result.peak_to_peak_c, (result.kp, result.ki, result.kd))
+    return result.tu_s, result.peak_to_peak_c, (result.kp, result.ki, result.kd)
 
 
 # --- tables (markdown) -------------------------------------------------------------------------
@@ -455,10 +479,11 @@ def open_loop_table(r: OpenLoopResult) -> str:
     return "\n".join(lines)
 
 
-CLOSED_HEADER = ("| log | heater | fit segment | replayed heat-up | target (C) | heat-up to target-2 log / twin (s) "
+CLOSED_HEADER = ("| log | heater | fit segment | replayed heat-up | replay is | target (C) | heat-up to target-2 log / twin (s) "
                  "| error | overshoot log / twin (C) | hold RMSE twin-log (C) | steady pwm log / twin "
                  "| heat-up <= 10 % | overshoot <= 1.5 C | hold <= 1 C | notes |\n"
-                 "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+                 "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+CLOSED_COLUMNS = 15
 
 
 def closed_loop_row(r: ClosedLoopResult) -> str:
@@ -472,7 +497,8 @@ def closed_loop_row(r: ClosedLoopResult) -> str:
         notes.append(f"twin shut down: {r.shutdown}")
     if not _finite(r.twin.heatup_s):
         notes.append("twin never reaches target-2 C")
-    return (f"| `{r.file}` | {r.heater} | {r.fit_label} | {r.replay_label} | {r.target_c:g} | "
+    sample = "in-sample" if r.same_segment else "held-out"
+    return (f"| `{r.file}` | {r.heater} | {r.fit_label} | {r.replay_label} | {sample} | {r.target_c:g} | "
             f"{_f(r.log.heatup_s, '.1f')} / {_f(r.twin.heatup_s, '.1f')} | {_f(100 * r.heatup_rel, '+.1f')} % | "
             f"{_f(r.log.overshoot_c, '.1f')} / {_f(r.twin.overshoot_c, '.1f')} | {_f(r.hold_rmse_c)} | "
             f"{_f(r.log.steady_pwm, '.3f')} / {_f(r.twin.steady_pwm, '.3f')} | {_pm(c['heat-up'])} | "
@@ -484,12 +510,15 @@ def unusable_row(file: str, heater: str, why: str, columns: int) -> str:
 
 
 AUTOTUNE_HEADER = ("| log | heater | PID_CALIBRATE target (C) | Tu saved 2Kp/Ki (s) | Tu twin (s) | error "
-                   "| peak-to-peak saved / twin (C) | twin gains Kp / Ki / Kd | goal Tu within 15 % |\n"
-                   "|---|---|---|---|---|---|---|---|---|")
+                   "| peak-to-peak saved / twin (C) | twin gains Kp / Ki / Kd | goal Tu within 15 % "
+                   "| band (C) | Tu twin at band ends (s) | within 15 % in the band |\n"
+                   "|---|---|---|---|---|---|---|---|---|---|---|---|")
+AUTOTUNE_COLUMNS = 12
 
 
 def autotune_row(r: AutotuneResult) -> str:
     kp, ki, kd = r.twin_gains
     return (f"| `{r.file}` | {r.heater} | {r.target_c:g} (assumed) | {r.tu_log_s:.1f} | {r.tu_twin_s:.1f} | "
             f"{100 * r.tu_rel:+.1f} % | {r.p2p_log_c:.1f} / {r.p2p_twin_c:.1f} | {kp:.3f} / {ki:.3f} / {kd:.3f} | "
-            f"{_pm(r.passed)} |")
+            f"{_pm(r.passed)} | {'..'.join(f'{t:g}' for t in CALIBRATION_BAND_C[r.heater])} | "
+            f"{_f(r.tu_band_s[0], '.1f')} / {_f(r.tu_band_s[1], '.1f')} | {_pm(r.passed_in_band)} |")

@@ -15,6 +15,8 @@ import sys
 
 import numpy as np
 
+from tools.cli_args import OneLineParser, ranged_float
+from tools.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c
 from tools.identify import (
     CONTROL_DELAY_S,
     MODELS,
@@ -33,6 +35,7 @@ from tools.logs import MARLIN_POWER_MAX, HeattestLog, LogError, M303Log, PlainLo
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 BED = "heater_bed"
+HEATER_NAMES = ("extruder", BED)  # the heaters a log here can hold
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
 ASSUMED_POWER_W = {BED: BED_POWER_W}  # else MPC_HEATER_POWER_W; twin/plants.py says where both come from
 KINDS = {StatsLog: "Klipper Stats", HeattestLog: "Klipper heattest (open loop)", M303Log: "Marlin M303 console text",
@@ -43,18 +46,36 @@ ERRORS_NOTE = ("standard errors: from the Jacobian, for independent residuals; a
                "(model error, quantised readings), so take them as lower bounds")
 
 
+EXAMPLES = """examples:
+  twin-fit klippy.log                                   the extruder's heat-up, two_node (gives M306)
+  twin-fit klippy.log --heater heater_bed --power-w 250 the bed, with its real wattage
+  twin-fit heattest.csv --model three_node --ambient 21.4
+  twin-fit m303_capture.txt --ambient 24                an M303 console capture (relay trace)
+  twin-fit m303_bed.txt --heater heater_bed             a capture without its M303 E-1 line
+"""
+AMBIENT_RANGE_C = (-40.0, 100.0)  # a room, a heated enclosure: a wider value is a typo
+POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="twin-fit", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="twin-fit", description=__doc__, epilog=EXAMPLES)
     parser.add_argument("log", metavar="LOG", help="the log file")
-    parser.add_argument("--model", choices=MODELS, default="two_node",
-                        help="two_node (default: Marlin's MPC model, gives M306), three_node (plus the heater "
-                             "cartridge), fopdt or sopdt (first/second order plus dead time)")
-    parser.add_argument("--heater", help="extruder or heater_bed (default: extruder, or the log's only heater)")
+    parser.add_argument("--model", choices=MODELS,
+                        help="two_node (Marlin's MPC model, gives M306; the default), three_node (plus the heater "
+                             "cartridge: the default for an M303 capture, whose relay period needs the lag), fopdt or "
+                             "sopdt (first/second order plus dead time)")
+    parser.add_argument("--heater", choices=HEATER_NAMES,
+                        help="extruder or heater_bed (default: extruder, or the log's only heater; for an M303 "
+                             "capture without its M303 line, which heater it tuned)")
     parser.add_argument("--session", type=int, help="only this session of a Klipper log (0-based, as listed)")
-    parser.add_argument("--segment", type=int, help="the segment to fit (as listed; default: see above)")
-    parser.add_argument("--ambient", type=float, help="ambient temperature in C (default: fitted, at most the "
-                        "segment's lowest reading)")
-    parser.add_argument("--power-w", type=float, help="heater power in W for two_node/three_node (default: assumed "
+    parser.add_argument("--segment", type=int, help="the segment to fit (as listed; default: the first with at "
+                        "least half the longest time at full power)")
+    parser.add_argument("--ambient", type=ranged_float(*AMBIENT_RANGE_C, "C"),
+                        help="ambient temperature in C (default: fitted, at most the segment's lowest reading; for "
+                             "an M303 capture, whose readings all sit near the target, the idle bed's reading or "
+                             f"{AMBIENT_PRIOR_C:g} C)")
+    parser.add_argument("--power-w", type=ranged_float(*POWER_RANGE_W, "W"),
+                        help="heater power in W for two_node/three_node (default: assumed "
                         f"{MPC_HEATER_POWER_W:g} W for a hotend, {BED_POWER_W:g} W for a bed)")
     return parser.parse_args(argv)
 
@@ -115,12 +136,18 @@ def run(args: argparse.Namespace) -> int:
     for i, seg in enumerate(segments):
         print(f"  {'*' if i == chosen else ' '}{i:3d}  {seg.label}, {len(seg.t_s)} samples: {seg.note}")
     seg = segments[chosen]
+    model = args.model or ("three_node" if isinstance(log, M303Log) else "two_node")
     power_w = args.power_w
-    if args.model in ("two_node", "three_node") and power_w is None:
+    if model in ("two_node", "three_node") and power_w is None:
         power_w = ASSUMED_POWER_W.get(heater, MPC_HEATER_POWER_W)
-    result = fit_model(args.model, seg.t_s, seg.temp_c, seg.duty, args.ambient, power_w=power_w)
-    print(f"fit: {args.model} on segment {chosen}" + (f", power_w {power_w:g} W assumed (the log fixes P/C and P/A,"
-                                                      " not the wattage)" if args.power_w is None and power_w else ""))
+    ambient_c = args.ambient
+    if ambient_c is None and isinstance(log, M303Log):
+        ambient_c = ambient_hint_c(log)
+        print(f"ambient {ambient_c:g} C: {'the idle heater reads it' if log.idle_readings_c else 'a room, assumed'}"
+              " (a relay trace near its target cannot tell; --ambient sets it)")
+    result = fit_model(model, seg.t_s, seg.temp_c, seg.duty, ambient_c, power_w=power_w, observed=seg.observed)
+    print(f"fit: {model} on segment {chosen}" + (f", power_w {power_w:g} W assumed (the log fixes P/C and P/A,"
+                                                 " not the wattage)" if args.power_w is None and power_w else ""))
     print("\n".join(_param_lines(result)))
     print(f"  RMSE {result.rmse_c:.2f} C, max |residual| {result.max_abs_residual_c:.2f} C"
           f" over {result.n_samples} samples")

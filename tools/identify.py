@@ -45,6 +45,7 @@ import scipy.optimize
 
 from firmware_port.klipper.heater import PID_PARAM_BASE
 from tools.logs import HeaterSeries, HeattestLog, Log, M303Log, PlainLog, StatsLog
+from tools.relay_trace import command_target_c, estimate_target_c, switch_instants
 from twin.linear import SENSOR, TICK_S, TickModel
 from twin.plants import (
     MPC_HEATER_POWER_W,
@@ -86,6 +87,7 @@ SATURATION_TOL = 0.0005  # Klipper prints pwm with 3 decimals: at max_power with
 MIN_HEATUP_S = 10.0  # a run at max_power this long starts a heat-up (shorter ones are PID bumps)
 HOLD_AFTER_S = 300.0  # a segment ends this long after its heat-up (or its start): the hold, before a print's load
 MIN_SAMPLES = 20
+M303_MIN_SAMPLES = 12  # a relay trace: three 10 s cycles of 2 s status lines at least
 M303_STATUS_PERIOD_S = 2.0  # Marlin reports every 2 s during M303 (hardware_logs README D)
 M303_MAX_LINE_STEP = 7  # bias, Ku/Tu, rule and Kp/Ki/Kd lines between two reports; more: a gap
 MAX_GUESS_DELAY_S = 60.0  # the start values try dead times up to this
@@ -121,6 +123,8 @@ class Segment(NamedTuple):
     note: str = ""  # what the input is: open loop, closed loop, relay
     full_power_s: float = 0.0  # time at max_power: the open-loop part
     cools_at_full_power: bool = False  # the reading fell while at max_power: the heater did not heat
+    observed: np.ndarray | None = None  # False at inserted samples (relay switch instants): not compared
+    target_c: float = math.nan  # an M303 relay's target
 
 
 def default_segment(segments: Sequence[Segment]) -> int:
@@ -347,7 +351,8 @@ def _start_values(model: str, guess: Fopdt, held: dict[str, float]) -> dict[str,
 
 
 def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, power_w: float | None = None,
-              fixed: dict[str, float] | None = None, start: dict[str, float] | None = None) -> FitResult:
+              fixed: dict[str, float] | None = None, start: dict[str, float] | None = None,
+              observed: np.ndarray | None = None) -> FitResult:
     """Fit a model to one segment: readings temp_c at t_s under the duty (0..1) held from each sample.
 
     model: "fopdt" (gain_c, time_constant_s, delay_s), "sopdt" (two lags, lag1_s >= lag2_s),
@@ -357,7 +362,8 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
     at, near the first reading (one reading is noisy). ambient_c None: fitted too, within 30 C below
     the lowest reading and, give or take the readings' noise, not above it. power_w (lumped models,
     default 40 W) and other values in ``fixed`` are held; ``start`` overrides start values.
-    ValueError for an unusable series.
+    observed (bool per sample, default all): the samples whose readings are compared; the others
+    only carry a duty change (a relay's reconstructed switch instant). ValueError for an unusable series.
     """
     if model not in MODELS:
         raise ValueError(f"unknown model {model!r}; valid: {', '.join(MODELS)}")
@@ -373,13 +379,14 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
         held["ambient_c"] = float(ambient_c)
     # The start is the first reading and ambient at most the lowest (a heater cannot cool below it),
     # both give or take the readings' noise and resolution.
-    slack_c = AMBIENT_SLACK_SIGMAS * _noise_c(temp_c) + READING_STEP_C
+    seen = np.ones(len(t_s), bool) if observed is None else np.asarray(observed, bool)
+    slack_c = AMBIENT_SLACK_SIGMAS * _noise_c(temp_c[seen]) + READING_STEP_C
     ambient_start_c = float(ambient_c if ambient_c is not None else temp_c.min())
     guess = _first_order_guess(t_s, temp_c, duty, ambient_start_c)
     first = {**_start_values(model, guess, held), "initial_c": float(temp_c[0]),
              **({} if ambient_c is not None else {"ambient_c": ambient_start_c}), **(start or {})}
     first = {k: v for k, v in first.items() if k not in held}
-    est = least_squares_fit(lambda p: _response(model, {**held, **p}, t_s, duty) - temp_c, first,
+    est = least_squares_fit(lambda p: (_response(model, {**held, **p}, t_s, duty) - temp_c)[seen], first,
                             bounds={"ambient_c": (temp_c.min() - AMBIENT_BELOW_C, temp_c.min() + slack_c),
                                     "initial_c": (temp_c[0] - slack_c, temp_c[0] + slack_c),
                                     "delay_s": (0.0, math.inf),
@@ -389,6 +396,21 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
         for d in (params, std):
             d["lag1_s"], d["lag2_s"] = d["lag2_s"], d["lag1_s"]
     return FitResult(model, params, std, held, est.residuals_c)
+
+
+def aic(result: FitResult) -> float:
+    """Akaike's information criterion of a least-squares fit, n ln(SSE / n) + 2 k (Akaike 1974, "A new
+    look at the statistical model identification", IEEE TAC 19:716-723, for Gaussian residuals):
+    lower is better; a parameter must buy more than a factor e^(2/n) of the squared error."""
+    n, k = result.n_samples, len(result.params)
+    return float(n * math.log(max(float(np.sum(np.square(result.residuals_c))), 1e-300) / n) + 2 * k)
+
+
+def best_fit(models: Sequence[str], seg: Segment, ambient_c: float | None, power_w: float | None) -> FitResult:
+    """The model of lowest AIC among ``models`` fitted to one segment (power_w for the lumped ones)."""
+    fits = [fit_model(m, seg.t_s, seg.temp_c, seg.duty, ambient_c, observed=seg.observed,
+                      power_w=power_w if m in ("two_node", "three_node") else None) for m in models]
+    return min(fits, key=aic)
 
 
 # --- quick estimates and tuning ------------------------------------------------------------------
@@ -558,6 +580,27 @@ def _stats_segments(log: StatsLog, heater: str | None, session: int | None) -> t
     return heater, segments
 
 
+def _relay_segment(log: M303Log, run: list, heater_key: str) -> Segment:
+    """A run of status lines as a Segment, 2 s apart, the relay's switches reconstructed (tools/relay_trace.py)."""
+    t_s = M303_STATUS_PERIOD_S * np.arange(len(run))
+    temp_c = np.array([s.temp_c for s in run])
+    duty = np.array([s.power for s in run]) / log.power_max
+    target_c = command_target_c(log, heater_key, run[0].line_no)
+    how = "from the M303 command"
+    if target_c is None:
+        target_c, how = estimate_target_c(temp_c, duty > duty.min()), "estimated from the switches"
+    seg = _segment(f"lines {run[0].line_no}..{run[-1].line_no}, ", t_s, temp_c, duty, 1.0, "relay levels",
+                   f"; {M303_STATUS_PERIOD_S:g} s per status line, which carry no time")
+    if target_c is None:
+        return seg
+    t_s, temp_c, duty, observed = switch_instants(t_s, temp_c, duty, target_c)
+    # Before the first switch the fit's start (every node at one temperature) is wrong mid-cycle: a
+    # burn-in, simulated but not compared.
+    observed[: int(np.argmin(observed))] = False
+    note = f"{seg.note}; relay target {target_c:g} C ({how}), switches put at its crossings, compared from the first"
+    return seg._replace(t_s=t_s, temp_c=temp_c, duty=duty, observed=observed, target_c=target_c, note=note)
+
+
 def _m303_segments(log: M303Log, heater: str | None) -> tuple[str, list[Segment]]:
     """Runs of a heater's 2 s status reports, cut where lines are missing; by default the
     extruder's, else the bed's."""
@@ -573,15 +616,11 @@ def _m303_segments(log: M303Log, heater: str | None) -> tuple[str, list[Segment]
             if s.line_no - prev > M303_MAX_LINE_STEP or np.any((cut_lines > prev) & (cut_lines < s.line_no)):
                 runs.append([])
             runs[-1].append(s)
-        segments = [_segment(f"lines {run[0].line_no}..{run[-1].line_no}, ",
-                             M303_STATUS_PERIOD_S * np.arange(len(run)), np.array([s.temp_c for s in run]),
-                             np.array([s.power for s in run]) / log.power_max, 1.0, "relay levels",
-                             f"; {M303_STATUS_PERIOD_S:g} s per status line, which carry no time")
-                    for run in runs if len(run) >= MIN_SAMPLES]
+        segments = [_relay_segment(log, run, keys[name]) for run in runs if len(run) >= M303_MIN_SAMPLES]
         if segments:
             return name, segments
     raise NotFittable(f"Marlin autotune output with {len(log.cycles)} relay cycles and {len(log.status)} status "
-                      f"lines{' of the ' + heater if heater else ''}: no run of {MIN_SAMPLES} or more status "
+                      f"lines{' of the ' + heater if heater else ''}: no run of {M303_MIN_SAMPLES} or more status "
                       "reports (T:/B: and @:) to fit")
 
 

@@ -197,6 +197,7 @@ class M303Log:
     power_max: int  # full scale of the status power field
     firmware_hints: list[str]
     skipped: list[tuple[int, str]] = field(default_factory=list)
+    idle_readings_c: list[float] = field(default_factory=list)  # the untuned heater's, where it has no target nor power
 
 
 @dataclass(frozen=True)
@@ -563,6 +564,18 @@ def _status_sample(path: str | Path, line_no: int, temps: dict[str, tuple[float,
                       heater)
 
 
+def _idle_reading(temps: dict[str, tuple[float, float]], text: str, heater: str) -> float | None:
+    """The other heater's reading on a status line showing both, if it has no target and no power
+    (a bed at rest reads about the room: an ambient for the fit)."""
+    other = "B" if heater == "T" else "T"
+    powers = dict(POWER_FIELD_RE.findall(text))
+    power = powers.get("B@" if other == "B" else "@")
+    if other not in temps or power != "0":
+        return None
+    reading_c, target_c = temps[other]
+    return reading_c if math.isnan(target_c) or target_c == 0 else None
+
+
 def parse_m303(path: str | Path) -> M303Log:
     """Marlin's M303 output as a host console shows it: bias/d/min/max lines (status text may follow
     on the same line), Ku/Tu (same or next line), the rule, Kp/Ki/Kd (one line or three), the
@@ -570,6 +583,7 @@ def parse_m303(path: str | Path) -> M303Log:
     report's shape). Repetier's output and M306 status traces read the same way."""
     lines = _data(path, _read_lines(path, cut_last_line_ok=True))  # pasted text: the status reader copes
     commands, cycles, status, skipped, hints = [], [], [], [], []
+    idle_c: list[float] = []
     defines: dict[str, float] = {}
     finished = False
     heater = "T"
@@ -620,6 +634,8 @@ def parse_m303(path: str | Path) -> M303Log:
                      for key, temp, target in TEMP_FIELD_RE.findall(rest)}
             if len(temps) == 1:
                 heater = next(iter(temps))
+            elif (reading := _idle_reading(temps, rest, heater)) is not None:
+                idle_c.append(reading)
             sample = _status_sample(path, no, temps, rest, heater)
             if sample is None:
                 skipped.append((no, INCOMPLETE_STATUS))
@@ -636,7 +652,7 @@ def parse_m303(path: str | Path) -> M303Log:
         final_gains = None
     power_max = REPETIER_POWER_MAX if any(h.startswith(REPETIER_HINT) for h in hints) else MARLIN_POWER_MAX
     rule = next((c.rule for c in reversed(cycles) if c.rule), None)
-    return M303Log(Path(path), commands, cycles, status, final_gains, rule, power_max, hints, skipped)
+    return M303Log(Path(path), commands, cycles, status, final_gains, rule, power_max, hints, skipped, idle_c)
 
 
 # --- Klipper PID_CALIBRATE results ---------------------------------------------------------------

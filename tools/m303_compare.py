@@ -1,0 +1,179 @@
+"""An M303 capture against the twin's own M303: fit a plant on the capture's relay trace, run
+Marlin's autotune (firmware_port/marlin/autotune.py) on it at the capture's target and cycles, and
+compare the relay period Tu, the swing max - min and the gains, twin against log.
+
+The plant: three_node, sopdt or fopdt, whichever has the lowest AIC (the relay period and swing are
+set by the lag between heater and sensor: a third node or a dead time; the two-node model has too
+little of it), fitted from the first reconstructed switch on, ambient from --ambient or the capture's idle heater (tools/relay_trace.py),
+switch instants reconstructed between the 2 s status lines, power assumed as twin-fit does.
+Compared: the mean of the log's printed Tu and max - min over its cycles that print Tu, against
+the mean over as many of the twin's last cycles (the settled relay; the twin starts from ambient).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from firmware_port.marlin.autotune import STR_CLASSIC_PID
+from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
+from tools.identify import FitResult, NotFittable, Segment, best_fit, log_segments
+from tools.logs import M303Cycle, M303Log, load_log, parse_m303
+from tools.relay_trace import ambient_hint_c
+from twin.engine import BOOT_S, Twin
+from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W, Plant, make_plant
+
+MODELS = ("three_node", "sopdt", "fopdt")  # a third node or a dead time; chosen by AIC
+DEFAULT_CYCLES = 5  # Marlin's M303 C default
+CYCLE_RE_KEY = {"extruder": "T", "heater_bed": "B"}
+MAX_RUN_S = 3600.0  # a twin M303 that has not finished by then will not (Marlin's own timeout is 20 min a cycle)
+GOAL_TU_REL = 0.10  # issue 14: the period within 10 %
+GOAL_SWING_REL = 0.25  # and the swing within 25 %
+MIN_FULL_CYCLES = 2
+CLASSIC_PID = STR_CLASSIC_PID.strip()  # judged where the capture prints at least this many cycles
+
+
+class NoRelay(ValueError):
+    """A capture without a relay trace to fit or without printed cycles to compare."""
+
+
+@dataclass(frozen=True)
+class RelayStats:
+    """Mean Tu and swing over some relay cycles, and the last cycle's gains."""
+
+    cycles: int
+    tu_s: float
+    swing_c: float
+    gains: tuple[float, float, float] | None
+
+
+@dataclass(frozen=True)
+class M303Comparison:
+    file: str
+    heater: str
+    target_c: float
+    ncycles: int
+    ambient_c: float
+    segment: Segment
+    fit: FitResult
+    log: RelayStats
+    twin: RelayStats
+
+    @property
+    def tu_rel(self) -> float:
+        return (self.twin.tu_s - self.log.tu_s) / self.log.tu_s
+
+    @property
+    def swing_rel(self) -> float:
+        return (self.twin.swing_c - self.log.swing_c) / self.log.swing_c
+
+    @property
+    def judged(self) -> bool:
+        return self.log.cycles >= MIN_FULL_CYCLES
+
+    @property
+    def passed(self) -> bool:
+        return abs(self.tu_rel) <= GOAL_TU_REL and abs(self.swing_rel) <= GOAL_SWING_REL
+
+
+def relay_stats(cycles: list[M303Cycle], last: int | None = None) -> RelayStats:
+    """Mean Tu and max - min over the cycles that print Tu (the last ``last`` of them)."""
+    full = [c for c in cycles if c.tu_s and c.min_c is not None and c.max_c is not None]
+    if last is not None:
+        full = full[-last:]
+    if not full:
+        raise NoRelay("no relay cycle prints its Tu")
+    gains = next(((c.kp, c.ki, c.kd) for c in reversed(full) if None not in (c.kp, c.ki, c.kd)), None)
+    return RelayStats(len(full), float(np.mean([c.tu_s for c in full])),
+                      float(np.mean([c.max_c - c.min_c for c in full])), gains)  # type: ignore[arg-type, operator]
+
+
+def _relay_segment(segments: list[Segment]) -> Segment:
+    """The segment with the most reconstructed switches (the relay, not the heat-up before it)."""
+    switches = [0 if s.observed is None else int(np.sum(~s.observed)) for s in segments]
+    if not max(switches):
+        raise NoRelay("no status run in the capture switches the relay")
+    return segments[int(np.argmax(switches))]
+
+
+def run_twin_m303(fit: FitResult, heater: str, ambient_c: float, target_c: float, ncycles: int,
+                  version: str = "2.1") -> M303Log:
+    """The twin's M303 (Marlin ``version``) on the fitted plant from ambient: its console output,
+    read back as a capture."""
+    plant = Plant(fit.model, fit.spec(), ambient_c, ambient_c)
+    other = make_plant("bed" if heater == "extruder" else "hotend", ambient_c=ambient_c)
+    plants = [plant, other] if heater == "extruder" else [other, plant]
+    twin = Twin(plants)
+    twin.set_ambient(ambient_c)
+    twin.boot(BOOT_S)
+    channel = HOTEND_CHANNEL if heater == "extruder" else BED_CHANNEL
+    twin.board.start_autotune(channel, int(round(target_c)), ncycles, version=version)
+    while twin.board.autotune is not None and twin.time_s < MAX_RUN_S:
+        twin.run_until(twin.time_s + 10.0)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "twin_m303.txt"
+        path.write_text(twin.console.text)
+        return parse_m303(path)
+
+
+def m303_check(path: str | Path, heater: str | None = None, ambient_c: float | None = None) -> M303Comparison:
+    """Fit the capture's relay trace, run the twin's M303 at its target, compare Tu and swing."""
+    path = Path(path)
+    log = load_log(path)
+    if not isinstance(log, M303Log):
+        raise NoRelay("not an M303 capture")
+    try:
+        heater, segments = log_segments(log, heater)
+    except NotFittable as error:
+        raise NoRelay(str(error)) from None
+    seg = _relay_segment(segments)
+    ambient = ambient_hint_c(log) if ambient_c is None else ambient_c
+    power_w = BED_POWER_W if heater == "heater_bed" else MPC_HEATER_POWER_W
+    fit = best_fit(MODELS, seg, ambient, power_w)
+    logged = relay_stats([c for c in log.cycles if c.heater == CYCLE_RE_KEY[heater]])
+    command_cycles = [int(c.split("C")[1].split()[0]) for _, c in log.commands if " C" in c]
+    ncycles = max(command_cycles[-1] if command_cycles else DEFAULT_CYCLES, logged.cycles + 2)
+    # A bed tuned by the "Classic PID" rule: Marlin 1.1 or Prusa's firmware, not 2.x's "No overshoot"
+    version = "1.1" if heater == "heater_bed" and log.rule == CLASSIC_PID else "2.1"
+    twin_log = run_twin_m303(fit, heater, ambient, seg.target_c, ncycles, version)
+    twin = relay_stats([c for c in twin_log.cycles], last=logged.cycles)
+    return M303Comparison(path.name, heater, seg.target_c, ncycles, ambient, seg, fit, logged, twin)
+
+
+M303_HEADER = ("| log | heater | target (C) | ambient (C) | model (by AIC), fit RMSE (C) | cycles log / twin | Tu log / twin (s) | error "
+               "| swing max-min log / twin (C) | error | gains Kp/Ki/Kd log | gains Kp/Ki/Kd twin | Tu <= 10 %, swing <= 25 % |\n"
+               "|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+M303_COLUMNS = 13
+
+
+def _gains(g: tuple[float, float, float] | None) -> str:
+    return "n/a" if g is None else " / ".join(f"{x:.2f}" for x in g)
+
+
+def m303_row(r: M303Comparison) -> str:
+    verdict = ("pass" if r.passed else "**miss**") if r.judged else f"not judged: {r.log.cycles} cycle printed"
+    return (f"| `{r.file}` | {r.heater} | {r.target_c:g} | {r.ambient_c:.1f} | {r.fit.model}, {r.fit.rmse_c:.2f} | "
+            f"{r.log.cycles} / {r.twin.cycles} | {r.log.tu_s:.2f} / {r.twin.tu_s:.2f} | {100 * r.tu_rel:+.1f} % | "
+            f"{r.log.swing_c:.2f} / {r.twin.swing_c:.2f} | {100 * r.swing_rel:+.1f} % | {_gains(r.log.gains)} | "
+            f"{_gains(r.twin.gains)} | {verdict} |")
+
+
+UNDETERMINED_REL = 1.0  # a standard error beyond the value itself: the trace does not determine it
+
+
+def _spread(error: float, value: float) -> str:
+    """A relative standard error; beyond 100 % only that (its digits depend on the BLAS kernel)."""
+    rel = abs(error / value)
+    return "> 100 % (undetermined)" if rel > UNDETERMINED_REL else f"{100 * rel:.1f} %"
+
+
+def spread_note(r: M303Comparison) -> str:
+    """How well the trace determines the fitted lags: each parameter's standard error relative to it."""
+    parts = [f"{name} {_spread(r.fit.std_errors[name], value)}" for name, value in r.fit.params.items()
+             if name not in ("initial_c", "ambient_c") and value and np.isfinite(r.fit.std_errors[name])]
+    seen = int(np.sum(r.segment.observed)) if r.segment.observed is not None else len(r.segment.t_s)
+    return (f"`{r.file}` ({r.fit.model} on {seen} compared status lines): relative standard errors "
+            + ", ".join(parts))

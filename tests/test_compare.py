@@ -1,4 +1,4 @@
-"""tools/compare.py, tools/compare_cli.py and tools/validation.py on the real hardware logs.
+"""tools/validation/compare.py, tools/cli/compare.py and tools/validation/doc.py on the real hardware logs.
 
 The logs come from hardware_logs_dir(): a missing folder fails these tests (never skips them).
 """
@@ -7,8 +7,10 @@ import math
 
 import pytest
 
-from tools import compare, compare_cli, validation
-from tools.doc_compare import compare_docs
+from tools.cli import compare as compare_cli
+from tools.validation import compare
+from tools.validation import doc as validation
+from tools.validation.doc_compare import compare_docs
 from tools.logs import hardware_logs_dir
 
 CHES = "klippy_stats_chesleavens_cartesian_stm32f103.csv"
@@ -64,10 +66,10 @@ def test_twin_compare_missing_file_exits_2(tmp_path, capsys):
 
 
 def test_validation_doc_is_up_to_date(logs):
-    """Verdicts, words and integers exactly, decimals within tools/doc_compare.py's tolerance: the
+    """Verdicts, words and integers exactly, decimals within tools/validation/doc_compare.py's tolerance: the
     fits' last bits depend on the BLAS kernel (OPENBLAS_CORETYPE), never the verdicts."""
     mismatches = compare_docs(validation.render(logs), validation.DOC.read_text())
-    assert not mismatches, ("docs/validation.md is stale (run python -m tools.validation):\n"
+    assert not mismatches, ("docs/validation.md is stale (run python -m tools.validation.doc):\n"
                             + "\n".join(map(str, mismatches)))
 
 

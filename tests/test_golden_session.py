@@ -1,13 +1,13 @@
 """The golden transcript: the scripted session must reproduce tests/golden/marlin_session.txt line by line."""
 
-from tools.golden import GOLDEN_PATH, record_session
+from tools.validation.golden import GOLDEN_PATH, record_session
 
 
 def test_session_matches_the_golden_transcript_line_by_line():
     expected = GOLDEN_PATH.read_text().splitlines()
     got = record_session()
     for number, (want, have) in enumerate(zip(expected, got), start=1):
-        assert have == want, f"line {number} differs (regenerate only on purpose: python -m tools.golden --write)"
+        assert have == want, f"line {number} differs (regenerate only on purpose: python -m tools.validation.golden --write)"
     assert len(got) == len(expected)
 
 

@@ -11,8 +11,8 @@ import pytest
 import scipy.optimize
 import scipy.signal
 
-from tools.fit_cli import main
-from tools.identify import (
+from tools.cli.fit import main
+from tools.ident.fit import (
     MIN_HEATUP_S,
     TWO_POINT_FRACTIONS,
     Fopdt,

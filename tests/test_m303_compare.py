@@ -1,14 +1,14 @@
-"""M303 captures: the relay trace made fit for identification (tools/relay_trace.py) and the twin's
-M303 against the capture (tools/m303_compare.py, twin-compare)."""
+"""M303 captures: the relay trace made fit for identification (tools/ident/relay_trace.py) and the twin's
+M303 against the capture (tools/validation/m303_compare.py, twin-compare)."""
 
 import numpy as np
 import pytest
 
-from tools import compare_cli
-from tools.identify import NotFittable, log_segments
+from tools.cli import compare as compare_cli
+from tools.ident.fit import NotFittable, log_segments
 from tools.logs import hardware_logs_dir, load_log
-from tools.m303_compare import GOAL_SWING_REL, GOAL_TU_REL, relay_stats
-from tools.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c, estimate_target_c, switch_instants
+from tools.validation.m303_compare import GOAL_SWING_REL, GOAL_TU_REL, relay_stats
+from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c, estimate_target_c, switch_instants
 
 ENDER = "m303_hotend_ender3v3se_creality_stock_navaismo16_partial.txt"
 PRUSA_BED = "m303_bed_and_hotend_octoprint_calibrationcompanion26_partial.txt"

@@ -7,7 +7,7 @@ import pytest
 import scipy.integrate
 import scipy.signal
 
-from tools.plant_check import (
+from tools.validation.plant_check import (
     BED_LOG,
     ONION_CUT_C,
     ONION_PULSE_END_S,

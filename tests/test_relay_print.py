@@ -1,4 +1,4 @@
-"""tools/relay_print.py: every Ku and gain line of the M303 captures follows from its own printed
+"""tools/validation/relay_print.py: every Ku and gain line of the M303 captures follows from its own printed
 d/min/max/Tu through Marlin's float32 formulas, within the print rounding; and a wrong number does not."""
 
 import dataclasses
@@ -6,7 +6,7 @@ import dataclasses
 import pytest
 
 from tools.logs import M303Cycle, hardware_logs_dir, load_log
-from tools.relay_print import check_cycle, check_log
+from tools.validation.relay_print import check_cycle, check_log
 
 M303_FILES = sorted(p.name for p in hardware_logs_dir().glob("m303_*.txt"))
 ENDER = M303Cycle(6, "T", 87, 87, 206.02, 214.37, 26.50, 10.58, 15.90, 3.01, 21.02, "Classic PID")  # its first line

@@ -4,7 +4,7 @@ import re
 
 import pytest
 
-from tools.sim import main
+from tools.cli.sim import main
 
 
 def run(capsys, *argv):

@@ -24,7 +24,7 @@ import protocol  # noqa: F401  registers twin://
 from protocol.transport import CATCH_UP_S, MAX, PACE_S, Pacer, build_printer, parse_speed
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-m", "tools.serial_cli"]
+CLI = [sys.executable, "-m", "tools.cli.serial"]
 START_TIMEOUT_S = 30  # interpreter start and imports on a loaded machine
 READ_TIMEOUT_S = 5
 M105_REPLY = re.compile(r"^ok T:\d+\.\d\d /0\.00 B:\d+\.\d\d /0\.00 @:0 B@:0$")

@@ -12,7 +12,7 @@ import pytest
 from distributed import Client, LocalCluster
 
 from tools.logs import DEFAULT_LOGS, LOGS_ENV
-from tools.tune_cli import main, parse_args, tune
+from tools.cli.tune import main, parse_args, tune
 from tools.tuning import table
 from tools.tuning.evaluate import preset_problem, rule_names
 

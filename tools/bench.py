@@ -228,7 +228,7 @@ def tune_plant():
     return plant if plant.linear and not plant.delay_ticks else make_plant("hotend")
 
 
-SERIAL_CLI = [sys.executable, "-m", "tools.serial_cli", "--speed", "max"]
+SERIAL_CLI = [sys.executable, "-m", "tools.cli.serial", "--speed", "max"]
 START_TIMEOUT_S = 30  # twin-serial's start: interpreter and imports
 REPLY_TIMEOUT_S = 30  # any one answer, M303 included
 

@@ -11,7 +11,7 @@ Two model families, one builder each:
 world's inputs (part fan, filament flow, ambient) and, for a radiating plant, relinearisation
 between runs. In every preset the heater input u is 0..1 of full power; what full power is in the
 source's own units is the preset's ``power_w`` or ``input_full_scale``. The numbers, their sources
-and their check against real logs (``python -m tools.plant_check``) are in docs/plants.md.
+and their check against real logs (``python -m tools.validation.plant_check``) are in docs/plants.md.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ FAN_STEPS = 255
 FLOW_DIGITS = 2
 
 # hotend_cartridge: fitted to the onionheater no-fan pulse (hardware_logs README section B,
-# heattest_200, first pulse 89.3..721.7 s, ambient 21.4 C) by `python -m tools.plant_check --fit`.
+# heattest_200, first pulse 89.3..721.7 s, ambient 21.4 C) by `python -m tools.validation.plant_check --fit`.
 # The log fixes ratios only, so the power is assumed and the cartridge's capacity estimated
 # (refits with 1..8 J/K reach the same RMSE); block, contact, sensor and loss are fitted.
 ONION_POWER_W = 40.0  # not stated by the author: Marlin's default
@@ -62,7 +62,7 @@ ONION_AMBIENT_XFER_W_K = 0.08613  # fitted
 ONION_FAN_XFER_W_K = 0.0958  # fitted
 
 # bed: fitted to the chesleavens heat-up (README section A, session 0, 660 s from the heater's
-# first line, the logged pwm replayed, ambient 25.2 C) by `python -m tools.plant_check --fit`.
+# first line, the logged pwm replayed, ambient 25.2 C) by `python -m tools.validation.plant_check --fit`.
 BED_POWER_W = 220.0  # assumed: a 24 V, 235 mm Ender-3-class bed (~2.6 ohm); the log fixes P/C and A/P
 BED_HEAT_CAPACITY_J_K = 566.5  # fitted
 BED_SENSOR_RESPONSIVENESS_PER_S = 0.2765  # fitted
@@ -71,7 +71,7 @@ BED_AREA_M2 = 2 * 0.235 * 0.235  # both faces, for the optional radiation
 
 # bed_mk3: seed 004's MK3 aluminium bed, "a 90-watt heater", duty capped at 220/255 on 24 V,
 # "about 10 minutes to reach 100 C". The loss is solved from that time (25 C ambient assumed) by
-# `python -m tools.plant_check --fit`; the sensor lag is the bed fit's.
+# `python -m tools.validation.plant_check --fit`; the sensor lag is the bed fit's.
 MK3_POWER_W = 90.0
 MK3_HEAT_CAPACITY_J_K = 333.0  # 214 x 214 x 3 mm aluminium: 371 g x 0.897 J/(g K)
 MK3_AMBIENT_XFER_W_K = 0.7785  # solved
@@ -312,11 +312,11 @@ PRESETS: dict[str, PresetInfo] = {
     "hotend_cartridge": PresetInfo(
         "hotend, three nodes (cartridge, block, sensor) fitted to a real pulse test and its overshoot after cut-off",
         _LUMPED_UNITS,
-        "onionheater heattest_200 no-fan pulse (hardware_logs README B), python -m tools.plant_check --fit"),
+        "onionheater heattest_200 no-fan pulse (hardware_logs README B), python -m tools.validation.plant_check --fit"),
     "bed": PresetInfo(
         "24 V 235 mm bed, 220 W assumed: 26 -> 65 C in about 2 min, 25 % duty at 60 C",
         _LUMPED_UNITS,
-        "chesleavens klippy Stats heat-up (hardware_logs README A), python -m tools.plant_check --fit"),
+        "chesleavens klippy Stats heat-up (hardware_logs README A), python -m tools.validation.plant_check --fit"),
     "bed_mk3": PresetInfo(
         "MK3 aluminium bed, 90 W: about 10 min to 100 C at duty 220/255",
         _LUMPED_UNITS,

@@ -35,7 +35,7 @@ import scipy.signal
 from firmware_port.klipper import CommandError
 from firmware_port.marlin.board import HOTEND_CHANNEL
 from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PidGains
-from tools.identify import CONTROL_DELAY_S
+from tools.ident.fit import CONTROL_DELAY_S
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of
 from tools.tuning.objectives import Run
@@ -451,7 +451,7 @@ class Candidate:
 
 def rule_gains(problem: Problem, names: list[str]) -> tuple[dict[str, Gains], dict[str, str]]:
     """Each named rule's gains for the problem's plant (tools/tuning/rules) as its linear model with
-    the loop's own delay added (tools/identify.py CONTROL_DELAY_S, as twin-fit tunes); and, for the
+    the loop's own delay added (tools/ident/fit.py CONTROL_DELAY_S, as twin-fit tunes); and, for the
     rules that give none on this model, why (a rule's ValueError)."""
     model = model_of(problem.spec).delayed(CONTROL_DELAY_S)
     gains, failures = {}, {}

@@ -1,7 +1,7 @@
 """One linear view of every plant the project has: heater duty (0..1) to sensor temperature.
 
 Lumped plants (twin/plants.py ``Lumped``, under given conditions), the seeds' transfer functions
-with their dead time (``TransferFunction``) and fitted models (tools/identify.py
+with their dead time (``TransferFunction``) and fitted models (tools/ident/fit.py
 ``FitResult.spec()``) all become a ``LinearModel``: the sensor row of their state-space model plus
 a dead time. From it: the frequency response G(jw) with the dead time, the static gain, the exact
 step response and a FOPDT equivalent for the FOPDT rules.
@@ -18,11 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-from tools.identify import Fopdt, two_point_fopdt
+from tools.ident.fit import Fopdt, two_point_fopdt
 from twin.linear import SENSOR, Lti, TickModel
 from twin.plants import Conditions, Lumped, Plant, Spec
 
-STEP_POINTS = 20000  # grid of the step response for the FOPDT equivalent (as tools/identify.py)
+STEP_POINTS = 20000  # grid of the step response for the FOPDT equivalent (as tools/ident/fit.py)
 NEGLIGIBLE = 1e-12  # a numerator coefficient this small against the largest is rounding: dropped
 SETTLE_TIME_CONSTANTS = 8.0  # the step response runs this many slowest time constants
 
@@ -81,7 +81,7 @@ class LinearModel:
         return self.delay_s + step_s * np.arange(n_steps + 1), y
 
     def fopdt(self) -> Fopdt:
-        """FOPDT equivalent: tools/identify.py's two-point method on the exact step response
+        """FOPDT equivalent: tools/ident/fit.py's two-point method on the exact step response
         (the same construction as ``identify.fopdt_equivalent``, for any model). Its dead time is
         at least the model's own: a lead (seed 003's zero) speeds the early rise so much that the
         two-point method reads a negative dead time, but nothing moves before the dead time."""

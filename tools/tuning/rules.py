@@ -1,6 +1,6 @@
 """Tuning rules as pure functions: a model in, ``Gains`` out, each with its formula's source.
 
-FOPDT rules take a ``Fopdt`` (tools/identify.py: gain_c in degC per unit heater duty, the time
+FOPDT rules take a ``Fopdt`` (tools/ident/fit.py: gain_c in degC per unit heater duty, the time
 constant, the dead time); ultimate-cycle rules an ``UltimatePoint`` (tools/tuning/ultimate.py: Ku
 in duty per degC, Tu). Standard-form settings Kp (1 + 1/(Ti s) + Td s) become parallel gains on the
 0..255 scale of Marlin's M301 and Klipper's pid_K* (tools/tuning/gains.py). ``RULES`` lists every
@@ -19,7 +19,7 @@ import numpy as np
 
 from firmware_port.klipper.pid_calibrate import zn_from_relay
 from firmware_port.marlin.autotune import pid_from_relay
-from tools.identify import Fopdt
+from tools.ident.fit import Fopdt
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import LinearModel
 from tools.tuning.msdi import msdi_gains
@@ -78,7 +78,7 @@ def amigo(fopdt: Fopdt) -> Gains:
     """AMIGO step-response rule, Astrom and Hagglund 2004 ("Revisiting the Ziegler-Nichols step
     response method for PID control", J. Process Control 14:635-650), eq. (10):
     Kp = (0.2 + 0.45 T / L) / K, Ti = L (0.4 L + 0.8 T) / (L + 0.1 T), Td = 0.5 L T / (0.3 L + T).
-    Supersedes tools/identify.py pid_gains (which adds the loop's delay first: do so on the FOPDT)."""
+    Supersedes tools/ident/fit.py pid_gains (which adds the loop's delay first: do so on the FOPDT)."""
     k, tau, delay = _check_fopdt(fopdt)
     return _standard((0.2 + 0.45 * tau / delay) / k, delay * (0.4 * delay + 0.8 * tau) / (delay + 0.1 * tau),
                      0.5 * delay * tau / (0.3 * delay + tau))

@@ -4,7 +4,7 @@ relay experiment on it.
 Ku is the proportional gain (heater duty per degC) at which the loop oscillates steadily, Tu the
 period. From the model: the phase crossover, arg G(jw_u) = -180 deg, Ku = 1 / |G(jw_u)|,
 Tu = 2 pi / w_u, for any model (lags, leads, complex poles, dead time), not only a FOPDT; this
-supersedes tools/identify.py ``ultimate_point``. From a relay (Astrom and Hagglund 1984,
+supersedes tools/ident/fit.py ``ultimate_point``. From a relay (Astrom and Hagglund 1984,
 "Automatic tuning of simple regulators with specifications on phase and amplitude margins",
 Automatica 20(5):645-651): a relay of amplitude d makes the loop oscillate with amplitude a near
 the crossover, and the describing function gives Ku ~ 4 d / (pi a).

@@ -1,4 +1,4 @@
-"""`python -m tools.plant_check`: the plant presets against real hardware logs.
+"""`python -m tools.validation.plant_check`: the plant presets against real hardware logs.
 
 Runs the presets open loop as the logs were recorded, through the twin's own plant API (runs of
 ticks between the logs' sample instants), and prints the log's numbers next to the model's:
@@ -6,7 +6,7 @@ ticks between the logs' sample instants), and prints the log's numbers next to t
   heating rate near 100 C, overshoot after cut-off and its time, RMSE over the pulse and its
   cooling; hotend_cartridge also on the other pulse runs, with the log's own heater input;
 - bed: the chesleavens Klipper Stats heat-up (README section A); bed_mk3: seed 004's numbers.
-``--fit`` reruns the least-squares fits (tools/identify.py, and the MK3 solve) whose results
+``--fit`` reruns the least-squares fits (tools/ident/fit.py, and the MK3 solve) whose results
 twin/plants.py holds. The logs are read by tools/logs.py from $HEATER_TWIN_HARDWARE_LOGS (default:
 <repo>/../shared/hardware_logs).
 The numbers in docs/plants.md come from this command.
@@ -19,7 +19,7 @@ import argparse
 import numpy as np
 import scipy.optimize
 
-from tools.identify import Segment, fit_plants, zoh_response
+from tools.ident.fit import Segment, fit_plants, zoh_response
 from tools.logs import _csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
@@ -253,7 +253,7 @@ def fit_report() -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m tools.plant_check", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m tools.validation.plant_check", description=__doc__.splitlines()[0])
     parser.add_argument("--fit", action="store_true", help="rerun the fits whose results twin/plants.py holds")
     args = parser.parse_args(argv)
     print(f"hardware logs: {logs_dir()}")

@@ -1,6 +1,6 @@
 """The golden serial session: a scripted exchange with the default virtual printer.
 
-``python -m tools.golden --write`` records it into tests/golden/marlin_session.txt; the test
+``python -m tools.validation.golden --write`` records it into tests/golden/marlin_session.txt; the test
 replays the same script and compares the transcript line by line. Regenerate only on purpose,
 after a deliberate change of behaviour, and review the diff.
 """
@@ -15,7 +15,7 @@ from protocol.printer import VirtualPrinter
 from twin.build import build_twin
 from twin.scenario import parse_scenario
 
-GOLDEN_PATH = Path(__file__).resolve().parent.parent / "tests" / "golden" / "marlin_session.txt"
+GOLDEN_PATH = Path(__file__).resolve().parents[2] / "tests" / "golden" / "marlin_session.txt"
 SERIAL_SCENARIO = 'duration_s = 86400\nname = "golden"\n'
 
 
@@ -51,7 +51,7 @@ def record_session() -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.golden", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m tools.validation.golden", description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help=f"rewrite {GOLDEN_PATH}")
     args = parser.parse_args(argv)
     text = "\n".join(record_session()) + "\n"

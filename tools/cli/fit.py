@@ -2,7 +2,7 @@
 
 LOG is any log tools/logs.py reads (Klipper Stats CSV or klippy.log, Klipper heattest, Marlin
 M303 console text with status reports, a plain t,temp,duty CSV). The log's segments worth fitting
-are listed (tools/identify.py log_segments: heat-ups with their hold, pulses, status runs); one is
+are listed (tools/ident/fit.py log_segments: heat-ups with their hold, pulses, status runs); one is
 fitted (--segment, default the first with at least half the longest time at full power). The
 output gives each parameter with its standard error, the residuals, a FOPDT equivalent, and
 Marlin (M306 for two_node, M301/M304) and Klipper settings (PID gains by the AMIGO rule).
@@ -15,9 +15,9 @@ import sys
 
 import numpy as np
 
-from tools.cli_args import OneLineParser, ranged_float
-from tools.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c
-from tools.identify import (
+from tools.cli.args import OneLineParser, ranged_float
+from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c
+from tools.ident.fit import (
     CONTROL_DELAY_S,
     MODELS,
     FitResult,

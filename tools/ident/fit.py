@@ -45,7 +45,7 @@ import scipy.optimize
 
 from firmware_port.klipper.heater import PID_PARAM_BASE
 from tools.logs import HeaterSeries, HeattestLog, Log, M303Log, PlainLog, StatsLog
-from tools.relay_trace import command_target_c, estimate_target_c, switch_instants
+from tools.ident.relay_trace import command_target_c, estimate_target_c, switch_instants
 from twin.linear import SENSOR, TICK_S, TickModel
 from twin.plants import (
     MPC_HEATER_POWER_W,
@@ -68,7 +68,7 @@ HELD = {  # held fixed unless given: the log cannot tell them apart from the fit
     "fopdt": {},
     "sopdt": {},
     "two_node": {"power_w": MPC_HEATER_POWER_W},
-    # the fit is flat in the cartridge's capacity (python -m tools.plant_check --fit refits 1..8 J/K)
+    # the fit is flat in the cartridge's capacity (python -m tools.validation.plant_check --fit refits 1..8 J/K)
     "three_node": {"power_w": MPC_HEATER_POWER_W, "cartridge_heat_capacity_j_k": ONION_CARTRIDGE_HEAT_CAPACITY_J_K},
 }
 LINEAR_PARAMS = ("ambient_c", "initial_c", "delay_s")  # fitted as they are; the others as their logarithms
@@ -448,7 +448,7 @@ def ultimate_point(fopdt: Fopdt) -> tuple[float, float]:
     controller would hold a steady oscillation: atan(w T) + w L = pi, Ku = sqrt(1 + (w T)^2) / K.
 
     Superseded by tools.tuning.ultimate.ultimate_point (any model, from its frequency response);
-    still used by tools/fit_cli.py, to be rewired."""
+    still used by tools/cli/fit.py, to be rewired."""
     k, tau, delay = fopdt
     if delay <= 0 or k <= 0 or tau < 0:
         raise ValueError(f"no ultimate point for {fopdt}: needs a positive gain and dead time")
@@ -483,7 +483,7 @@ def pid_gains(fopdt: Fopdt, control_delay_s: float = CONTROL_DELAY_S) -> tuple[f
     Ziegler-Nichols' integral action is far too strong.
 
     Superseded by tools.tuning.rules.amigo (a FOPDT in, Gains out; add the loop's delay to the
-    FOPDT first); still used by tools/fit_cli.py, to be rewired."""
+    FOPDT first); still used by tools/cli/fit.py, to be rewired."""
     k, lag_s, delay_s = fopdt._replace(delay_s=fopdt.delay_s + control_delay_s)
     kp = (0.2 + 0.45 * lag_s / delay_s) / k
     ti_s = delay_s * (0.4 * delay_s + 0.8 * lag_s) / (delay_s + 0.1 * lag_s)
@@ -581,7 +581,7 @@ def _stats_segments(log: StatsLog, heater: str | None, session: int | None) -> t
 
 
 def _relay_segment(log: M303Log, run: list, heater_key: str) -> Segment:
-    """A run of status lines as a Segment, 2 s apart, the relay's switches reconstructed (tools/relay_trace.py)."""
+    """A run of status lines as a Segment, 2 s apart, the relay's switches reconstructed (tools/ident/relay_trace.py)."""
     t_s = M303_STATUS_PERIOD_S * np.arange(len(run))
     temp_c = np.array([s.temp_c for s in run])
     duty = np.array([s.power for s in run]) / log.power_max

@@ -4,7 +4,7 @@ compare the relay period Tu, the swing max - min and the gains, twin against log
 
 The plant: three_node, sopdt or fopdt, whichever has the lowest AIC (the relay period and swing are
 set by the lag between heater and sensor: a third node or a dead time; the two-node model has too
-little of it), fitted from the first reconstructed switch on, ambient from --ambient or the capture's idle heater (tools/relay_trace.py),
+little of it), fitted from the first reconstructed switch on, ambient from --ambient or the capture's idle heater (tools/ident/relay_trace.py),
 switch instants reconstructed between the 2 s status lines, power assumed as twin-fit does.
 Compared: the mean of the log's printed Tu and max - min over its cycles that print Tu, against
 the mean over as many of the twin's last cycles (the settled relay; the twin starts from ambient).
@@ -20,9 +20,9 @@ import numpy as np
 
 from firmware_port.marlin.autotune import STR_CLASSIC_PID
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
-from tools.identify import FitResult, NotFittable, Segment, best_fit, log_segments
+from tools.ident.fit import FitResult, NotFittable, Segment, best_fit, log_segments
 from tools.logs import M303Cycle, M303Log, load_log, parse_m303
-from tools.relay_trace import ambient_hint_c
+from tools.ident.relay_trace import ambient_hint_c
 from twin.engine import BOOT_S, Twin
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W, Plant, make_plant
 

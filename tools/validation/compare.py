@@ -30,7 +30,7 @@ from firmware_port.klipper.heater import (
     PWM_RESEND_BEFORE_2025_04,
 )
 from firmware_port.thermistor import KLIPPER_SENSORS
-from tools.identify import (
+from tools.ident.fit import (
     MIN_HEATUP_S,
     FitResult,
     fit_model,

@@ -1,8 +1,8 @@
-"""twin-compare LOG [--plot FILE]: the twin against one hardware log (tools/compare.py).
+"""twin-compare LOG [--plot FILE]: the twin against one hardware log (tools/validation/compare.py).
 
 A Klipper Stats log: the closed-loop replay and the PID_CALIBRATE cross-check for each heater
 with a heat-up. A Marlin M303 capture with a status trace: a plant fitted to it runs the twin's
-M303 at the same target and cycles; Tu, swing and gains, twin against log (tools/m303_compare.py). An onionheater heattest (with its sibling runs in the same folder): the open-loop
+M303 at the same target and cycles; Tu, swing and gains, twin against log (tools/validation/m303_compare.py). An onionheater heattest (with its sibling runs in the same folder): the open-loop
 fan prediction. Prints the error table(s); --plot writes logged vs twin with matplotlib.
 A log that no check can use: one message on stderr, exit status 2.
 """
@@ -13,9 +13,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from tools import compare, m303_compare
-from tools.cli_args import OneLineParser, plot_path, ranged_float
-from tools.identify import NotFittable
+from tools.validation import compare, m303_compare
+from tools.cli.args import OneLineParser, plot_path, ranged_float
+from tools.ident.fit import NotFittable
 from tools.logs import HeattestLog, LogError, M303Log, StatsLog, load_log
 
 EXIT_UNUSABLE = 2

@@ -1,0 +1,1 @@
+"""The command-line programs: argparse and printing only; the work is in the library."""

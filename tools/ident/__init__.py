@@ -1,0 +1,1 @@
+"""Identification: fitting plant models to captured logs."""

@@ -1,0 +1,1 @@
+"""Seed papers re-run: one module per seed, reproductions as library functions."""

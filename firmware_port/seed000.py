@@ -135,7 +135,7 @@ class FuzzyScheduler:
             strength = min(self.error.degree(err_term, error), self.delta.degree(delta_term, delta))
             for k, term in enumerate(consequents):
                 cuts[k][term] = max(cuts[k].get(term, 0.0), strength)
-        kp, ki, kd = (defuzzify(out, cut) for out, cut in zip(self.outputs, cuts))
+        kp, ki, kd = (defuzzify(out, cut) for out, cut in zip(self.outputs, cuts, strict=True))
         return kp, ki, kd
 
 

@@ -307,6 +307,40 @@ class MlpWeights:
         return float(h[0]), float(h[1]), float(h[2])
 
 
+class GainMap(Protocol):
+    """(e, de) -> (Kp, Ki, Kd): what the ANFIS law asks of its network."""
+
+    def __call__(self, error: float, delta: float) -> tuple[float, float, float]: ...
+
+
+@dataclass(frozen=True)
+class TakagiSugeno:
+    """A first-order Takagi-Sugeno system in Jang's ANFIS structure, (e, de) -> (Kp, Ki, Kd).
+
+    Gaussian sets on each input (grid partition: rule (i, j) is set i of e AND set j of de, product
+    t-norm), firing strengths normalised to sum 1, each rule's gains linear in (e, de, 1). This is
+    what the seed's "ANFIS" names but does not build: its listing defines Gaussian sets on e and de
+    (means -5, 0, 5, sigma 2) and never uses them; its network is a plain multilayer perceptron.
+    """
+
+    means: np.ndarray  # (2, n_sets): row 0 error, row 1 change of error
+    sigmas: np.ndarray  # (2, n_sets)
+    consequents: np.ndarray  # (n_sets * n_sets * 3, 3): per rule, rows for e, de, 1; columns Kp, Ki, Kd
+
+    def design(self, error: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """Per sample, the normalised strengths times (e, de, 1): the layer the consequents multiply."""
+        mu_e = np.exp(-((error[:, None] - self.means[0]) ** 2) / (2 * self.sigmas[0] ** 2))
+        mu_d = np.exp(-((delta[:, None] - self.means[1]) ** 2) / (2 * self.sigmas[1] ** 2))
+        w = (mu_e[:, :, None] * mu_d[:, None, :]).reshape(len(error), -1)
+        w = w / np.maximum(w.sum(axis=1, keepdims=True), np.finfo(float).tiny)
+        regressors = np.column_stack([error, delta, np.ones_like(error)])
+        return (w[:, :, None] * regressors[:, None, :]).reshape(len(error), -1)
+
+    def __call__(self, error: float, delta: float) -> tuple[float, float, float]:
+        kp, ki, kd = self.design(np.array([error]), np.array([delta]))[0] @ self.consequents
+        return float(kp), float(ki), float(kd)
+
+
 @dataclass
 class AnfisLaw:
     """Seed 000's "ANFIS" PID: gains from the network at the raw (e, de) (no input clip), then
@@ -315,7 +349,7 @@ class AnfisLaw:
     First listing: integral_gain 1, limit 50; the "refined" one: 0.5 ("faster anti-windup"), 30.
     """
 
-    network: MlpWeights
+    network: GainMap
     integral_gain: float = 1.0
     integral_limit: float = 50.0
     output_limit: float = FUZZY_FULL_SCALE

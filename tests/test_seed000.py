@@ -214,3 +214,13 @@ def test_gaussian_scheduler_on_a_saturating_heater_overshoots_more_than_in_the_s
     # 40 W, into a second-order plant: the same law overshoots far beyond its printed 6.38 %.
     m = s0.twin_step(lambda: SeedController(gaussian_law()), duration_s=120.0)
     assert m.reached and m.overshoot_pct is not None and m.overshoot_pct > 2 * 6.38
+
+
+def test_takagi_sugeno_anfis_fits_the_labels():
+    ts = s0.train_takagi_sugeno("first")
+    inputs, labels = s0.anfis_training_data("first")
+    rms = np.sqrt(np.mean((np.array([ts(e, de) for e, de in inputs]) - labels) ** 2, axis=0))
+    # Kp and Kd labels are planes in (e, de): every rule can carry the same plane and the normalised
+    # strengths sum to 1, so they are exact up to rounding. Ki = 0.01 |e| has a kink: fitted, not exact.
+    assert rms[0] < 1e-6 and rms[2] < 1e-6
+    assert rms[1] < 0.005

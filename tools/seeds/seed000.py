@@ -47,9 +47,11 @@ from firmware_port.seed000 import (
     BOARD_SAMPLE_S,
     AdaptivePidLaw,
     AnfisLaw,
+    GainMap,
     Law,
     MlpWeights,
     SeedController,
+    TakagiSugeno,
     fuzzy_law,
     gaussian_law,
     mlp_from_arrays,
@@ -295,6 +297,33 @@ def train_anfis(listing: str, rng: np.random.Generator) -> MlpWeights:
     return mlp_from_arrays(model.coefs_, model.intercepts_)
 
 
+# The seed's unused ANFIS sets: Gaussians at -5, 0, 5 with sigma 2 on both inputs (its Step 1).
+TS_INITIAL_MEANS = (-5.0, 0.0, 5.0)
+TS_INITIAL_SIGMA = 2.0
+TS_MAX_EVALUATIONS = 100  # of the residual; the labels' |e| kink is fitted to ~1e-3 by then
+
+
+def train_takagi_sugeno(listing: str) -> TakagiSugeno:
+    """A real ANFIS on the listing's data: Jang's hybrid learning in its variable-projection form,
+    the linear consequents solved by least squares inside a Gauss-Newton fit of the Gaussian sets
+    (scipy ``least_squares``), started from the seed's own sets. Deterministic (no random start)."""
+    inputs, labels = anfis_training_data(listing)
+    n = len(TS_INITIAL_MEANS)
+
+    def unpack(params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return params[: 2 * n].reshape(2, n), np.exp(params[2 * n:]).reshape(2, n)
+
+    def solve(params: np.ndarray) -> tuple[TakagiSugeno, np.ndarray]:
+        means, sigmas = unpack(params)
+        x = TakagiSugeno(means, sigmas, np.zeros((n * n * 3, 3))).design(inputs[:, 0], inputs[:, 1])
+        theta = np.linalg.lstsq(x, labels, rcond=None)[0]
+        return TakagiSugeno(means, sigmas, theta), (x @ theta - labels).ravel()
+
+    start = np.concatenate([np.tile(TS_INITIAL_MEANS, 2), np.full(2 * n, np.log(TS_INITIAL_SIGMA))])
+    fit = scipy.optimize.least_squares(lambda p: solve(p)[1], start, max_nfev=TS_MAX_EVALUATIONS)
+    return solve(fit.x)[0]
+
+
 def anfis_label_radius(listing: str, elapsed_s: float) -> float:
     """Spectral radius of the listing's one-step error map near the setpoint, with the gains its
     network is trained to give there (the labels at e = de = 0), at loop time ``elapsed_s``.
@@ -313,7 +342,7 @@ def anfis_label_radius(listing: str, elapsed_s: float) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(step))))
 
 
-def anfis_law(listing: str, network: MlpWeights) -> AnfisLaw:
+def anfis_law(listing: str, network: GainMap) -> AnfisLaw:
     spec = ANFIS_LISTINGS[listing]
     return AnfisLaw(network, integral_gain=spec.integral_gain, integral_limit=spec.integral_limit)
 
@@ -380,11 +409,13 @@ def reproduce_adaptive() -> Reproduction:
     return _reproduction("adaptive", seed_metrics(TIME_S, y), PRINT_TOL)
 
 
-def reproduce_anfis(listing: str, rng: np.random.Generator) -> Reproduction:
+def reproduce_anfis(listing: str, rng: np.random.Generator | None) -> Reproduction:
     """An ANFIS listing with our training: the seed says retraining gives other numbers ("select
     the one that created the best response"), so only the loop is reproduced, not the numbers;
-    the tolerance is the printed rounding and ``reproduced`` says whether our training hit it."""
-    law = anfis_law(listing, train_anfis(listing, rng))
+    the tolerance is the printed rounding and ``reproduced`` says whether our training hit it.
+    ``rng``: the seeded MLP as the seed's; None: a real Takagi-Sugeno ANFIS on the same data."""
+    network = train_takagi_sugeno(listing) if rng is None else train_anfis(listing, rng)
+    law = anfis_law(listing, network)
     y = run_listing(law, ANFIS_LISTINGS[listing].plant)
     return _reproduction(f"anfis_{listing}", listing_metrics(TIME_S, y), PRINT_TOL)
 

@@ -63,9 +63,9 @@ def test_fuzzed_lines_over_twin_url_get_marlin_replies_only(caplog):
             # A line taken into an idle printer is answered with ok (an error too, after its
             # Resend), unless Marlin is silent about it (comment, empty, duplicate number) or it
             # still runs or killed the board, which the host's reset covers.
-            if was_idle and expected and not reset and "ok" not in text.split("\n"):
-                if not any(reply.startswith("ok") for reply in text.split("\n")):
-                    unanswered.append((line, text))
+            answered = any(reply.startswith("ok") for reply in text.split("\n"))
+            if was_idle and expected and not reset and not answered:
+                unanswered.append((line, text))
         internal_errors = port.printer.internal_errors
     assert shapes == []
     assert unanswered == []

@@ -24,10 +24,11 @@ VALUES = ("", "0", "1", "-1", "200", "60", "255", "1.5", "-0.5", "99999999999999
           "-99999999999999999999999999999999999999999", "3.4e38", "1e38", "2147483647", "2147483648",
           "4294967295", "4294967296", "-2147483649", "65536", "32768", ".", "-", "+5", "0x10", "nan", "inf",
           "0.0001", "1e-30", "340282346638528859811704183484516925440")
-# Marlin 2.1's replies (and the heater port's messages), one regex per shape.
+# Marlin 2.1's replies (and the heater port's messages), one regex per shape; a target can be
+# negative (setTargetHotend() clamps only from above: M104 S-1 reports /-1.00).
 MARLIN_REPLY = re.compile("|".join((
     r"ok( T:.*)?",
-    r" T:-?\d+\.\d\d /\d+\.\d\d( B:-?\d+\.\d\d /\d+\.\d\d)? @:\d+( B@:\d+)?( W:(\?|\d+))?",
+    r" T:-?\d+\.\d\d /-?\d+\.\d\d( B:-?\d+\.\d\d /-?\d+\.\d\d)? @:\d+( B@:\d+)?( W:(\?|\d+))?",
     r"echo:.*",
     r"Error:.*",
     r"Resend: -?\d+",

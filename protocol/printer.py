@@ -53,7 +53,7 @@ class VirtualPrinter:
         self.eeprom = eeprom if eeprom is not None else Eeprom()
         self.reader = LineReader(ok_after_resend=ok_after_resend)
         self._out = bytearray()
-        self.twin.console.listeners.append(lambda text: self._out.extend(text.encode("latin-1")))
+        self.twin.console.listeners.append(self._to_wire)
         self._boots = 0
         self.wall_clock: Callable[[], float] | None = None  # set by a transport paced to the wall
         self.rx_dropped = 0  # bytes lost to a full RX ring since the printer was made
@@ -112,8 +112,16 @@ class VirtualPrinter:
         """Everything printed since the last call."""
         data = bytes(self._out)
         self._out.clear()
-        self.twin.console.text = ""  # the wire is the record: a session may run for weeks
         return data
+
+    @property
+    def output_waiting(self) -> int:
+        """Bytes printed and not taken yet."""
+        return len(self._out)
+
+    def _to_wire(self, text: str) -> None:
+        self._out.extend(text.encode("latin-1"))
+        self.twin.console.text = ""  # the wire is the record: a session may run for weeks
 
     @property
     def halted(self) -> bool:

@@ -233,3 +233,72 @@ def test_m115_names_the_twin():
 
 def test_m104_for_a_missing_extruder():
     assert send(make_printer(), "M104 T1 S200") == ["echo:M104 Invalid extruder 1", "ok"]
+
+
+# -- values beyond Marlin's widths, errors inside commands (issue 13, sections 2 and 4) -------------
+HUGE = "9" * 41  # beyond float32: strtod gives inf
+
+
+@pytest.mark.parametrize("line", [f"G4 S{HUGE}", f"G0 X{HUGE}", f"G1 Y{HUGE}", f"G1 Z-{HUGE}", f"G1 E{HUGE}",
+                                  f"G1 X1 F{HUGE}", "G4 P4294967296", "G4 S-5"])
+def test_values_beyond_the_widths_are_answered_not_fatal(line):
+    printer = make_printer()
+    assert send(printer, line)[-1] == "ok"
+    assert send(printer, "M105")[-1].startswith("ok T:")  # still serving
+
+
+def test_g92_beyond_float32_then_m114_prints_what_arduino_prints():
+    printer = make_printer()
+    send(printer, f"G92 X{HUGE} Y-{HUGE}")
+    assert send(printer, "M114")[0].startswith("X:inf Y:inf Z:0.00")  # printFloat: sign, then 'inf'
+
+
+def test_a_dwell_beyond_2_31_ms_has_passed_at_once_as_in_marlins_pending():
+    printer = make_printer()
+    start_s = printer.time_s
+    send(printer, "G4 P2147483649")  # PENDING() compares int32: that deadline is in the past
+    send(printer, f"G4 S{HUGE}")  # inf x 1000 cast to uint32: beyond 2^31 too
+    assert printer.time_s - start_s < 0.1
+    send(printer, "G4 P1500")
+    assert printer.time_s - start_s == pytest.approx(1.5, abs=0.01)
+
+
+def test_an_absurd_move_lasts_a_bounded_time_and_m410_stops_it():
+    printer = make_printer()
+    send(printer, "G1 X1 F0.0001", run=False)  # 80 steps at MINIMAL_STEP_RATE (120/s), not 10 hours
+    assert printer.planner.blocks[0].duration_s == pytest.approx(80 / 120)
+    send(printer, f"G1 X{HUGE}", run=False)
+    assert printer.planner.blocks
+    printer.receive(b"M410\n")  # quickstop: acted on when the line arrives
+    assert not printer.planner.blocks
+
+
+def test_a_command_that_raises_is_answered_and_the_printer_keeps_serving(monkeypatch, caplog):
+    from protocol import commands
+
+    def broken(p, cmd):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setitem(commands.HANDLERS, ("M", 115), broken)
+    printer = make_printer()
+    assert send(printer, "M115") == ["Error:internal error in 'M115': RuntimeError", "ok"]
+    assert printer.internal_errors == 1 and "a bug" in caplog.text
+    assert send(printer, "M105")[-1].startswith("ok T:")
+
+
+def test_line_numbers_at_the_int32_edge_as_marlins_queue_cpp():
+    """last_N is a long: N2147483648 reads as LONG_MAX (strtol saturates) and lands in the
+    'already in transit' window, so Marlin 2.1 drops it silently; a host that wraps as C does
+    sends N-2147483648, which is last_N + 1 in 32 bits."""
+    printer = make_printer()
+    assert send(printer, with_checksum("M110 N2147483647", 0)) == ["ok"]
+    assert send(printer, with_checksum("M105", 2147483648)) == []
+    assert send(printer, with_checksum("M105", -2147483648))[-1].startswith("ok T:")
+    assert printer.reader.last_n == -2147483648
+
+
+def test_the_resend_after_the_int32_edge_wraps_as_the_board_prints_it():
+    printer = make_printer()
+    send(printer, with_checksum("M110 N2147483647", 0))
+    assert send(printer, "N5 M105*1")[:2] == ["Error:Line Number is not Last Line Number+1, Last Line: 2147483647",
+                                             "Resend: -2147483648"]

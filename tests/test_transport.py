@@ -273,3 +273,25 @@ def test_port_in_use_exits_2_with_a_message():
     assert result.returncode == 2
     assert f"cannot listen on 127.0.0.1:{port}" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_settings_file_not_written_by_the_twin_is_refused_and_left_alone(tmp_path):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my printer's notes\n")
+    result = run_cli("--settings", str(notes))
+    assert result.returncode == 2 and "refusing to overwrite" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert notes.read_text() == "my printer's notes\n"
+
+
+def test_settings_file_m500_wrote_is_accepted(tmp_path):
+    eeprom = tmp_path / "eeprom.json"
+    printer = build_printer(settings=str(eeprom))
+    printer.receive(b"M500\n")
+    assert eeprom.exists()
+    assert build_printer(settings=str(eeprom)).take_output().decode().count("stored settings retrieved") == 1
+
+
+def test_help_has_examples():
+    result = run_cli("--help")
+    assert result.returncode == 0 and "examples:" in result.stdout and "--idle-speed" in result.stdout

@@ -113,7 +113,8 @@ class Serial(SerialBase):
         data = to_bytes(data)
         if not self._pacer.host_driven:
             self._pump()
-        self.printer.receive(data, loop_running=len(self._received) < HOST_BUFFER_BYTES)
+        unread = len(self._received) + self.printer.output_waiting
+        self.printer.receive(data, loop_running=unread < HOST_BUFFER_BYTES)
         return len(data)
 
     def reset_input_buffer(self) -> None:

@@ -94,6 +94,17 @@ def m190(p, cmd: Command):
     return wait_for_heater(p, BED_CHANNEL, no_wait_for_cooling=cmd.has("S"))
 
 
+def _residency_start(start_ms: int, diff_c: float, now_ms: int, first_loop: bool, channel: int) -> int:
+    """When the residency count started (0: not started): it starts inside TEMP_WINDOW (a third
+    of the residency early on the first loop) and restarts when the temperature leaves the
+    hysteresis band."""
+    if not start_ms:
+        if diff_c < TEMP_WINDOW_C:
+            return now_ms + (TEMP_RESIDENCY_TIME_MS // 3 if first_loop else 0)
+        return 0
+    return now_ms if diff_c > WAIT_HYSTERESIS_C[channel] else start_ms
+
+
 def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
     """wait_for_hotend / wait_for_bed: 1 s reports with W:, residency 10 s within 1 C, M108 breaks."""
     board = p.twin.board
@@ -123,12 +134,7 @@ def wait_for_heater(p, channel: int, no_wait_for_cooling: bool):
             return False
         now = board.now_ms
         temp_c = board.temp_c(channel)
-        diff_c = abs(target_c - temp_c)
-        if not residency_start_ms:
-            if diff_c < TEMP_WINDOW_C:
-                residency_start_ms = now + (TEMP_RESIDENCY_TIME_MS // 3 if first_loop else 0)
-        elif diff_c > WAIT_HYSTERESIS_C[channel]:
-            residency_start_ms = now
+        residency_start_ms = _residency_start(residency_start_ms, abs(target_c - temp_c), now, first_loop, channel)
         if wants_to_cool and (not next_cool_check_ms or now >= next_cool_check_ms):
             if old_temp_c - temp_c < MIN_COOLING_SLOPE_C[channel]:
                 break

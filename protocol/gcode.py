@@ -143,70 +143,75 @@ class Command:
         return self.value_int(letter, default)
 
 
-def parse(line_text: str) -> Command:
-    """GCodeParser::parse() on one queued line (with its ``N..`` and ``*cs``, as enqueued)."""
-    s = line_text.split("\0", 1)[0]  # the C string ends at the first NUL
-
-    def at(k: int) -> str:
-        return s[k] if k < len(s) else "\0"
-
-    i = 0
-    while at(i) == " ":
+def _skip(s: str, i: int, chars: str) -> int:
+    """The first index at or after ``i`` whose character is not in ``chars`` (the C string's
+    terminating NUL never is)."""
+    while i < len(s) and s[i] in chars:
         i += 1
-    if at(i) == "N" and at(i + 1) in DIGITS + "-+":  # skip N[-0-9]*, then spaces
-        i += 2
-        while at(i) in DIGITS:
-            i += 1
-        while at(i) == " ":
-            i += 1
-    start = i
-    letter = at(i)
-    i += 1
-    star = s.find("*", i) if letter != "\0" else -1
-    if star >= 0:  # nullify '*' and the spaces before it
+    return i
+
+
+def _after_line_number(s: str) -> int:
+    """Skip leading spaces, then ``N[-+0-9][0-9]*`` and the spaces after it."""
+    i = _skip(s, 0, " ")
+    if s[i:i + 1] == "N" and s[i + 1:i + 2] and s[i + 1] in DIGITS + "-+":
+        i = _skip(s, _skip(s, i + 2, DIGITS), " ")
+    return i
+
+
+def _without_checksum(s: str, from_index: int) -> str:
+    """The line cut at its ``*`` (and the spaces before it), as Marlin nullifies them."""
+    star = s.find("*", from_index)
+    if star >= 0:
         while s[star - 1] == " ":
             star -= 1
         s = s[:star]
-    text = s[start:]
+    return s
 
-    while at(i) == " ":
-        i += 1
-    if letter not in COMMAND_LETTERS or at(i) not in DIGITS:
-        return Command("", None, None, {}, text)
-    code = 0
-    while at(i) in DIGITS:
-        code = wrap_u16(code * 10 + int(s[i]))
-        i += 1
-    subcode = None
-    if at(i) == ".":
-        i += 1
-        subcode = 0
-        while at(i) in DIGITS:
-            subcode = wrap_u8(subcode * 10 + int(s[i]))
-            i += 1
-    while at(i) == " ":
-        i += 1
-    if letter == "M" and code in STRING_ARG_M_CODES:
-        return Command(letter, code, subcode, {}, text)
 
+def _read_number(s: str, i: int, wrap) -> tuple[int, int]:
+    """Decimal digits from ``i`` accumulated with the C type's wrap; (value, next index)."""
+    value = 0
+    while i < len(s) and s[i] in DIGITS:
+        value = wrap(value * 10 + int(s[i]))
+        i += 1
+    return value, i
+
+
+def _read_params(s: str, i: int) -> dict[str, str]:
+    """Each parameter letter with its value text (only a valid float prefix is a value)."""
     params: dict[str, str] = {}
     while i < len(s):
         param = s[i]
         i += 1
         if "A" <= param <= "Z":
-            while at(i) == " ":
-                i += 1
-            end = i
-            if _valid_float(s, i):
-                while at(end) in DECIMAL_SIGNED:
-                    end += 1
+            i = _skip(s, i, " ")
+            end = _skip(s, i, DECIMAL_SIGNED) if _valid_float(s, i) else i
             params[param] = s[i:end]
-        if not "A" <= at(i) <= "Z":  # skip the value, then spaces, to the next letter
-            while at(i) in DECIMAL_SIGNED:
-                i += 1
-            while at(i) == " ":
-                i += 1
-    return Command(letter, code, subcode, params, text)
+        if not (i < len(s) and "A" <= s[i] <= "Z"):  # skip the value, then spaces, to the next letter
+            i = _skip(s, _skip(s, i, DECIMAL_SIGNED), " ")
+    return params
+
+
+def parse(line_text: str) -> Command:
+    """GCodeParser::parse() on one queued line (with its ``N..`` and ``*cs``, as enqueued)."""
+    s = line_text.split("\0", 1)[0]  # the C string ends at the first NUL
+    start = _after_line_number(s)
+    letter = s[start] if start < len(s) else "\0"
+    if letter != "\0":
+        s = _without_checksum(s, start + 1)
+    text = s[start:]
+    i = _skip(s, start + 1, " ")
+    if letter not in COMMAND_LETTERS or not (i < len(s) and s[i] in DIGITS):
+        return Command("", None, None, {}, text)
+    code, i = _read_number(s, i, wrap_u16)
+    subcode = None
+    if s[i:i + 1] == ".":
+        subcode, i = _read_number(s, i + 1, wrap_u8)
+    i = _skip(s, i, " ")
+    if letter == "M" and code in STRING_ARG_M_CODES:
+        return Command(letter, code, subcode, {}, text)
+    return Command(letter, code, subcode, _read_params(s, i), text)
 
 
 def unknown_command_text(cmd: Command) -> str:

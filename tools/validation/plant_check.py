@@ -20,7 +20,7 @@ import numpy as np
 import scipy.optimize
 
 from tools.ident.fit import Segment, fit_plants, zoh_response
-from tools.logs import _csv_rows, parse_heattest, parse_klipper_stats_csv
+from tools.logs import csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
 from twin.plants import MK3_POWER_W, make_plant
@@ -51,7 +51,7 @@ MK3_TIME_TO_100_S = 600.0
 
 def read_log(name: str) -> dict[str, np.ndarray]:
     """A hardware-log CSV as columns of floats, read (and checked) by tools/logs.py; empty cells are NaN."""
-    _, rows = _csv_rows(logs_dir() / name)
+    _, rows = csv_rows(logs_dir() / name)
     (_, header), data = rows[0], rows[1:]
     return {h: np.array([float(r[i]) if r[i] else np.nan for _, r in data]) for i, h in enumerate(header)}
 

@@ -124,8 +124,8 @@ target_c = 220
 def test_same_seed_same_trace_bit_for_bit_and_other_seed_differs():
     csv = []
     for seed in (7, 7, 8):
-        twin = build_twin(parse_scenario('duration_s = 30\nseed = %d\n[[setpoint]]\nat_s = 0\nheater = "hotend"\n'
-                                         'target_c = 200\n' % seed, "s.toml"), noise_lsb=1.0)
+        twin = build_twin(parse_scenario(f'duration_s = 30\nseed = {seed}\n[[setpoint]]\nat_s = 0\nheater = "hotend"\n'
+                                         'target_c = 200\n', "s.toml"), noise_lsb=1.0)
         twin.run_until(30)
         csv.append(twin.result().to_csv())
     assert csv[0] == csv[1]

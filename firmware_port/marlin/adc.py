@@ -15,9 +15,12 @@ many ISRs at once from samples taken in bulk.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, OVERSAMPLENR
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class AdcPort(Protocol):
@@ -37,7 +40,8 @@ class AdcSequencer:
     raw_ready:   flag set by readings_ready, cleared by the main loop
     """
 
-    def __init__(self, n_channels: int, port: AdcPort):
+    def __init__(self, n_channels: int, port: AdcPort | None):
+        """port is None for a sequencer driven only by ``skip`` (the fast engines sample in bulk)."""
         if 1 + 2 * n_channels > MIN_ADC_ISR_LOOPS:
             raise ValueError("more sensors than fit a 10-ISR round")
         self.port = port
@@ -54,6 +58,8 @@ class AdcSequencer:
         if phase == 0:
             self._start_sampling()
         elif phase < 2 * self.n_channels and phase & 1:  # Prepare: sample-and-hold now
+            if self.port is None:
+                raise RuntimeError("this AdcSequencer has no port: drive it with skip(), not tick()")
             channel = phase >> 1
             self.acc[channel] += self.port.sample(channel)
         self.phase = phase + 1 if phase + 1 < MIN_ADC_ISR_LOOPS else 0
@@ -71,8 +77,9 @@ class AdcSequencer:
         rounds = OVERSAMPLENR - 1 - self.temp_count  # StartSamplings after the next one
         return to_start + rounds * MIN_ADC_ISR_LOOPS + 1
 
-    def skip(self, n_ticks: int, samples: Sequence[Sequence[int]]) -> None:
-        """``n_ticks`` ISRs at once, given each channel's conversions at ``sample_offsets``.
+    def skip(self, n_ticks: int, samples: Sequence[Sequence[int] | np.ndarray]) -> None:
+        """``n_ticks`` ISRs at once, given each channel's conversions at ``sample_offsets``
+        (ints, or an array with one row per conversion for lanes run in lockstep).
 
         Equivalent to ``n_ticks`` calls of ``tick()`` with a port returning those samples.
         """

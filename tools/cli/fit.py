@@ -1,6 +1,6 @@
 """twin-fit: fit a thermal model to a heater log; print its parameters and ready-to-paste settings.
 
-LOG is any log tools/logs.py reads (Klipper Stats CSV or klippy.log, Klipper heattest, Marlin
+LOG is any log tools/logs/ reads (Klipper Stats CSV or klippy.log, Klipper heattest, Marlin
 M303 console text with status reports, a plain t,temp,duty CSV). The log's segments worth fitting
 are listed (tools/ident/fit.py log_segments: heat-ups with their hold, pulses, status runs); one is
 fitted (--segment, default the first with at least half the longest time at full power). The

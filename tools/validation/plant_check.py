@@ -7,7 +7,7 @@ ticks between the logs' sample instants), and prints the log's numbers next to t
   cooling; hotend_cartridge also on the other pulse runs, with the log's own heater input;
 - bed: the chesleavens Klipper Stats heat-up (README section A); bed_mk3: seed 004's numbers.
 ``--fit`` reruns the least-squares fits (tools/ident/fit.py, and the MK3 solve) whose results
-twin/plants.py holds. The logs are read by tools/logs.py from $HEATER_TWIN_HARDWARE_LOGS (default:
+twin/plants.py holds. The logs are read by tools/logs/ from $HEATER_TWIN_HARDWARE_LOGS (default:
 <repo>/../shared/hardware_logs).
 The numbers in docs/plants.md come from this command.
 """
@@ -20,7 +20,7 @@ import numpy as np
 import scipy.optimize
 
 from tools.ident.fit import Segment, fit_plants, zoh_response
-from tools.logs import _csv_rows, parse_heattest, parse_klipper_stats_csv
+from tools.logs import csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
 from twin.plants import MK3_POWER_W, make_plant
@@ -50,8 +50,8 @@ MK3_TIME_TO_100_S = 600.0
 
 
 def read_log(name: str) -> dict[str, np.ndarray]:
-    """A hardware-log CSV as columns of floats, read (and checked) by tools/logs.py; empty cells are NaN."""
-    _, rows = _csv_rows(logs_dir() / name)
+    """A hardware-log CSV as columns of floats, read (and checked) by tools/logs/; empty cells are NaN."""
+    _, rows = csv_rows(logs_dir() / name)
     (_, header), data = rows[0], rows[1:]
     return {h: np.array([float(r[i]) if r[i] else np.nan for _, r in data]) for i, h in enumerate(header)}
 

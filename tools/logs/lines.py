@@ -1,0 +1,132 @@
+"""The line reading every log reader shares: line numbers, comment lines, cut last lines,
+numbers checked for range, CSV rows, console text without the host program's prefix, LogError.
+
+Comment lines are ``#`` alone or ``# ...``, the headers added to the captures (Marlin's own
+``#define`` lines have no space after the hash and are data).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+# Console text as host programs show it: OctoPrint "Recv: "/"Send: ", Pronterface "READ: "/
+# "SENDING:", Printrun ">>> ", Repetier-Host "< 9:12:56 PM: " (and "> ..." for sent lines).
+HOST_PREFIX_RE = re.compile(r"^(?:Recv:|Send:|READ:|SENDING:|>>>|[<>] \d{1,2}:\d{2}:\d{2}(?: [AP]M)?:)\s*")
+GAIN_RE = re.compile(r"(?<!\w)(?:pid_)?K([pid])\s*[=:]\s*([^\s,]*)", re.IGNORECASE)  # Marlin and Klipper gains
+
+
+class LogError(ValueError):
+    """A log that cannot be read as its format says: ``<file>:<line>: <what is wrong>``."""
+
+    def __init__(self, path: str | Path, line_no: int, what: str):
+        super().__init__(f"{path}:{line_no}: {what}")
+        self.path = path
+        self.line_no = line_no
+
+
+def read_lines(path: str | Path, cut_last_line_ok: bool = False) -> list[tuple[int, str]]:
+    """(line number, text) of each non-blank line, comments included.
+
+    A last line without a newline means the file was cut mid-line: LogError, unless the format's
+    writer leaves the newline out (cut_last_line_ok).
+    """
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+    except UnicodeDecodeError as e:
+        with open(path, "rb") as f:
+            line_no = f.read()[: e.start].count(b"\n") + 1
+        raise LogError(path, line_no, "not UTF-8 text") from None
+    lines = text.split("\n")
+    if lines[-1] == "":
+        lines.pop()
+    elif not cut_last_line_ok:
+        raise LogError(path, len(lines), "the last line has no newline: the file was cut mid-line "
+                       "(end it with a newline if the line is complete)")
+    return [(no, line) for no, line in enumerate(lines, 1) if line.strip()]
+
+
+def is_comment(text: str) -> bool:
+    return text == "#" or text.startswith("# ")
+
+
+def data_lines(path: str | Path, lines: list[tuple[int, str]]) -> list[tuple[int, str]]:
+    """The non-comment lines; none at all is an error."""
+    data = [(no, text) for no, text in lines if not is_comment(text)]
+    if not data:
+        raise LogError(path, lines[-1][0] if lines else 1, "no data lines")
+    return data
+
+
+def parse_number(path: str | Path, line_no: int, text: str, what: str,
+            low: float = -math.inf, high: float = math.inf) -> float:
+    """A finite float within [low, high], or LogError naming the line and the field."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise LogError(path, line_no, f"{what}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise LogError(path, line_no, f"{what}: {text!r} is not a finite number")
+    if not low <= value <= high:
+        raise LogError(path, line_no, f"{what} = {text} is outside {low:g}..{high:g}")
+    return value
+
+
+def parse_integer(path: str | Path, line_no: int, text: str, what: str) -> int:
+    value = parse_number(path, line_no, text, what)
+    if value != int(value):
+        raise LogError(path, line_no, f"{what}: {text!r} is not an integer")
+    return int(value)
+
+
+def is_number(text: str) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except ValueError:
+        return False
+
+
+def require_increasing(path: str | Path, line_nos: list[int], t_s: np.ndarray) -> None:
+    """Time must increase from sample to sample."""
+    bad = np.flatnonzero(np.diff(t_s) <= 0)
+    if bad.size:
+        i = bad[0] + 1
+        raise LogError(path, line_nos[i], f"time {t_s[i]:g} s does not increase (previous sample: {t_s[i - 1]:g} s)")
+
+
+def csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    """A CSV log's comment texts and its rows (header included) with line numbers; every row
+    must be as wide as the first."""
+    lines = read_lines(path)
+    comments = [text[2:] for no, text in lines if is_comment(text)]
+    rows = []
+    for no, text in data_lines(path, lines):
+        try:
+            fields = next(csv.reader([text], strict=True))
+        except csv.Error as e:
+            raise LogError(path, no, f"not a CSV line: {e}") from None
+        fields = [cell.strip() for cell in fields]
+        if rows and len(fields) != len(rows[0][1]):
+            raise LogError(path, no, f"{len(fields)} columns where the header has {len(rows[0][1])}")
+        rows.append((no, fields))
+    return comments, rows
+
+
+def time_series(path: str | Path, rows: list[tuple[int, list[str]]], names: tuple[str, str, str],
+                 duty_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Time, temperature and duty columns (duty within 0..duty_max); time must increase."""
+    values = [(parse_number(path, no, t, names[0]), parse_number(path, no, temp, names[1]),
+               parse_number(path, no, duty, names[2], 0.0, duty_max)) for no, (t, temp, duty) in rows]
+    t_s, temp_c, duty = np.array(values, dtype=float).reshape(-1, 3).T
+    require_increasing(path, [no for no, _ in rows], t_s)
+    return t_s, temp_c, duty
+
+
+def console_text(text: str) -> str:
+    """A console line without the host program's prefix."""
+    return HOST_PREFIX_RE.sub("", text, count=1).strip()

@@ -1,0 +1,165 @@
+"""Marlin (and Repetier) M303 autotune console text as a host program shows it: relay cycles,
+the 2 s status reports of the tuned heater, the final gains. Pasted text may end mid-line."""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from firmware_port.marlin.autotune import STR_CLASSIC_PID, STR_NO_OVERSHOOT
+from tools.logs.lines import GAIN_RE, LogError, console_text, data_lines, parse_integer, parse_number, read_lines
+from tools.logs.results import M303Cycle, M303Log, M303Status
+
+COMMAND_RE = re.compile(r"^(?:N\d+\s+)?(M30[36]\b[^*;]*)")
+BED_COMMAND_RE = re.compile(r"\b[EP]-1\b")  # M303 E-1 tunes the bed
+BIAS_RE = re.compile(r"bias:\s*(\S+)\s+d:\s*(\S+)\s+min:\s*(\S+)\s+max:\s*([-+]?[\d.]+)")
+KU_RE = re.compile(r"Ku:\s*(\S+)\s+Tu:\s*(\S+)")
+DEFINE_RE = re.compile(r"^#define\s+DEFAULT_(bed|chamber)?K([pid])\s+(\S*)")
+RULES = (STR_CLASSIC_PID.strip(), STR_NO_OVERSHOOT.strip())
+GAIN_LINE_RE = re.compile(r"^K[pid]:")
+STATUS_RE = re.compile(r"^[TB]:")  # Marlin's 2 s heater report, " T:210.00 /0.00 B:60.00 /0.00 @:64 B@:0"
+TEMP_FIELD_RE = re.compile(r"(?<![\w@])([TB]):\s*([^\s/]+)(?:\s*/\s*([^\s/]+))?")
+POWER_FIELD_RE = re.compile(r"(?<![\w@])(B?@):(\S*)")
+MARLIN_POWER_MAX = 127  # soft-PWM amount, (bias + d) >> 1
+REPETIER_POWER_MAX = 255  # Repetier prints bias + d
+REPETIER_HINT = "Repetier-Firmware ('Info:'/'busy:' lines): @ is on 0..255, Ku comes from the full swing"
+FIRMWARE_HINTS = (
+    (re.compile(r"^(?:Info|busy):"), REPETIER_HINT),
+    (re.compile(r"\bP:[-\d.]+ A:[-\d.]+|constants from above"), "Prusa-Firmware (P:/A: fields, 'from above')"),
+    (re.compile(STR_NO_OVERSHOOT.strip()), "Marlin 2.x: the bed is tuned by the 'No overshoot' rule"),
+    (re.compile(r"PID Autotune failed"), "an autotune failed"),
+    (re.compile(r"MPC Autotune"), "Marlin MPC autotune (M306): no relay cycles"),
+)
+INCOMPLETE_STATUS = "status line without the power of each heater it shows (cut or elided)"
+
+
+def _status_sample(path: str | Path, line_no: int, temps: dict[str, tuple[float, float]], text: str,
+                   heater: str) -> M303Status | None:
+    """The tuned heater's reading in a status line, or None if the line lacks a power field it
+    should have (Marlin and Repetier print @: and B@: whenever they show T and B)."""
+    powers = dict(POWER_FIELD_RE.findall(text))
+    both = "T" in temps and "B" in temps
+    if (both and len(powers.keys() & {"@", "B@"}) < 2) or (not both and "@" not in powers):
+        return None
+    power_key = "B@" if heater == "B" and both else "@"
+    return M303Status(line_no, *temps[heater], parse_integer(path, line_no, powers[power_key], f"{power_key} power"),
+                      heater)
+
+
+def _idle_reading(temps: dict[str, tuple[float, float]], text: str, heater: str) -> float | None:
+    """The other heater's reading on a status line showing both, if it has no target and no power
+    (a bed at rest reads about the room: an ambient for the fit)."""
+    other = "B" if heater == "T" else "T"
+    powers = dict(POWER_FIELD_RE.findall(text))
+    power = powers.get("B@" if other == "B" else "@")
+    if other not in temps or power != "0":
+        return None
+    reading_c, target_c = temps[other]
+    return reading_c if math.isnan(target_c) or target_c == 0 else None
+
+
+@dataclass
+class _M303Reader:
+    """What parse_m303 has read so far; ``read`` takes one console line (host prefix removed)."""
+
+    path: str | Path
+    commands: list[tuple[int, str]] = field(default_factory=list)
+    cycles: list[M303Cycle] = field(default_factory=list)
+    status: list[M303Status] = field(default_factory=list)
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+    hints: list[str] = field(default_factory=list)
+    idle_c: list[float] = field(default_factory=list)
+    defines: dict[str, float] = field(default_factory=dict)
+    finished: bool = False
+    heater: str = "T"
+
+    def read(self, no: int, text: str) -> None:
+        for pattern, hint in FIRMWARE_HINTS:
+            if pattern.search(text) and not any(h.startswith(hint) for h in self.hints):
+                self.hints.append(f"{hint} (line {no})")
+        self.finished = self.finished or "PID Autotune finished" in text
+        if m := COMMAND_RE.match(text):
+            self.commands.append((no, m[1].strip()))
+            self.heater = "B" if BED_COMMAND_RE.search(m[1]) else "T"
+        elif m := DEFINE_RE.match(text):
+            self.defines[m[2].lower()] = parse_number(self.path, no, m[3], f"DEFAULT_{m[1] or ''}K{m[2]}")
+        else:
+            rest = self._relay_values(no, text)
+            if rest in RULES:
+                self._cycle(no, "rule").rule = rest
+            elif GAIN_LINE_RE.match(rest):
+                for k, value in GAIN_RE.findall(rest):
+                    attr = "k" + k.lower()
+                    setattr(self._cycle(no, attr), attr, parse_number(self.path, no, value, "K" + k))
+            elif STATUS_RE.match(rest):
+                self._status_line(no, rest)
+
+    def _cycle(self, line_no: int, attr: str) -> M303Cycle:
+        """The cycle a value belongs to: the last one, or a new one if the last has it already."""
+        if not self.cycles or getattr(self.cycles[-1], attr) is not None:
+            self.cycles.append(M303Cycle(line_no, self.heater))
+        return self.cycles[-1]
+
+    def _relay_values(self, no: int, text: str) -> str:
+        """Read the bias/d/min/max and Ku/Tu at the start of a line; the rest of the line."""
+        path, rest = self.path, text
+        if "bias:" in rest:
+            if not (m := BIAS_RE.search(rest)):
+                raise LogError(path, no, "a bias line without bias, d, min and max")
+            self.cycles.append(M303Cycle(no, self.heater, parse_integer(path, no, m[1], "bias"),
+                                         parse_integer(path, no, m[2], "d"), parse_number(path, no, m[3], "min"),
+                                         parse_number(path, no, m[4], "max")))
+            rest = rest[m.end() :].strip()
+        if "Ku:" in rest:
+            if not (m := KU_RE.search(rest)):
+                raise LogError(path, no, "a Ku line without Ku and Tu")
+            c = self._cycle(no, "ku")
+            c.ku, c.tu_s = parse_number(path, no, m[1], "Ku"), parse_number(path, no, m[2], "Tu", 0.0)
+            rest = rest[m.end() :].strip()
+        return rest
+
+    def _status_line(self, no: int, rest: str) -> None:
+        """A heater report: the tuned heater's sample, or the line skipped if it is incomplete."""
+        if not TEMP_FIELD_RE.match(rest):
+            raise LogError(self.path, no, f"a status line without a temperature after {rest[:2]}")
+        temps = {key: (parse_number(self.path, no, temp, f"{key} temperature"),
+                       parse_number(self.path, no, target, f"{key} target") if target else math.nan)
+                 for key, temp, target in TEMP_FIELD_RE.findall(rest)}
+        if len(temps) == 1:
+            self.heater = next(iter(temps))
+        elif (reading := _idle_reading(temps, rest, self.heater)) is not None:
+            self.idle_c.append(reading)
+        sample = _status_sample(self.path, no, temps, rest, self.heater)
+        if sample is None:
+            self.skipped.append((no, INCOMPLETE_STATUS))
+        else:
+            self.status.append(sample)
+
+    def final_gains(self) -> tuple[float, float, float] | None:
+        """The #define lines, else the last cycle's gains if the run finished."""
+        last = self.cycles[-1] if self.cycles else None
+        if len(self.defines) == 3:
+            return (self.defines["p"], self.defines["i"], self.defines["d"])
+        if self.finished and last and last.kp is not None and last.ki is not None and last.kd is not None:
+            return (last.kp, last.ki, last.kd)
+        return None
+
+
+def parse_m303(path: str | Path) -> M303Log:
+    """Marlin's M303 output as a host console shows it: bias/d/min/max lines (status text may follow
+    on the same line), Ku/Tu (same or next line), the rule, Kp/Ki/Kd (one line or three), the
+    #define lines, and the 2 s status reports of the tuned heater (T or B, from M303 E-1 or the
+    report's shape). Repetier's output and M306 status traces read the same way."""
+    lines = data_lines(path, read_lines(path, cut_last_line_ok=True))  # pasted text: the status reader copes
+    reader = _M303Reader(path)
+    for no, raw in lines:
+        reader.read(no, console_text(raw))
+    if not (reader.cycles or reader.status or reader.defines):
+        raise LogError(path, lines[-1][0], "no autotune output: no bias, Ku/Tu, gain, #define or status line")
+    hints = reader.hints
+    power_max = REPETIER_POWER_MAX if any(h.startswith(REPETIER_HINT) for h in hints) else MARLIN_POWER_MAX
+    rule = next((c.rule for c in reversed(reader.cycles) if c.rule), None)
+    return M303Log(Path(path), reader.commands, reader.cycles, reader.status, reader.final_gains(), rule, power_max,
+                   hints, reader.skipped, reader.idle_c)

@@ -3,7 +3,8 @@
 A handler takes the printer and the parsed command. It returns None when done (the printer
 sends ``ok``), ``NO_OK`` when it printed its own ``ok`` (M105), or a generator when the
 command takes time: it yields the tick it wants to be resumed at and returns False to suppress
-the ``ok`` (a kill). Reference: ../shared/reference/marlin_heater.md sections 3, 4, 7.
+the ``ok`` (a kill). Sources (Marlin 2.1.x): Marlin/src/gcode/temp/M104_M109.cpp, M140_M190.cpp,
+M105.cpp, M303.cpp, Marlin/src/gcode/queue.cpp, Marlin/src/module/temperature.cpp, core/language.h.
 """
 
 from __future__ import annotations

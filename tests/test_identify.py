@@ -13,6 +13,7 @@ import scipy.signal
 
 from tools.cli.fit import main
 from tools.ident.fit import (
+    CONTROL_DELAY_S,
     MIN_HEATUP_S,
     TWO_POINT_FRACTIONS,
     Fopdt,
@@ -21,7 +22,6 @@ from tools.ident.fit import (
     fit_model,
     fopdt_equivalent,
     log_segments,
-    pid_gains,
     relay_fopdt,
     split_heatups,
     two_point_fopdt,
@@ -29,6 +29,7 @@ from tools.ident.fit import (
     zoh_response,
 )
 from tools.logs import hardware_logs_dir, load_log
+from tools.tuning.rules import amigo
 from twin.plants import Lumped, Plant, TransferFunction, make_plant
 
 AMBIENT_C = 22.0
@@ -146,7 +147,8 @@ def test_fopdt_equivalent_and_amigo_gains():
     kp = (0.2 + 0.45 * 80.0 / big_l) / 300.0
     ti = big_l * (0.4 * big_l + 0.8 * 80.0) / (big_l + 8.0)
     td = 0.5 * big_l * 80.0 / (0.3 * big_l + 80.0)
-    assert pid_gains(fopdt) == pytest.approx((255 * kp, 255 * kp / ti, 255 * kp * td))
+    gains = amigo(fopdt._replace(delay_s=fopdt.delay_s + CONTROL_DELAY_S))
+    assert (gains.kp, gains.ki, gains.kd) == pytest.approx((255 * kp, 255 * kp / ti, 255 * kp * td))
 
 
 def test_fit_model_refuses_bad_input():

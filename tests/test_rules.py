@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from firmware_port.marlin.autotune import relay_gains
-from tools.ident.fit import Fopdt, pid_gains
+from tools.ident.fit import Fopdt
 from tools.tuning.gains import Gains
 from tools.tuning.models import model_of
 from tools.tuning.rules import (
@@ -71,7 +71,7 @@ def test_amigo_matches_the_formula_and_identify_without_loop_delay():
     g = amigo(FOPDT)
     assert g.duty[0] == pytest.approx(2.45)
     assert (g.ti_s, g.td_s) == pytest.approx((8.8 * 2 / 3, 10 / 10.6))
-    assert (g.kp, g.ki, g.kd) == pytest.approx(pid_gains(FOPDT, control_delay_s=0.0))
+    assert (g.kp, g.ki, g.kd) == pytest.approx((255 * 2.45, 255 * 2.45 / (8.8 * 2 / 3), 255 * 2.45 * 10 / 10.6))
 
 
 def test_simc_example_e1_of_skogestad_2003():

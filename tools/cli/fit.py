@@ -27,10 +27,10 @@ from tools.ident.fit import (
     fit_model,
     fopdt_equivalent,
     log_segments,
-    pid_gains,
     relay_fopdt,
     ultimate_point,
 )
+from tools.tuning.rules import amigo
 from tools.logs import MARLIN_POWER_MAX, HeattestLog, LogError, M303Log, PlainLog, StatsLog, load_log
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
@@ -101,8 +101,10 @@ def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str
     if fopdt.delay_s < sample_s:
         fopdt = fopdt._replace(delay_s=sample_s)
         lines.append(f"  tuned on a dead time of {sample_s:.3g} s, the log's sample interval: it cannot show less")
-    ku, tu_s = ultimate_point(fopdt._replace(delay_s=fopdt.delay_s + CONTROL_DELAY_S))
-    kp, ki, kd = pid_gains(fopdt)
+    delayed = fopdt._replace(delay_s=fopdt.delay_s + CONTROL_DELAY_S)
+    ku, tu_s = ultimate_point(delayed)
+    gains = amigo(delayed)
+    kp, ki, kd = gains.kp, gains.ki, gains.kd
     lines += [f"  with the loop's {CONTROL_DELAY_S:g} s of delay: ultimate gain Ku {ku:.4g} duty per C (x255: Marlin's "
               f"M303 Ku), period Tu {tu_s:.4g} s: what an ideal relay test would find",
               "ready to paste (PID by the AMIGO rule on that FOPDT, gains on the 0..255 scale):"]

@@ -474,23 +474,6 @@ def relay_fopdt(ku: float, tu_s: float, gain_c: float) -> Fopdt:
     return Fopdt(gain_c, tau, (math.pi - math.atan(w * tau)) / w)
 
 
-def pid_gains(fopdt: Fopdt, control_delay_s: float = CONTROL_DELAY_S) -> tuple[float, float, float]:
-    """(Kp, Ki, Kd) for a FOPDT plant with the loop's delay added, on the 0..255 scale of Marlin's
-    M301/M304 and Klipper's pid_Kp/Ki/Kd (Ki = Kp/Ti, Kd = Kp Td), by the AMIGO rule (Astrom and
-    Hagglund 2004, "Revisiting the Ziegler-Nichols step response method for PID control", J. Process
-    Control 14:635-650): Kp = (0.2 + 0.45 T/L) / K, Ti = L (0.4 L + 0.8 T) / (L + 0.1 T),
-    Td = 0.5 L T / (0.3 L + T). Not Ziegler-Nichols: a heater's lag dwarfs its dead time, and there
-    Ziegler-Nichols' integral action is far too strong.
-
-    Superseded by tools.tuning.rules.amigo (a FOPDT in, Gains out; add the loop's delay to the
-    FOPDT first); still used by tools/cli/fit.py, to be rewired."""
-    k, lag_s, delay_s = fopdt._replace(delay_s=fopdt.delay_s + control_delay_s)
-    kp = (0.2 + 0.45 * lag_s / delay_s) / k
-    ti_s = delay_s * (0.4 * delay_s + 0.8 * lag_s) / (delay_s + 0.1 * lag_s)
-    td_s = 0.5 * delay_s * lag_s / (0.3 * delay_s + lag_s)
-    return PID_SCALE * kp, PID_SCALE * kp / ti_s, PID_SCALE * kp * td_s
-
-
 def fopdt_equivalent(result: FitResult) -> Fopdt:
     """The fitted model as a FOPDT: itself, or the two-point method on its unit step response (exact
     zero-order-hold steps of the model on a grid up to 8 of its slowest time constants)."""

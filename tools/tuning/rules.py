@@ -78,7 +78,7 @@ def amigo(fopdt: Fopdt) -> Gains:
     """AMIGO step-response rule, Astrom and Hagglund 2004 ("Revisiting the Ziegler-Nichols step
     response method for PID control", J. Process Control 14:635-650), eq. (10):
     Kp = (0.2 + 0.45 T / L) / K, Ti = L (0.4 L + 0.8 T) / (L + 0.1 T), Td = 0.5 L T / (0.3 L + T).
-    Supersedes tools/ident/fit.py pid_gains (which adds the loop's delay first: do so on the FOPDT)."""
+    For a loop with its own delay (Marlin's control period), add that delay to the FOPDT first."""
     k, tau, delay = _check_fopdt(fopdt)
     return _standard((0.2 + 0.45 * tau / delay) / k, delay * (0.4 * delay + 0.8 * tau) / (delay + 0.1 * tau),
                      0.5 * delay * tau / (0.3 * delay + tau))

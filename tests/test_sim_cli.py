@@ -138,3 +138,24 @@ def test_a_clamped_target_is_said(capsys, tmp_path):
     code, out, _ = run(capsys, "--target", "300", "--duration", "5", "--no-plot", "--no-bed", "--out", str(tmp_path))
     assert code == 0
     assert "note: hotend target 300 C at 0 s is clamped to 260 C by the firmware" in out
+
+
+def test_record_every_bounds_the_trace_and_keeps_the_run(capsys, tmp_path):
+    """A long run's trace is bounded by --record-every; the firmware's run itself is unchanged."""
+    rows = {}
+    for every in ("0", "10"):
+        csv = tmp_path / f"{every}.csv"
+        code, out, err = run(capsys, "--duration", "300", "--no-plot", "--no-bed", "--record-every", every,
+                             "--csv", str(csv), "--out", str(tmp_path))
+        assert code == 0, err
+        rows[every] = [line.split(",") for line in csv.read_text().splitlines()[1:] if not line.startswith("#")]
+    assert len(rows["0"]) > 1800 and len(rows["10"]) <= 31
+    t_s = [float(r[0]) for r in rows["10"]]
+    assert all(9.9 < b - a < 10.2 for a, b in zip(t_s, t_s[1:]))
+    full = {r[0]: r for r in rows["0"]}
+    assert all(full[r[0]] == r for r in rows["10"])  # the kept rows are the full run's rows
+
+
+def test_record_every_is_checked(capsys, tmp_path):
+    code, _, err = run(capsys, "--record-every", "nan", "--out", str(tmp_path))
+    assert code == 2 and "--record-every nan" in err

@@ -51,6 +51,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, help="seed of every random source (default: the scenario's, else 0)")
     parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default 0)")
     parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default) or the tick-by-tick reference")
+    parser.add_argument("--record-every", type=float, default=0.0, metavar="SECONDS",
+                        help="at most one trace row per SECONDS (default: every firmware reading, 0.164 s; "
+                             "a row costs about 380 bytes: bound long runs with this)")
     parser.add_argument("--out", default="twin-out", help="directory for the default trace and plot (default twin-out)")
     parser.add_argument("--csv", help="trace CSV path (default OUT/<scenario>_<firmware>.csv)")
     parser.add_argument("--klipper-log", help="also write the trace as Klipper Stats lines to this path")
@@ -144,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
         scenario, duration_s=args.duration, ambient_c=args.ambient, initial_c=initial or None,
         targets=targets or None, seed=args.seed, plant=plant, gains=gains or None,
     )
+    if not (math.isfinite(args.record_every) and 0.0 <= args.record_every <= scenario.duration_s):
+        raise ValueError(f"--record-every {args.record_every}: must be 0..duration_s ({scenario.duration_s:g}) seconds")
     if not (math.isfinite(args.noise) and 0.0 <= args.noise <= NOISE_MAX_LSB):
         raise ValueError(f"--noise {args.noise}: must be a number of LSB in 0..{NOISE_MAX_LSB:g}")
     stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
@@ -151,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
     csv_path = args.csv or os.path.join(args.out, stem + ".csv")
     check_outputs([csv_path, args.klipper_log, plot_path], plot_path)
     twin = build_twin(scenario, args.firmware, with_bed=not args.no_bed, engine=args.engine, noise_lsb=args.noise)
+    twin.record_every_s = args.record_every
     twin.run_until(0.0)  # the scenario's 0 s events: targets and gains in force
     print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
     print(gains_line(twin))

@@ -9,6 +9,7 @@ from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
 from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed
 from firmware_port.marlin.pid_float import PidFloat
+from firmware_port.seed000 import adaptive_controller, fuzzy_controller, gaussian_controller
 
 # name -> (hotend controller factory, bed controller factory, one-line description)
 FIRMWARES: dict[str, tuple[Callable, Callable, str]] = {
@@ -46,6 +47,21 @@ FIRMWARES: dict[str, tuple[Callable, Callable, str]] = {
         lambda: FuzzyPidFloat.board(HOTEND_GAINS),
         lambda: FuzzyPidFloat.board(BED_GAINS),
         "seed 001's fuzzy-PID in float, the oracle of fuzzy_pid",
+    ),
+    "seed000_fuzzy": (
+        fuzzy_controller,
+        fuzzy_controller,
+        "seed 000's fuzzy gain-scheduled PID (triangular sets, five rules, no clamps), float",
+    ),
+    "seed000_gauss": (
+        gaussian_controller,
+        gaussian_controller,
+        "seed 000's Gaussian fuzzy gain-scheduled PID (integral +-50, output +-100 = full power), float",
+    ),
+    "seed000_adaptive": (
+        adaptive_controller,
+        adaptive_controller,
+        "seed 000's adaptive PI-D (anti-windup, output clipped at 1.5 x target = full power), float",
     ),
 }
 

@@ -81,7 +81,8 @@ def _seed000_why(rep: seed000.Reproduction) -> str:
     if ev:
         stable = "stable" if ev["correct_max_pole_real"] < 0 else "unstable"
         return (f"the seed's loop is CG/(C+G): it heads to {num(ev['seed_final_value_c'], 1)} C, its slope at the "
-                f"end of the horizon is {num(ev['seed_slope_at_end_c_s'], 3)} C/s; the same gains in a correct loop are {stable} "
+                f"end of the horizon is {num(ev['seed_slope_at_end_c_s'], 3)} C/s; the same gains in a correct loop "
+                f"are {stable} "
                 f"(largest pole real part {num(ev['correct_max_pole_real'], 4)} /s)")
     if rep.name == "anfis_refined":
         radius = seed000.anfis_label_radius("refined", rep.printed["settling_time_s"])
@@ -206,9 +207,9 @@ def _seed002_why(rep: seed002.Reproduction, twin_rows: list[list[str]]) -> list[
         lines.append(f"on the twin the heater saturates and Marlin's thermal protection halts {', '.join(halted)}, "
                      "which the unbounded model lets run")
     if len(halted) == len(twin_rows) > 1 and len({row[-1] for row in twin_rows}) == 1:
-        lines.append(f"every gain set halts at the same instant: through the {seed002.DEAD_TIME_S:g} s dead time each PID sits at full "
-                     "power whatever its gains, and at full power eq. 15's heater passes MAXTEMP before the "
-                     "reading can answer")
+        lines.append(f"every gain set halts at the same instant: through the {seed002.DEAD_TIME_S:g} s dead time "
+                     "each PID sits at full power whatever its gains, and at full power eq. 15's heater passes "
+                     "MAXTEMP before the reading can answer")
     return lines
 
 
@@ -244,9 +245,11 @@ def section_002() -> str:
         table(["gains", "overshoot %", "peak s", "rise s", "settling 2 % s", "max after disturbance C", "recovery s"],
               rows),
         f"Firmware twin (`{SEED002_PRESET}`, eq. 15 with its 20 s dead time behind the ADC and the soft PWM of a "
-        f"saturating heater, Marlin's integer PID, {num(SEED002_TWIN_FROM_C, 1)} -> {num(seed002.SETPOINT_C, 1)} C): the "
+        f"saturating heater, Marlin's integer PID, {num(SEED002_TWIN_FROM_C, 1)} -> {num(seed002.SETPOINT_C, 1)} C): "
+        "the "
         "table 11 platform gains as printed (Klipper's 0..255 scale is the firmware's) and the reference DE's:",
-        table(["gains", "Kp / Ki / Kd (0..255 scale)", "rise s", "peak C above target", "settling 2 % s", "firmware"], twin_rows),
+        table(["gains", "Kp / Ki / Kd (0..255 scale)", "rise s", "peak C above target", "settling 2 % s", "firmware"],
+              twin_rows),
         "Why they differ:\n\n" + bullets(_seed002_why(rep, twin_rows)),
         "Where the paper cannot be right:\n\n" + bullets(rep.evidence),
     ])
@@ -261,7 +264,8 @@ def _seed003_row(i: int, chk: seed003.LoopCheck) -> list[str]:
     kp, ki, kd = chk.gains
     return [
         chk.label, f"{num(kp, 3)} / {num(ki, 4)} / {num(kd, 3)}",
-        "-" if printed is None else f"{num(printed.rise_s, 1)} / {num(printed.overshoot_pct, 1)} / {num(printed.settling_s, 1)}",
+        "-" if printed is None else
+        f"{num(printed.rise_s, 1)} / {num(printed.overshoot_pct, 1)} / {num(printed.settling_s, 1)}",
         str(chk.unstable_roots),
         f"diverges by {num(chk.ideal.t_s[-1], 0)} s" if m is None else
         f"{num(m.rise_time_s, 1)} / {num(m.overshoot_pct, 1)} / {num(m.settling_time_5pct_s, 1)}",

@@ -79,3 +79,12 @@ def test_bad_flags_give_one_line(tmp_path, capsys):
     assert cli.main(["--check", "--out", str(tmp_path / "missing.md")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and err[0].startswith("tools.seeds: --seeds") and err[1].startswith("tools.seeds: --out")
+
+
+def test_writing_a_subset_keeps_the_other_sections(monkeypatch, tmp_path):
+    out = tmp_path / "seeds.md"
+    monkeypatch.setattr(page, "SECTIONS", {"001": lambda: "## Seed 001: a\n\nold", "003": lambda: "## Seed 003: b\n\nold"})
+    assert cli.main(["--out", str(out)]) == 0
+    monkeypatch.setitem(page.SECTIONS, "003", lambda: "## Seed 003: b\n\nnew")
+    assert cli.main(["--seeds", "003", "--out", str(out)]) == 0
+    assert page.sections(out.read_text()) == {"001": "## Seed 001: a\n\nold", "003": "## Seed 003: b\n\nnew"}

@@ -1,7 +1,8 @@
 """python -m tools.seeds [--check] [--seeds 000,001,...] [--out FILE]: re-run every seed paper's headline
 experiments and write docs/seeds.md (tools/seeds/page.py), or, with --check, compare a fresh rendering
 with the committed page (words and verdicts exactly, numbers within tools/validation/doc_compare.py's
-tolerance) and exit 1 if they differ. --seeds renders or checks those sections only."""
+tolerance) and exit 1 if they differ. --seeds renders (replacing those sections of an existing page)
+or checks those sections only."""
 
 from __future__ import annotations
 
@@ -13,9 +14,11 @@ from pathlib import Path
 from tools.seeds import page
 from tools.validation.doc_compare import compare_docs
 
+DESCRIPTION = "Re-run the seed papers' experiments and write docs/seeds.md, or --check it is current."
+
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m tools.seeds", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m tools.seeds", description=DESCRIPTION)
     parser.add_argument("--check", action="store_true", help="compare with the committed page instead of writing it")
     parser.add_argument("--seeds", default=",".join(page.SECTIONS), help="comma-separated, e.g. 001,003 (all)")
     parser.add_argument("--out", type=Path, default=page.DOC, help=f"the page (default {page.DOC.name} in docs/)")
@@ -54,7 +57,9 @@ def main(argv: list[str] | None = None) -> int:
         status = _check(seeds, args.out)
     else:
         try:
-            args.out.write_text(page.render(seeds))
+            texts = page.sections(args.out.read_text()) if args.out.is_file() else {}
+            texts.update(page.sections(page.render(seeds)))  # a subset replaces its sections, keeps the rest
+            args.out.write_text(page.assemble(texts))
         except OSError as error:
             print(f"tools.seeds: --out {args.out}: {error.strerror}", file=sys.stderr)
             return 2

@@ -356,9 +356,14 @@ HEADER = (
 )
 
 
+def assemble(texts: dict[str, str]) -> str:
+    """A page from sections, in seed order."""
+    return "\n\n".join([HEADER, *(texts[seed] for seed in SECTIONS if seed in texts)]) + "\n"
+
+
 def render(seeds: Iterable[str] = SECTIONS) -> str:
     """The page (or the named seeds' sections only), as markdown."""
-    return "\n\n".join([HEADER, *(SECTIONS[seed]() for seed in seeds)]) + "\n"
+    return assemble({seed: SECTIONS[seed]() for seed in seeds})
 
 
 def sections(text: str) -> dict[str, str]:

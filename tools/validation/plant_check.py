@@ -253,7 +253,7 @@ def _fit_lines(name: str, fit: Estimate, fixed: dict[str, float], held_out: Segm
 
 
 def fit_report() -> list[str]:
-    """The least-squares fits behind hotend_cartridge(_radiating) and bed, and the MK3 loss solve."""
+    """The least-squares fits behind hotend_cartridge (and ONION_RADIATING_PARAMS) and bed, and the MK3 loss solve."""
     runs = [run for _, run in onion_runs()]
     fits = onion_fits()
     chosen = min(fits, key=lambda name: fits[name][0].aic)
@@ -279,7 +279,7 @@ def fit_report() -> list[str]:
         [f"hotend_cartridge ({', '.join(ONION_FIT_FIXED)} as in the preset): heattest_200 first pulse,",
          f"  from {ONION_FIT_START}"]
         + [line for name, (fit, fixed) in fits.items() for line in _fit_lines(name, fit, fixed, runs[2])]
-        + [f"  lower AIC: {chosen} (hotend_cartridge holds the linear fit, hotend_cartridge_radiating the other)"]
+        + [f"  lower AIC: {chosen} (hotend_cartridge holds the linear fit, ONION_RADIATING_PARAMS the other)"]
         + ["  linear RMSE refitted with another cartridge_heat_capacity_j_k: "
            + ", ".join(f"{capacity:g} J/K {rmse:.2f} C" for capacity, rmse in profile.items())]
         + ["  then fan_ambient_xfer_w_k on both fan runs at fan = 1: " + ", ".join(

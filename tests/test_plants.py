@@ -26,6 +26,7 @@ from twin.plants import (
     MPC_AMBIENT_XFER_W_K,
     MPC_FILAMENT_HEAT_CAPACITY_J_K_MM,
     MPC_HEATER_POWER_W,
+    ONION_RADIATING_PARAMS,
     PRESETS,
     RADIATION_BIN_C,
     SPECS,
@@ -266,3 +267,13 @@ def test_bed_steady_duty_matches_the_logged_hold():
     spec = SPECS["bed"]
     assert spec.ambient_xfer_w_k * (60.0 - 25.2) / spec.power_w == pytest.approx(np.mean(log["heater_bed_pwm"][rows]),
                                                                                 abs=0.02)
+
+
+def test_radiating_cartridge_hotend_fits_the_pulse_and_predicts_the_held_out_trace():
+    """The AIC-chosen radiating fit against issue 14's measured figures: the pulse it was fitted to
+    within 0.43 C RMSE (linear fit: 1.89 C) and the author's separate trace within 1.58 C (linear:
+    2.07 C); measured 0.43 and 1.53 C, the margins cover another BLAS kernel's last digits."""
+    for name, bound_c in (("heattest_200", 0.435), ("sample_trace", 1.58)):
+        run = onion_run(name, t_max_s=ONION_PULSE_END_S)
+        model_c = replay(onion_plant(run, **ONION_RADIATING_PARAMS), run.t_s, run.duty)
+        assert rms(model_c - run.temp_c) < bound_c, name

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+import scipy.linalg
 import scipy.optimize
 
 from firmware_port.klipper.heater import PID_PARAM_BASE
@@ -151,6 +152,18 @@ class Estimate:
     def rmse_c(self) -> float:
         return float(np.sqrt(np.mean(np.square(self.residuals_c))))
 
+    @property
+    def aic(self) -> float:
+        return information_criterion(self.residuals_c, len(self.values))
+
+
+def information_criterion(residuals_c: np.ndarray, n_params: int) -> float:
+    """Akaike's information criterion of a least-squares fit, n ln(SSE / n) + 2 k (Akaike 1974, "A new
+    look at the statistical model identification", IEEE TAC 19:716-723, for Gaussian residuals):
+    lower is better; a parameter must buy more than a factor e^(2/n) of the squared error."""
+    n = len(residuals_c)
+    return float(n * math.log(max(float(np.sum(np.square(residuals_c))), 1e-300) / n) + 2 * n_params)
+
 
 # --- the fitter ----------------------------------------------------------------------------------
 
@@ -194,7 +207,9 @@ def least_squares_fit(residuals: Callable[[dict[str, float]], np.ndarray], start
 
 def zoh_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.ndarray:
     """The plant's sensor at the instants t_s (from t_s[0]), its heater at duty[i] from t_s[i] to
-    t_s[i + 1]; instants on the tick grid (1.024 ms)."""
+    t_s[i + 1]; instants on the tick grid (1.024 ms). A radiating plant: ``radiating_response``."""
+    if not plant.linear:
+        return radiating_response(plant, t_s, duty)
     ticks = np.rint((t_s - t_s[0]) / TICK_S).astype(int)
     out = np.empty(len(t_s))
     out[0] = plant.temps_c()[SENSOR]
@@ -205,11 +220,40 @@ def zoh_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.ndarray:
     return out
 
 
-def fit_plants(make: Callable[..., Plant], start: dict[str, float], segments: Sequence[Segment]) -> Estimate:
-    """Fit the parameters start names over segments at once; ``make(segment, **params)`` builds the
-    plant for one segment (its ambient, initial state and fan)."""
+def radiating_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.ndarray:
+    """A radiating lumped plant's sensor at the instants t_s, from its state now: over each sample
+    interval the plant's own model (``Lumped.lti``) linearised at the block's temperature at the
+    interval's start (the secant radiation conductance, docs/plants.md "Radiation"), stepped exactly
+    for that interval's duty by one matrix exponential of the model augmented with its constant input.
+
+    The engine relinearises the same model between its runs (at most 160 ticks) in 0.5 C bins, each
+    bin a discretisation of its own; per sample, unbinned, the residuals are smooth in the radiation
+    parameter and a fit does not rebuild a tick model for every bin (about 5 s against 0.05 s per
+    evaluation on the onionheater pulse)."""
+    spec = plant.spec
+    x = plant.x.copy()
+    n = len(x)
+    out = np.empty(len(t_s))
+    out[0] = plant.temps_c()[SENSOR]
+    augmented = np.zeros((n + 1, n + 1))
+    for i, step_s in enumerate(np.diff(t_s)):
+        lti = spec.lti(spec.conditions(plant.fan, plant.flow_mm_s, plant.ambient_c, float(x[0]))._replace(
+            block_bin_c=float(x[0])))
+        augmented[:n, :n] = lti.a
+        augmented[:n, n] = lti.b * duty[i] + lti.e @ plant.d
+        x = (scipy.linalg.expm(augmented * step_s) @ np.r_[x, 1.0])[:n]
+        out[i + 1] = lti.c[SENSOR] @ x
+    plant.x = x
+    return out
+
+
+def fit_plants(make: Callable[..., Plant], start: dict[str, float], segments: Sequence[Segment],
+               bounds: dict[str, tuple[float, float]] | None = None) -> Estimate:
+    """Fit the parameters start names (within optional bounds) over segments at once;
+    ``make(segment, **params)`` builds the plant for one segment from what the segment declares
+    (its ambient, start state and fan)."""
     return least_squares_fit(lambda p: np.concatenate(
-        [zoh_response(make(seg, **p), seg.t_s, seg.duty) - seg.temp_c for seg in segments]), start)
+        [zoh_response(make(seg, **p), seg.t_s, seg.duty) - seg.temp_c for seg in segments]), start, bounds=bounds)
 
 
 # --- the models ----------------------------------------------------------------------------------
@@ -399,11 +443,8 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
 
 
 def aic(result: FitResult) -> float:
-    """Akaike's information criterion of a least-squares fit, n ln(SSE / n) + 2 k (Akaike 1974, "A new
-    look at the statistical model identification", IEEE TAC 19:716-723, for Gaussian residuals):
-    lower is better; a parameter must buy more than a factor e^(2/n) of the squared error."""
-    n, k = result.n_samples, len(result.params)
-    return float(n * math.log(max(float(np.sum(np.square(result.residuals_c))), 1e-300) / n) + 2 * k)
+    """``information_criterion`` of a fitted model: its residuals and its fitted parameters."""
+    return information_criterion(result.residuals_c, len(result.params))
 
 
 def best_fit(models: Sequence[str], seg: Segment, ambient_c: float | None, power_w: float | None) -> FitResult:

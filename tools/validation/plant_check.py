@@ -15,15 +15,16 @@ The numbers in docs/plants.md come from this command.
 from __future__ import annotations
 
 import argparse
+from functools import partial
 
 import numpy as np
 import scipy.optimize
 
-from tools.ident.fit import Segment, fit_plants, zoh_response
+from tools.ident.fit import Estimate, Segment, fit_plants, zoh_response
 from tools.logs import csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
-from twin.plants import MK3_POWER_W, make_plant
+from twin.plants import MK3_POWER_W, V6_BLOCK_AREA_M2, make_plant
 
 # Onionheater pulse tests (README section B; the author's notes in the files' headers).
 ONION_LOG = "klipper_heattest_onionheater_{}.csv"
@@ -35,6 +36,12 @@ ONION_FIT_FIXED = ("power_w", "cartridge_heat_capacity_j_k")
 ONION_CARTRIDGE_PROFILE_J_K = (1.0, 4.0, 8.0)  # the fit is flat in the cartridge's capacity: shown by refits
 ONION_FIT_START = {"block_heat_capacity_j_k": 16.7, "cartridge_xfer_w_k": 1.0,  # MPC defaults, a 1 W/K contact
                    "sensor_responsiveness_per_s": 0.22, "ambient_xfer_w_k": 0.068}
+# The radiation-like loss sigma eps area (Tb^4 - Ta^4), fitted as an effective area at emissivity 1
+# (emissivity times the block's own 14.7 cm^2 wanted 2.7 > 1: more than the block radiates, i.e. the
+# heat break, nozzle and convection's own rise with temperature), from twice the block's area,
+# bounded by 100 cm^2: about seven V6 blocks, more than the whole hot end's surface.
+ONION_RADIATING_START_M2 = 2 * V6_BLOCK_AREA_M2
+ONION_RADIATING_BOUNDS_M2 = (0.0, 0.01)
 
 # Chesleavens bed (README section A): session 0, heat-up to 65 C, hold, step down to 60 C.
 BED_LOG = "klippy_stats_chesleavens_cartesian_stm32f103.csv"
@@ -103,10 +110,13 @@ def rms(x: np.ndarray) -> float:
 
 
 def onion_run(name: str, fan: float = 0.0, t_min_s: float = 0.0, t_max_s: float = np.inf) -> Segment:
-    """An onionheater run from its first heater-on sample at or after t_min_s, up to t_max_s."""
+    """An onionheater run from the last sample before its first heater-on sample at or after t_min_s
+    (the reading the heater started from; at 0.25 C resolution the first heated one can be a step
+    up already), up to t_max_s."""
     log = parse_heattest(logs_dir() / ONION_LOG.format(name))
     t_s, pwm = log.t_s, log.pwm
-    keep = (t_s >= t_s[np.argmax((pwm > 0) & (t_s >= t_min_s))]) & (t_s < t_max_s)
+    first = max(int(np.argmax((pwm > 0) & (t_s >= t_min_s))) - 1, 0)
+    keep = (t_s >= t_s[first]) & (t_s < t_max_s)
     return Segment(name, t_s[keep], log.temp_c[keep], pwm[keep], fan)
 
 
@@ -219,16 +229,43 @@ def bed_report() -> list[str]:
     return lines
 
 
+def onion_fits() -> dict[str, tuple[Estimate, dict[str, float]]]:
+    """The no-fan first pulse fitted without and with the radiation-like loss: each fit and the
+    fixed values it was fitted with."""
+    first = onion_runs()[0][1]
+    fits = {}
+    for name, fixed, start, bounds in (
+        ("linear", {"emissivity": 0.0}, ONION_FIT_START, None),
+        ("radiating", {"emissivity": 1.0}, {**ONION_FIT_START, "radiating_area_m2": ONION_RADIATING_START_M2},
+         {"radiating_area_m2": ONION_RADIATING_BOUNDS_M2}),
+    ):
+        fits[name] = (fit_plants(partial(onion_plant, **fixed), start, [first], bounds), fixed)
+    return fits
+
+
+def _fit_lines(name: str, fit: Estimate, fixed: dict[str, float], held_out: Segment) -> list[str]:
+    """A fit's values +- standard errors, RMSE, AIC, and its RMSE on the held-out run."""
+    values = {**fit.values, **fixed}
+    err = zoh_response(onion_plant(held_out, **values), held_out.t_s, held_out.duty) - held_out.temp_c
+    return ([f"  {name} ({', '.join(f'{k} {v:g}' for k, v in fixed.items())}):"]
+            + [f"    {k} = {v:.4g} +- {fit.std_errors[k]:.2g}" for k, v in fit.values.items()]
+            + [f"    RMSE {fit.rmse_c:.2f} C, AIC {fit.aic:.0f}; held out ({held_out.label}): RMSE {rms(err):.2f} C"])
+
+
 def fit_report() -> list[str]:
-    """The least-squares fits behind hotend_cartridge and bed, and the MK3 loss solve."""
+    """The least-squares fits behind hotend_cartridge (and ONION_RADIATING_PARAMS) and bed, and the MK3 loss solve."""
     runs = [run for _, run in onion_runs()]
-    onion_fit = fit_plants(onion_plant, ONION_FIT_START, runs[:1])
-    onion, onion_rms = onion_fit.values, onion_fit.rmse_c
-    profile = {capacity: fit_plants(lambda run, **p: onion_plant(run, cartridge_heat_capacity_j_k=capacity, **p),
-                                    ONION_FIT_START, runs[:1]).rmse_c for capacity in ONION_CARTRIDGE_PROFILE_J_K}
-    fan_fit = fit_plants(lambda run, **p: onion_plant(run, **onion, **p), {"fan_ambient_xfer_w_k": 0.09},
-                         [run for run in runs if run.fan])
-    fan, fan_rms = fan_fit.values, fan_fit.rmse_c
+    fits = onion_fits()
+    chosen = min(fits, key=lambda name: fits[name][0].aic)
+
+    def refit_rmse_c(capacity_j_k: float) -> float:
+        make = partial(onion_plant, emissivity=0.0, cartridge_heat_capacity_j_k=capacity_j_k)
+        return fit_plants(make, ONION_FIT_START, runs[:1]).rmse_c
+
+    profile = {capacity: refit_rmse_c(capacity) for capacity in ONION_CARTRIDGE_PROFILE_J_K}
+    fan_runs = [run for run in runs if run.fan]
+    fan_fits = {name: fit_plants(partial(onion_plant, **fixed, **fit.values), {"fan_ambient_xfer_w_k": 0.09}, fan_runs)
+                for name, (fit, fixed) in fits.items()}
     bed_fit = fit_plants(bed_plant, BED_FIT_START, [bed_run()])
     bed, bed_rms = bed_fit.values, bed_fit.rmse_c
 
@@ -241,11 +278,12 @@ def fit_report() -> list[str]:
     return (
         [f"hotend_cartridge ({', '.join(ONION_FIT_FIXED)} as in the preset): heattest_200 first pulse,",
          f"  from {ONION_FIT_START}"]
-        + [f"  {name} = {value:.4g}" for name, value in onion.items()] + [f"  RMSE {onion_rms:.2f} C"]
-        + ["  RMSE refitted with another cartridge_heat_capacity_j_k: "
+        + [line for name, (fit, fixed) in fits.items() for line in _fit_lines(name, fit, fixed, runs[2])]
+        + [f"  lower AIC: {chosen} (hotend_cartridge holds the linear fit, ONION_RADIATING_PARAMS the other)"]
+        + ["  linear RMSE refitted with another cartridge_heat_capacity_j_k: "
            + ", ".join(f"{capacity:g} J/K {rmse:.2f} C" for capacity, rmse in profile.items())]
-        + [f"  then fan_ambient_xfer_w_k = {fan['fan_ambient_xfer_w_k']:.4g} on both fan runs at fan = 1,"
-           f" RMSE {fan_rms:.2f} C"]
+        + ["  then fan_ambient_xfer_w_k on both fan runs at fan = 1: " + ", ".join(
+            f"{name} {fit.values['fan_ambient_xfer_w_k']:.4g} (RMSE {fit.rmse_c:.2f} C)" for name, fit in fan_fits.items())]
         + [f"bed (power_w as in the preset): chesleavens session 0 heat-up, from {BED_FIT_START}"]
         + [f"  {name} = {value:.4g}" for name, value in bed.items()] + [f"  RMSE {bed_rms:.2f} C"]
         + [f"bed_mk3: ambient_xfer_w_k = {mk3_loss:.4f} (100 C at {MK3_TIME_TO_100_S:.0f} s, duty 220/255)"]

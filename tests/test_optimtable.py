@@ -74,3 +74,17 @@ def test_bad_flags_one_line(argv, flag, capsys) -> None:
     assert optimtable.main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and flag in err
+
+
+def test_benchfuncs_doc_rewrites_only_its_section(tmp_path) -> None:
+    """benchfuncs --doc (the F1-F23 section of docs/tuning.md) uses the same section writer."""
+    from tools.tuning import benchfuncs
+
+    doc = tmp_path / "tuning.md"
+    doc.write_text("keep\n<!-- benchfuncs: begin (cmd) -->\nold\n<!-- benchfuncs: end -->\ntail\n")
+    argv = ["--quick", "--functions", "F1,F6", "--methods", "alo,ocalo", "--workers", "1", "--doc", str(doc)]
+    assert benchfuncs.main(argv) == 0
+    text = doc.read_text()
+    assert text.startswith("keep\n<!-- benchfuncs: begin (cmd) -->\nWritten by `python -m tools.tuning.benchfuncs --quick")
+    assert text.endswith("<!-- benchfuncs: end -->\ntail\n") and "\nold\n" not in text and "OCALO beats ALO on" in text
+    assert benchfuncs.main(["--quick", "--doc", str(tmp_path / "missing.md")]) == 2

@@ -318,6 +318,23 @@ def _write_doc(path: Path, report: str, command: str) -> str | None:
     return _write_out(path, new, command)
 
 
+def ordering_differences(results: dict[tuple[str, str], np.ndarray]) -> list[str]:
+    """Functions where our ALO/OCALO ordering (by mean) differs from seed 002's table 2."""
+    from tools.seeds import seed002
+
+    lines = []
+    for bench in BENCHMARKS:
+        if (bench.name, "alo") not in results or (bench.name, "ocalo") not in results:
+            continue
+        ours = results[bench.name, "ocalo"].mean() < results[bench.name, "alo"].mean()
+        printed = seed002.PRINTED_MEAN[bench.name]
+        seed = float(printed["OCALO"]) < float(printed["ALO"])
+        if ours != seed:
+            winner = {True: "OCALO", False: "ALO"}
+            lines.append(f"{bench.name}: ours {winner[ours]} better, seed 002 {winner[seed]} better")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     from tools.tuning.optim.benchmark import format_report, run_all
 
@@ -336,6 +353,10 @@ def main(argv: list[str] | None = None) -> int:
         results, methods, runs=args.runs, population=args.population, iterations=args.iterations,
         wall_s=time.perf_counter() - start_s, workers=args.workers, shift=args.shift,
     )  # fmt: skip
+    differences = ordering_differences(results)
+    if differences:
+        report += "\nWhere our ALO/OCALO ordering (mean) differs from seed 002's table 2:\n\n"
+        report += "".join(f"- {line}\n" for line in differences)
     if args.out is None and args.doc is None:
         print(report, end="")
         return 0

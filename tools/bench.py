@@ -321,9 +321,73 @@ def bench_protocol(n_requests: int, n_lines: int) -> list[str]:
     return lines
 
 
+# -- scaling: how cost grows with lanes, horizon and dask workers ---------------------------------
+SCALING_LANES = (1, 10, 100, 1000)
+SCALING_HORIZONS_S = (150.0, 300.0, 600.0)
+SCALING_HORIZON_LANES = 1000
+SCALING_DASK_LANES = 2048  # 64 chunks of evaluate.CHUNK_LANES: enough tasks for two workers
+SCALING_REPEATS = 3  # each figure is the best of 3 runs: a loaded machine inflates single runs
+
+
+def _best_wall(fn) -> float:
+    return min(_timed(fn) for _ in range(SCALING_REPEATS))
+
+
+def _scaling_lanes(plant, seed: int) -> list[str]:
+    """Wall time of a 600-s batch against its lane count, relative to one lane."""
+    rng = np.random.default_rng(seed)
+    gains = [PidGains(*map(float, g)) for g in _random_gains(rng, TUNE_BOUNDS, max(SCALING_LANES))]
+    _heat_and_hold(plant, gains[:2], 1.0)  # loads the compiled kernel first
+    walls = {n: _best_wall(lambda n=n: _heat_and_hold(plant, gains[:n], 600.0)) for n in SCALING_LANES}
+    lines = [f"lanes ({plant.preset}, 600 s, full ISR fidelity): wall, wall per lane, ratio of wall to 1 lane's"]
+    lines += [f"  {n:5d} lanes: {w:.3f} s, {w / n * 1e3:.2f} ms per lane, x{w / walls[1]:.1f}" for n, w in walls.items()]
+    return lines
+
+
+def _scaling_horizon(plant, seed: int) -> list[str]:
+    """Wall time and memory per lane against the simulated horizon."""
+    rng = np.random.default_rng(seed)
+    gains = [PidGains(*map(float, g)) for g in _random_gains(rng, TUNE_BOUNDS, SCALING_HORIZON_LANES)]
+    walls = {h: _best_wall(lambda h=h: _heat_and_hold(plant, gains, h)) for h in SCALING_HORIZONS_S}
+    first = walls[SCALING_HORIZONS_S[0]]
+    lines = [f"horizon ({SCALING_HORIZON_LANES} lanes): wall, ratio to {SCALING_HORIZONS_S[0]:g} s, memory per lane"]
+    lines += [f"  {h:5g} s: {wall:.3f} s, x{wall / first:.2f}, "
+              f"{_heat_and_hold(plant, gains[:1], h).bytes_per_lane() / 1024:.1f} KiB per lane"
+              for h, wall in walls.items()]
+    return lines
+
+
+def _scaling_dask(seed: int) -> list[str]:
+    """evaluate.simulate in-process against a dask LocalCluster of 1 and of 2 worker processes."""
+    from distributed import Client, LocalCluster
+
+    from tools.tuning.evaluate import preset_problem, simulate
+
+    problem = preset_problem(TUNE_PRESET, TUNE_TARGET_C)
+    gains = _random_gains(np.random.default_rng(seed), TUNE_BOUNDS, SCALING_DASK_LANES)
+    simulate(problem, gains[:2])  # compiled kernel loaded in this process
+    walls = {"in-process": _best_wall(lambda: simulate(problem, gains))}
+    for workers in (1, 2):
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+                Client(cluster) as client:
+            simulate(problem, gains[: 2 * workers], client)  # workers import and load the kernel
+            walls[f"{workers} worker(s)"] = _best_wall(lambda client=client: simulate(problem, gains, client))
+    base = walls["in-process"]
+    lines = [f"dask ({SCALING_DASK_LANES} lanes of {problem.name}, {problem.scenario.duration_s:g} s scenario, "
+             f"chunks of 32, LocalCluster worker processes of 1 thread): wall, ratio to in-process"]
+    lines += [f"  {name}: {wall:.3f} s, x{wall / base:.2f}" for name, wall in walls.items()]
+    return lines
+
+
+def bench_scaling(seed: int) -> list[str]:
+    """docs/scaling.md's figures: lanes, horizon, dask workers, measured in one run."""
+    plant = tune_plant()
+    return _scaling_lanes(plant, seed) + _scaling_horizon(plant, seed) + _scaling_dask(seed)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=["twin", "tune", "protocol"], help="what to benchmark")
+    parser.add_argument("what", choices=["twin", "tune", "protocol", "scaling"], help="what to benchmark")
     parser.add_argument("--duration", type=float, default=600.0, help="twin: virtual seconds (default 600)")
     parser.add_argument("--lanes", type=int, default=1000, help="twin, tune: batch lanes (default 1000)")
     parser.add_argument("--seed", type=int, default=1, help="twin, tune: seed of the random gains and of DE (default 1)")
@@ -337,6 +401,8 @@ def main(argv: list[str] | None = None) -> int:
         plant = tune_plant()
         lines = bench_evaluation_cost(plant, args.lanes, args.duration, args.seed, n_seed000=200)
         lines += bench_de_tune(plant, args.duration, args.seed)
+    elif args.what == "scaling":
+        lines = [f"python -m tools.bench scaling --seed {args.seed}"] + bench_scaling(args.seed)
     else:
         lines = [f"python -m tools.bench protocol --requests {args.requests} --lines {args.lines}"]
         lines += bench_protocol(args.requests, args.lines)

@@ -260,6 +260,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--shift", type=float, default=0.0, help="move origin minimisers to SHIFT x upper bound (0)")
     parser.add_argument("--quick", action="store_true", help="2 runs, population 10, 10 iterations")
     parser.add_argument("--out", type=Path, help="write the markdown report here (default: stdout)")
+    parser.add_argument("--doc", type=Path, help="rewrite the report's section of this markdown file (docs/tuning.md)")
     args = parser.parse_args(argv)
     if args.quick:
         vars(args).update(QUICK)
@@ -284,6 +285,56 @@ def _problem(args: argparse.Namespace) -> str | None:
     return next((message for bad, message in checks if bad), None)
 
 
+DOC_BEGIN, DOC_END = "<!-- benchfuncs: begin", "<!-- benchfuncs: end -->"
+
+
+def _write_out(path: Path, report: str, _command: str) -> str | None:
+    try:
+        path.write_text(report)
+    except OSError as error:
+        return str(error.strerror)
+    return None
+
+
+def replace_section(text: str, body: str, begin: str, end: str) -> str | None:
+    """``text`` with the lines between the markers ``begin...``/``end`` replaced, or None if absent."""
+    start, stop = text.find(begin), text.find(end)
+    if start < 0 or stop < start:
+        return None
+    head = text[: text.index("\n", start) + 1]
+    return head + body.rstrip("\n") + "\n" + text[stop:]
+
+
+def _write_doc(path: Path, report: str, command: str) -> str | None:
+    """Rewrite the section between the benchfuncs markers, stating the command that wrote it."""
+    try:
+        text = path.read_text()
+    except OSError as error:
+        return str(error.strerror)
+    body = f"Written by `python -m tools.tuning.benchfuncs {command}`.\n\n{report}"
+    new = replace_section(text, body, DOC_BEGIN, DOC_END)
+    if new is None:
+        return f"no '{DOC_BEGIN} ... -->' / '{DOC_END}' markers"
+    return _write_out(path, new, command)
+
+
+def ordering_differences(results: dict[tuple[str, str], np.ndarray]) -> list[str]:
+    """Functions where our ALO/OCALO ordering (by mean) differs from seed 002's table 2."""
+    from tools.seeds import seed002
+
+    lines = []
+    for bench in BENCHMARKS:
+        if (bench.name, "alo") not in results or (bench.name, "ocalo") not in results:
+            continue
+        ours = results[bench.name, "ocalo"].mean() < results[bench.name, "alo"].mean()
+        printed = seed002.PRINTED_MEAN[bench.name]
+        seed = float(printed["OCALO"]) < float(printed["ALO"])
+        if ours != seed:
+            winner = {True: "OCALO", False: "ALO"}
+            lines.append(f"{bench.name}: ours {winner[ours]} better, seed 002 {winner[seed]} better")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     from tools.tuning.optim.benchmark import format_report, run_all
 
@@ -302,17 +353,23 @@ def main(argv: list[str] | None = None) -> int:
         results, methods, runs=args.runs, population=args.population, iterations=args.iterations,
         wall_s=time.perf_counter() - start_s, workers=args.workers, shift=args.shift,
     )  # fmt: skip
-    if args.out is None:
+    differences = ordering_differences(results)
+    if differences:
+        report += "\nWhere our ALO/OCALO ordering (mean) differs from seed 002's table 2:\n\n"
+        report += "".join(f"- {line}\n" for line in differences)
+    if args.out is None and args.doc is None:
         print(report, end="")
         return 0
-    try:
-        args.out.write_text(report)
-    except OSError as error:
-        print(f"benchfuncs: --out {args.out}: {error.strerror}", file=sys.stderr)
-        return 2
+    for flag, path, write in (("--out", args.out, _write_out), ("--doc", args.doc, _write_doc)):
+        if path is None:
+            continue
+        problem = write(path, report, " ".join(sys.argv[1:] if argv is None else argv))
+        if problem:
+            print(f"benchfuncs: {flag} {path}: {problem}", file=sys.stderr)
+            return 2
+        print(f"report written to {path}")
     print(report.split("\n\n")[0])
     print(next(line for line in report.splitlines() if line.startswith("OCALO beats ALO")))
-    print(f"report written to {args.out}")
     return 0
 
 

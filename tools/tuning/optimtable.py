@@ -1,0 +1,138 @@
+"""The optimisers' table of docs/tuning.md: DE, PSO and OCALO against the best rule and M303.
+
+Issue 11's acceptance: on ``hotend_cartridge`` and on plants fitted from the captured hardware
+logs, a search on the firmware twin finds gains at least as good as the best classical rule on the
+heater objective, and better than the firmware's own autotune (Marlin M303 C8). Each plant is
+built as twin-tune builds it (a preset, or ``--from-log`` fitted as twin-fit does); each optimiser
+searches twin-tune's box (0 .. 4 x the best rule's gains) with a fixed seed and budget.
+
+``python -m tools.tuning.optimtable`` rewrites the section between the markers in docs/tuning.md;
+``--budget`` and ``--plants`` give a reduced run (the test's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from tools.cli.tune import autotune_reference, make_problem, optimise, parse_args
+from tools.logs import hardware_logs_dir
+from tools.tuning.evaluate import Candidate, rule_gains, rule_names, score
+from tools.tuning.objectives import heater_cost
+from tools.tuning.table import _verdict
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "tuning.md"
+BEGIN, END = "<!-- optim-table: begin", "<!-- optim-table: end -->"
+OPTIMISERS = ("de", "pso", "ocalo")
+BUDGET = 900  # evaluations per optimiser: twin-tune's default (20 generations of DE's 45)
+SEED = 0
+# (label, twin-tune arguments): the presets fitted to logs, then two printers' Klipper Stats logs
+# fitted as twin-fit does (two-node model, the default segment).
+PLANTS: dict[str, list[str]] = {
+    "hotend_cartridge": ["--plant", "hotend_cartridge"],
+    "bed": ["--plant", "bed"],
+    "ender5 extruder": ["--from-log", "klippy_stats_icodextrin_ender5_creality427.csv", "--heater", "extruder"],
+    "kp3s extruder": ["--from-log", "klippy_stats_pdegrazia_kingroon_kp3s_a.csv", "--heater", "extruder"],
+}
+
+
+@dataclass(frozen=True)
+class PlantResult:
+    """One plant: the best rule, M303 and each optimiser, scored on the heater objective."""
+
+    plant: str
+    source: str
+    best_rule: Candidate
+    m303: Candidate | None
+    optimised: dict[str, Candidate]
+
+    def verdicts(self, method: str) -> tuple[str, str]:
+        """(against the best rule, against M303): beats / ties / loses, with table.py's tie margin."""
+        cost = self.optimised[method].cost
+        vs_m303 = "-" if self.m303 is None else _verdict(cost, self.m303.cost)
+        return _verdict(cost, self.best_rule.cost), vs_m303
+
+    def accepted(self, method: str) -> bool:
+        """At least as good as the best rule, and better than M303."""
+        vs_rule, vs_m303 = self.verdicts(method)
+        return vs_rule != "loses" and vs_m303 == "beats"
+
+
+def _argv(label: str) -> list[str]:
+    argv = list(PLANTS[label])
+    if argv[0] == "--from-log":
+        argv[1] = str(hardware_logs_dir() / argv[1])
+    return argv
+
+
+def run_plant(label: str, budget: int, seed: int, methods: tuple[str, ...] = OPTIMISERS) -> PlantResult:
+    args = parse_args(_argv(label))
+    problem, _ = make_problem(args)
+    reference = autotune_reference(problem, heater_cost)
+    gains, _ = rule_gains(problem, rule_names())
+    best_rule = score(problem, heater_cost, gains)[0]
+    optimised = {m: optimise(problem, heater_cost, m, best_rule.gains, budget, seed) for m in methods}
+    m303 = reference if isinstance(reference, Candidate) else None
+    return PlantResult(label, problem.name, best_rule, m303, optimised)
+
+
+def _g(value: float) -> str:
+    return f"{value:.4g}"
+
+
+def markdown(results: list[PlantResult], budget: int, seed: int) -> str:
+    methods = list(results[0].optimised)
+    head = ["plant", "best rule", "rule cost", "M303 cost"]
+    head += [f"{m.upper()} cost (vs rule / vs M303)" for m in methods] + ["accepted"]
+    lines = [f"Budget {budget} evaluations per optimiser, seed {seed}, heater objective, Marlin firmware twin; "
+             "ties are within 2 % (tools/tuning/table.py REL_TOL).", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in results:
+        cells = [f"{r.plant} ({r.source})", r.best_rule.method, _g(r.best_rule.cost),
+                 "failed" if r.m303 is None else _g(r.m303.cost)]
+        cells += [f"{_g(r.optimised[m].cost)} ({' / '.join(r.verdicts(m))})" for m in methods]
+        cells.append(", ".join(m for m in methods if r.accepted(m)) or "none")
+        lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+    passed = sum(all(r.accepted(m) for m in methods) for r in results)
+    lines += ["", f"Every optimiser accepted on {passed} of {len(results)} plants."]
+    return "\n".join(lines) + "\n"
+
+
+def write_doc(path: Path, body: str, command: str) -> None:
+    from tools.tuning.benchfuncs import replace_section
+
+    new = replace_section(path.read_text(), f"Written by `{command}`.\n\n{body}", BEGIN, END)
+    if new is None:
+        raise ValueError(f"{path} lacks the '{BEGIN} ... -->' / '{END}' markers")
+    path.write_text(new)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tools.tuning.optimtable", description=__doc__.splitlines()[0])
+    parser.add_argument("--budget", type=int, default=BUDGET, help=f"evaluations per optimiser ({BUDGET})")
+    parser.add_argument("--seed", type=int, default=SEED, help=f"every optimiser's seed ({SEED})")
+    parser.add_argument("--plants", default=",".join(PLANTS), help="comma-separated plant labels")
+    parser.add_argument("--doc", type=Path, help="rewrite the optimiser section of this file (docs/tuning.md)")
+    args = parser.parse_args(argv)
+    labels = args.plants.split(",")
+    unknown = [p for p in labels if p not in PLANTS]
+    if unknown or args.budget < 150:
+        why = f"--plants: unknown {unknown}, choose from {list(PLANTS)}" if unknown else "--budget must be >= 150 (OCALO: 3 x its population of 50)"
+        print(f"optimtable: {why}", file=sys.stderr)
+        return 2
+    try:
+        table = markdown([run_plant(p, args.budget, args.seed) for p in labels], args.budget, args.seed)
+        if args.doc is not None:
+            command = "python -m tools.tuning.optimtable " + " ".join(sys.argv[1:] if argv is None else argv)
+            write_doc(args.doc, table, command.strip())
+    except (ValueError, OSError) as exc:
+        print(f"optimtable: {exc}", file=sys.stderr)
+        return 2
+    print(table, end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

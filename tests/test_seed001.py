@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from tools.seeds import seed001
-from tools.seeds.ideal_fopdt import Fopdt, simulate
+from tools.ident.fit import Fopdt
+from tools.seeds.ideal_fopdt import simulate
 
 
 @pytest.fixture(scope="module")
@@ -20,10 +21,10 @@ def by(result, controller, loop):
 
 def test_ultimate_point_is_a_phase_crossover():
     """At Pu the loop phase is -180 degrees and |Ku G| = 1 (closed forms, to 1e-9)."""
-    ku, pu = seed001.ultimate(seed001.PLANT)
+    ku, pu = seed001.ultimate_point(seed001.PLANT)
     w = 2 * math.pi / pu
     p = seed001.PLANT
-    g = p.gain * np.exp(-1j * w * p.delay_s) / (1j * w * p.tau_s + 1)
+    g = p.gain_c * np.exp(-1j * w * p.delay_s) / (1j * w * p.time_constant_s + 1)
     assert abs(ku * g - (-1.0)) < 1e-9
 
 

@@ -488,8 +488,8 @@ def ultimate_point(fopdt: Fopdt) -> tuple[float, float]:
     """(Ku, Tu) of a FOPDT: the proportional gain (input per C) and the period at which a P
     controller would hold a steady oscillation: atan(w T) + w L = pi, Ku = sqrt(1 + (w T)^2) / K.
 
-    Superseded by tools.tuning.ultimate.ultimate_point (any model, from its frequency response);
-    still used by tools/cli/fit.py, to be rewired."""
+    The closed form for a FOPDT (twin-fit, seed 001); tools.tuning.ultimate.ultimate_point does any
+    model from its frequency response."""
     k, tau, delay = fopdt
     if delay <= 0 or k <= 0 or tau < 0:
         raise ValueError(f"no ultimate point for {fopdt}: needs a positive gain and dead time")

@@ -15,14 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-@dataclass(frozen=True)
-class Fopdt:
-    """K e^(-L s) / (T s + 1), in the paper's units (output degC per unit of its input)."""
-
-    gain: float
-    tau_s: float
-    delay_s: float
+from tools.ident.fit import Fopdt  # K e^(-L s) / (T s + 1), in the paper's units
 
 
 @dataclass(frozen=True)
@@ -43,7 +36,7 @@ def simulate(plant: Fopdt, controller: Callable[[float], float], target: float, 
     delay_steps = plant.delay_s / dt_s
     if not (dt_s > 0 and abs(delay_steps - round(delay_steps)) < 1e-9):
         raise ValueError(f"dt_s={dt_s!r} must divide the dead time {plant.delay_s} s")
-    a = math.exp(-dt_s / plant.tau_s)
+    a = math.exp(-dt_s / plant.time_constant_s)
     pending = deque([0.0] * round(delay_steps))  # inputs still inside the dead time
     n = round(duration_s / dt_s)
     y = np.zeros(n + 1)
@@ -51,6 +44,6 @@ def simulate(plant: Fopdt, controller: Callable[[float], float], target: float, 
     for k in range(n):
         u[k] = controller(target - y[k])
         pending.append(u[k])
-        y[k + 1] = a * y[k] + (1.0 - a) * plant.gain * pending.popleft()
+        y[k + 1] = a * y[k] + (1.0 - a) * plant.gain_c * pending.popleft()
     u[n] = u[n - 1]
     return IdealRun(np.arange(n + 1) * dt_s, y, u)

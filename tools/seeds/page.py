@@ -142,7 +142,8 @@ def section_001() -> str:
         "## Seed 001: Fuzzy-PID nozzle temperature control",
         "Printed: Table 1 (Simulink, FOPDT eq. 9, 0 -> 180 C):",
         printed,
-        f"Ours: the same plant ({seed001.PLANT.gain} e^(-{seed001.PLANT.delay_s} s) / ({seed001.PLANT.tau_s} s + 1)) "
+        f"Ours: the same plant ({seed001.PLANT.gain_c} e^(-{seed001.PLANT.delay_s} s) / "
+        f"({seed001.PLANT.time_constant_s} s + 1)) "
         f"in the paper's loop (unbounded output, step {num(seed001.IDEAL_DT_S, 1)} s) and on the firmware twin "
         f"(`{seed001.PRESET}`, integer controllers, 10-bit ADC, 7-bit soft PWM of a saturating heater, "
         f"{num(seed001.TWIN_AMBIENT_C, 1)} -> {num(seed001.TWIN_AMBIENT_C + seed001.STEP_C, 1)} C). Ziegler-Nichols on "

@@ -40,7 +40,8 @@ from firmware_port.fuzzy_pid import (
     infer,
 )
 from firmware_port.marlin.pid import PidGains
-from tools.seeds.ideal_fopdt import Fopdt, simulate
+from tools.ident.fit import Fopdt, ultimate_point
+from tools.seeds.ideal_fopdt import simulate
 from twin.engine import BOOT_S, Twin
 from twin.metrics import step_metrics
 from twin.plants import SPECS, TransferFunction, make_plant
@@ -95,24 +96,17 @@ class Seed001Result:
     impossible: tuple[str, ...]  # the paper's numbers that cannot be right, with the evidence
 
 
-def ultimate(plant: Fopdt) -> tuple[float, float]:
-    """Ultimate gain and period of K e^(-L s)/(T s + 1) under P control: the phase crossover
-    ``atan(w T) + w L = pi`` (it lies below pi / L), ``Ku = sqrt(1 + (w T)^2) / K``, ``Pu = 2 pi / w``."""
-    w = brentq(lambda w: math.atan(w * plant.tau_s) + w * plant.delay_s - math.pi, 1e-9, math.pi / plant.delay_s)
-    return math.hypot(1.0, w * plant.tau_s) / plant.gain, 2 * math.pi / w
-
-
 def ultimate_integral_gain(plant: Fopdt) -> float:
     """The largest ki of a pure integral controller ki/s that keeps the loop stable: phase
     crossover of ``ki K e^(-L s) / (s (T s + 1))`` at ``atan(w T) + w L = pi / 2``."""
-    w = brentq(lambda w: math.atan(w * plant.tau_s) + w * plant.delay_s - math.pi / 2, 1e-9,
+    w = brentq(lambda w: math.atan(w * plant.time_constant_s) + w * plant.delay_s - math.pi / 2, 1e-9,
                math.pi / (2 * plant.delay_s))
-    return w * math.hypot(1.0, w * plant.tau_s) / plant.gain
+    return w * math.hypot(1.0, w * plant.time_constant_s) / plant.gain_c
 
 
 def ziegler_nichols(plant: Fopdt) -> PidGains:
     """Ziegler and Nichols (1942) closed-loop rule: Kp = 0.6 Ku, Ti = Pu / 2, Td = Pu / 8."""
-    ku, pu = ultimate(plant)
+    ku, pu = ultimate_point(plant)
     kp = 0.6 * ku
     return PidGains(kp, kp / (pu / 2), kp * pu / 8)
 
@@ -169,7 +163,7 @@ def twin_response(name: str, gains: PidGains, config: FuzzyPidConfig) -> Respons
 
 def reproduce() -> Seed001Result:
     """Both loops, three controllers; which readings are stable; what Table 1 cannot be."""
-    ku, pu = ultimate(PLANT)
+    ku, pu = ultimate_point(PLANT)
     zn = ziegler_nichols(PLANT)
     responses, first_moves = [], []
     for name, (gains, config) in _controllers(zn).items():
@@ -194,4 +188,4 @@ def reproduce() -> Seed001Result:
                          ki_setpoint, ki_u, tuple(impossible))
 
 
-__all__ = ["Response", "Seed001Result", "reproduce", "ultimate", "ultimate_integral_gain", "ziegler_nichols"]
+__all__ = ["Response", "Seed001Result", "reproduce", "ultimate_integral_gain", "ziegler_nichols"]

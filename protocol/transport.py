@@ -40,6 +40,7 @@ import struct
 import time
 import tty
 from abc import ABC, abstractmethod
+from collections import OrderedDict
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
@@ -209,9 +210,13 @@ class RxCorruptor:
 
     Lines are cut at every CR or LF (the end of line belongs to its line and may be hit too);
     bytes after the last one wait for the rest of their line, which changes nothing the printer
-    does, as Marlin acts on a line only at its end. The draws come from ``random.Random(seed)``'s
-    ``random()`` only, whose sequence Python keeps across versions, and restart at ``reset()``
-    (a host's arrival): a host that sends the same lines gets the same flips, every run.
+    does, as Marlin acts on a line only at its end. Whether and where a line is hit is drawn by
+    ``random.Random`` seeded with the seed, the line's bytes and how many times the same bytes
+    came before (since ``reset()``, a host's arrival): a resent line gets a fresh draw, and a
+    host that sends the same lines gets the same flips every run, however its writes are cut up,
+    and whatever it sends in between (an extra line a host's race sends does not move the flips
+    onto other lines). Python keeps string seeding and ``random()``'s sequence across versions.
+    Repeats are counted for the last REPEATS_KEPT distinct lines: a resend asks for a recent one.
 
     No flip makes the printer raise or hang, but some stop a host as they would on a real
     printer. A flipped end of line leaves its line open until the host sends more, and a line
@@ -220,6 +225,8 @@ class RxCorruptor:
     unnumbered ``M110`` or ``M113`` can become ``M112``, which kills the board; a numbered line
     cannot (Marlin looks for emergency commands only at the start of a line).
     """
+
+    REPEATS_KEPT = 1024
 
     def __init__(self, probability: float, seed: int = 0):
         if not 0.0 <= probability <= 1.0:
@@ -230,8 +237,8 @@ class RxCorruptor:
         self.reset()
 
     def reset(self) -> None:
-        """Start the draws over and forget a partial line (a new host, a board reset)."""
-        self._rng = random.Random(self.seed)
+        """Forget the lines seen and a partial line (a new host, a board reset)."""
+        self._seen: OrderedDict[bytes, int] = OrderedDict()
         self._partial = bytearray()
 
     def feed(self, data: bytes) -> tuple[bytes, list[tuple[int, int]]]:
@@ -245,13 +252,24 @@ class RxCorruptor:
         start = 0
         for i in range(end):
             if lines[i] in b"\r\n":
-                if self._rng.random() < self.probability:
-                    index = start + int(self._rng.random() * (i + 1 - start))
-                    bit = int(self._rng.random() * 8)
+                flip = self._draw(bytes(lines[start:i + 1]))
+                if flip is not None:
+                    index, bit = start + flip[0], flip[1]
                     lines[index] ^= 1 << bit
                     flips.append((index, bit))
                 start = i + 1
         return bytes(lines), flips
+
+    def _draw(self, line: bytes) -> tuple[int, int] | None:
+        """The (byte index, bit) to flip in this occurrence of ``line``, or None."""
+        repeat = self._seen.pop(line, -1) + 1
+        self._seen[line] = repeat
+        if len(self._seen) > self.REPEATS_KEPT:
+            self._seen.popitem(last=False)
+        rng = random.Random(f"{self.seed}:{repeat}:{line.hex()}")
+        if rng.random() >= self.probability:
+            return None
+        return int(rng.random() * len(line)), int(rng.random() * 8)
 
 
 class _Server(ABC):

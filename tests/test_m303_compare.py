@@ -7,7 +7,9 @@ import pytest
 from tools.cli import compare as compare_cli
 from tools.ident.fit import NotFittable, log_segments
 from tools.logs import hardware_logs_dir, load_log
-from tools.validation.m303_compare import GOAL_SWING_REL, GOAL_TU_REL, relay_stats
+from tools.validation import m303_compare
+from tools.validation.m303_compare import GOAL_SWING_REL, GOAL_TU_REL, M303_HEADER, relay_stats, twin_noise_lsb
+from twin.sensor import SensorChain
 from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c, estimate_target_c, switch_instants
 
 ENDER = "m303_hotend_ender3v3se_creality_stock_navaismo16_partial.txt"
@@ -60,10 +62,43 @@ def test_relay_stats_means_over_the_printed_cycles():
     assert stats.swing_c == pytest.approx(np.mean([214.37 - 206.02, 214.53 - 206.25, 213.75 - 206.21, 213.83 - 206.25]))
 
 
-def test_twin_compare_m303_ender_within_goals(capsys):
-    """Issue 14 acceptance: with at least two full cycles, the twin's period within 10 % and swing within 25 %."""
-    assert compare_cli.main([str(hardware_logs_dir() / ENDER)]) == 0
-    row = capsys.readouterr().out.strip().splitlines()[-1].split(" | ")
-    tu_err, swing_err = float(row[7].rstrip(" %")), float(row[9].rstrip(" %"))
-    assert abs(tu_err) <= 100 * GOAL_TU_REL and abs(swing_err) <= 100 * GOAL_SWING_REL
-    assert row[-1] == "pass |"
+@pytest.mark.parametrize(("temp_c", "noise_c"), [(60.0, 0.05), (210.0, 0.1)])
+def test_twin_noise_gives_the_readings_the_noise_asked_for(temp_c, noise_c):
+    """A reading is the table value of OVERSAMPLENR conversions summed: with the noise per conversion
+    twin_noise_lsb(noise_c, T) (about 1 LSB for these), the sums scatter by noise_c through the
+    chain's slope at T. 4000 sums: the standard deviation's sampling error is about 1.1 %, and
+    Widrow's model of the dithered floor holds to within a per cent at 1 LSB: within 5 %."""
+    chain = SensorChain(noise_lsb=twin_noise_lsb(noise_c, temp_c), rng=np.random.default_rng(1))
+    counts = chain.convert(np.full((4000, 16), temp_c), np.zeros((4000, 16), dtype=np.int64))
+    readings_c = counts.sum(axis=1) / 16 / chain.lsb_per_c(temp_c)
+    assert np.std(readings_c) == pytest.approx(noise_c, rel=0.05)
+    assert twin_noise_lsb(0.001, temp_c) == 0.0  # the floor alone scatters more than that
+    # about 4.8 counts per kelvin at 60 C for a 100k B3950 on a 4.7k pull-up, 1.8 at 210 C
+    assert SensorChain().lsb_per_c(temp_c) == pytest.approx({60.0: 4.8, 210.0: 1.8}[temp_c], rel=0.05)
+
+
+def _row(out: str) -> dict[str, str]:
+    names = [name.strip() for name in M303_HEADER.splitlines()[0].strip("|").split("|")]
+    return dict(zip(names, (v.strip() for v in out.strip().splitlines()[-1].strip("|").split("|")), strict=True))
+
+
+@pytest.mark.parametrize("capture", [ENDER, PRUSA_BED])
+def test_twin_compare_m303_within_goals(capture, capsys):
+    """Issue 14 acceptance: with at least two cycles, the twin's period within 10 % and swing within 25 %."""
+    assert compare_cli.main([str(hardware_logs_dir() / capture)]) == 0
+    row = _row(capsys.readouterr().out)
+    errors = [float(v.rstrip(" %")) for k, v in row.items() if k == "error"]
+    assert len(errors) == 1  # dict keeps the last 'error' column: the swing's
+    tu_log, tu_twin = (float(v) for v in row["Tu log / twin (s)"].split(" / "))
+    assert abs(tu_twin / tu_log - 1) <= GOAL_TU_REL and abs(errors[0]) <= 100 * GOAL_SWING_REL
+    assert row["Tu <= 10 %, swing <= 25 %"] == "pass"
+
+
+def test_a_noiseless_twin_crosses_a_bed_target_late():
+    """Why the twin's ADC is noisy in the comparison: on the Prusa bed's fitted plant a noiseless
+    chain (0.2 C steps at 60 C) sees each crossing up to a step late and its period comes out
+    more than 10 % long; with the capture's noise it is within 10 % (test above)."""
+    r = m303_compare.m303_check(hardware_logs_dir() / PRUSA_BED)
+    assert 0.5 < r.noise_lsb < 2.0  # the capture's 0.05 C readings: about one count per conversion
+    quiet = m303_compare.run_twin_m303(r.fit, r.heater, r.ambient_c, r.target_c, r.ncycles, "1.1", noise_lsb=0.0)
+    assert relay_stats(quiet.cycles).tu_s > (1 + GOAL_TU_REL) * r.log.tu_s

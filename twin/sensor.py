@@ -89,6 +89,13 @@ class SensorChain:
             analog = analog + self.noise_lsb * self.rng.standard_normal(sensor_c.shape)
         return np.clip(np.floor(analog), 0, ADC_MAX).astype(np.int64)
 
+    def lsb_per_c(self, temp_c: float) -> float:
+        """ADC counts per kelvin at temp_c (the divider's slope, a central difference over 0.1 C):
+        how finely a noiseless chain resolves that temperature."""
+        r = self.divider.part.resistance_ohm(np.array([temp_c - 0.05, temp_c + 0.05]))
+        analog = ADC_COUNTS * r / (r + self.divider.pullup_ohm)
+        return float(abs(analog[0] - analog[1]) / 0.1)
+
     def samples(self, sensor_c: np.ndarray, ticks: np.ndarray) -> list[int]:
         """``convert`` as a list of ints, for a scalar board."""
         return self.convert(sensor_c, ticks).tolist()

@@ -352,7 +352,7 @@ def _check_series(t_s: np.ndarray, temp_c: np.ndarray, duty: np.ndarray, n_param
         raise ValueError("duty must be within 0..1 of full power")
 
 
-def _noise_c(temp_c: np.ndarray) -> float:
+def reading_noise_c(temp_c: np.ndarray) -> float:
     """The readings' noise (standard deviation) from their second differences, robustly (MAD)."""
     d2 = np.diff(temp_c, 2)
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0)) if d2.size else 0.0
@@ -424,7 +424,7 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
     # The start is the first reading and ambient at most the lowest (a heater cannot cool below it),
     # both give or take the readings' noise and resolution.
     seen = np.ones(len(t_s), bool) if observed is None else np.asarray(observed, bool)
-    slack_c = AMBIENT_SLACK_SIGMAS * _noise_c(temp_c[seen]) + READING_STEP_C
+    slack_c = AMBIENT_SLACK_SIGMAS * reading_noise_c(temp_c[seen]) + READING_STEP_C
     ambient_start_c = float(ambient_c if ambient_c is not None else temp_c.min())
     guess = _first_order_guess(t_s, temp_c, duty, ambient_start_c)
     first = {**_start_values(model, guess, held), "initial_c": float(temp_c[0]),

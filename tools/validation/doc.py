@@ -84,10 +84,8 @@ MISSES = (
     "pwm cannot resolve, and no log states its calibration temperature (200 C / 60 C are assumed). Most hotend "
     "periods come out short: the fitted two-node model puts too little lag between heater and "
     "sensor. Fitting on a pulse test (section 1) instead of Stats data is what the model would need.",
-    "- M303: where the twin misses, the trace holds about one relay cycle, too little to pin the lags that set "
-    "the period (their standard errors are below, per capture); a capture's own printed Tu vary by several "
-    "per cent from cycle to cycle. The #8081 hotend at 250 C prints one cycle only: not judged; its off level is "
-    "70-87/127, so the relay barely changes the heat flow and the trace cannot separate the lags.",
+    "- M303: the #8081 hotend at 250 C prints one cycle only: not judged; its off level is 70-87/127, so the "
+    "relay barely changes the heat flow and the trace cannot separate the lags (their standard errors below).",
 )
 
 
@@ -155,10 +153,14 @@ def render(logs_dir: Path | None = None) -> str:
         "reconstructed at the target crossings between status lines (target from the M303 command, else from the "
         "switches), fitted from the first switch on with three_node, sopdt and fopdt and the lowest AIC kept, "
         "ambient from the idle heater's reading (else 25 C), power assumed (40 W hotend, 220 W bed); then the "
-        "twin's own M303 (Marlin 2.1, or 1.1 for a bed tuned by the Classic PID rule) at the capture's target "
-        "and cycles, from ambient. Compared: mean Tu and max - min over the capture's cycles that print Tu, "
-        "against the twin's last as many. Goal where the capture prints two or more cycles: Tu within 10 %, "
-        "swing within 25 %. Captures without a trace: " + ", ".join(m303_without) + "."),
+        "twin's own M303 (Marlin 2.1, or 1.1 for a bed tuned by the Classic PID rule) at the capture's target, "
+        f"from ambient, for the capture's cycles or {m303_compare.MIN_TWIN_CYCLES} if more. The twin's ADC "
+        "scatters as the capture's readings do (seeded): their noise, from the fit's residuals, through "
+        "Marlin's sum of 16 conversions and the divider's slope at the target. A noiseless twin sees a bed's "
+        "60 C crossed a whole 0.2 C ADC step late and its period comes out about a fifth long. Compared: mean Tu "
+        "and max - min over the capture's cycles that print Tu, against the twin's cycles that print Tu. Goal "
+        "where the capture prints two or more cycles: Tu within 10 %, swing within 25 %. Captures without a "
+        "trace: " + ", ".join(m303_without) + "."),
         "",
         m303_compare.M303_HEADER,
         *m303_rows,

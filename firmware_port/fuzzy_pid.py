@@ -49,7 +49,7 @@ from firmware_port.marlin.pid import (
     KI_FRAC_BITS,
     KP_FRAC_BITS,
     PidGains,
-    _scaled,
+    q_scaled,
 )
 from firmware_port.thermistor import TEMP_FRAC_BITS, TEMP_ONE
 
@@ -275,10 +275,10 @@ class FixedConstants:
 
     @classmethod
     def of(cls, config: FuzzyPidConfig, gains: PidGains) -> FixedConstants:
-        kec_ps_q12 = max(1, _scaled(config.kec, 1 / PID_DT_S, K_BITS))
-        return cls(_scaled(config.ke, Fraction(1), K_BITS), kec_ps_q12, round(config.span * (1 << SPAN_BITS)),
-                   _scaled(gains.kp, Fraction(1), KP_FRAC_BITS), _scaled(gains.ki, PID_DT_S, KI_FRAC_BITS),
-                   _scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS))
+        kec_ps_q12 = max(1, q_scaled(config.kec, 1 / PID_DT_S, K_BITS))
+        return cls(q_scaled(config.ke, Fraction(1), K_BITS), kec_ps_q12, round(config.span * (1 << SPAN_BITS)),
+                   q_scaled(gains.kp, Fraction(1), KP_FRAC_BITS), q_scaled(gains.ki, PID_DT_S, KI_FRAC_BITS),
+                   q_scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS))
 
 
 def _position_q8(value_q5: int, k_q12: int) -> int:

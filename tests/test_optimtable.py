@@ -8,7 +8,7 @@ import pytest
 
 from tools.tuning import optimtable
 from tools.tuning.benchfuncs import replace_section
-from tools.tuning.table import REL_TOL, _verdict
+from tools.tuning.table import REL_TOL, cost_verdict
 
 # The full table (900 evaluations per optimiser, four plants) takes minutes; the test runs the
 # reduced configuration: hotend_cartridge, 300 evaluations, seed 0.
@@ -57,8 +57,8 @@ def test_doc_verdicts_follow_from_its_numbers() -> None:
         rule_cost, m303_cost = float(row[2]), float(row[3])
         for cell in row[4:-1]:
             cost, vs_rule, vs_m303 = re.fullmatch(r"(\S+) \((\w+) / (\w+)\)", cell).groups()
-            assert vs_rule == _verdict(float(cost), rule_cost)
-            assert vs_m303 == _verdict(float(cost), m303_cost)
+            assert vs_rule == cost_verdict(float(cost), rule_cost)
+            assert vs_m303 == cost_verdict(float(cost), m303_cost)
             assert abs(float(cost) / m303_cost - (1 - REL_TOL)) > 5e-4
 
 

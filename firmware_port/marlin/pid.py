@@ -84,7 +84,7 @@ PREV_TEMP_EVERY_SAMPLE = MarlinVersion.V2_0  # Marlin 2.0.x: previous temperatur
 PREV_TEMP_IN_BAND = MarlinVersion.V2_1  # Marlin 2.1.x: only in band, so re-entering the band kicks D
 
 
-def _scaled(value: float, scale: Fraction, frac_bits: int) -> int:
+def q_scaled(value: float, scale: Fraction, frac_bits: int) -> int:
     """User gain -> internal Q integer: ``round(value * scale * 2**frac_bits)`` from its decimal."""
     return round(Fraction(repr(float(value))) * scale * (1 << frac_bits))
 
@@ -115,9 +115,9 @@ class PidFixed:
     def set_gains(self, gains: PidGains) -> None:
         """M301: scale user gains into Q integers (configuration time) and reset the loop."""
         self.gains = gains
-        self.kp_q12 = _scaled(gains.kp, Fraction(1), KP_FRAC_BITS)  # <= 2**22
-        self.ki_q24 = _scaled(gains.ki, PID_DT_S, KI_FRAC_BITS)  # <= 2**28
-        self.kd_q16 = _scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS)  # < 2**31
+        self.kp_q12 = q_scaled(gains.kp, Fraction(1), KP_FRAC_BITS)  # <= 2**22
+        self.ki_q24 = q_scaled(gains.ki, PID_DT_S, KI_FRAC_BITS)  # <= 2**28
+        self.kd_q16 = q_scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS)  # < 2**31
         # Marlin: iState <= MAX_POW / Ki. In Q.5 with Ki in Q.24: floor(255 * 2**29 / ki_q24).
         full_scale = PID_MAX << (KI_FRAC_BITS + TEMP_FRAC_BITS)
         self.i_max_q5 = min(full_scale // self.ki_q24, I_SUM_CAP_Q5) if self.ki_q24 else I_SUM_CAP_Q5

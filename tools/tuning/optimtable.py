@@ -21,7 +21,7 @@ from tools.cli.tune import autotune_reference, make_problem, optimise, parse_arg
 from tools.logs import hardware_logs_dir
 from tools.tuning.evaluate import Candidate, rule_gains, rule_names, score
 from tools.tuning.objectives import heater_cost
-from tools.tuning.table import _verdict
+from tools.tuning.table import cost_verdict
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "tuning.md"
 BEGIN, END = "<!-- optim-table: begin", "<!-- optim-table: end -->"
@@ -51,8 +51,8 @@ class PlantResult:
     def verdicts(self, method: str) -> tuple[str, str]:
         """(against the best rule, against M303): beats / ties / loses, with table.py's tie margin."""
         cost = self.optimised[method].cost
-        vs_m303 = "-" if self.m303 is None else _verdict(cost, self.m303.cost)
-        return _verdict(cost, self.best_rule.cost), vs_m303
+        vs_m303 = "-" if self.m303 is None else cost_verdict(cost, self.m303.cost)
+        return cost_verdict(cost, self.best_rule.cost), vs_m303
 
     def accepted(self, method: str) -> bool:
         """At least as good as the best rule, and better than M303."""

@@ -64,7 +64,7 @@ def _cells(row: Row) -> list[str]:
                    num(c.cost), row.verdict]
 
 
-def _verdict(cost: float, reference: float) -> str:
+def cost_verdict(cost: float, reference: float) -> str:
     """Against M303: a margin of REL_TOL either way is a tie, so a verdict survives another CPU."""
     if cost < reference * (1 - REL_TOL):
         return "beats"
@@ -86,7 +86,7 @@ def plant_rows(preset: str) -> list[Row]:
     gains_by_rule, failures = rule_gains(problem, rule_names())
     failed = [Row(preset, target_c, rule, None, f"no gains: {why}") for rule, why in failures.items()]
     for c in score(problem, heater_cost, gains_by_rule) if gains_by_rule else []:
-        verdict = "-" if reference is None else _verdict(c.cost, reference.cost)
+        verdict = "-" if reference is None else cost_verdict(c.cost, reference.cost)
         rows.append(Row(preset, target_c, c.method, c, verdict))
     return rows + failed
 

@@ -15,7 +15,8 @@
   their ratio; firmware control periods per second; memory per lane; the same batch on the
   numpy lanes for comparison;
 - the wall time of a differential-evolution tune of the three gains (population 45, 100
-  generations, every population one batch) with a placeholder ITAE objective.
+  generations, every population one batch) with twin-tune's heater objective on its default
+  scenario.
 
 ``protocol``: twin-serial ``--speed max`` in its own process, pyserial on its pty, as a host:
 - M105 round trip, wall milliseconds, median and 99th percentile;
@@ -46,13 +47,14 @@ from firmware_port.marlin.constants import SOFT_PWM_PERIOD_TICKS, TICKS_PER_READ
 from firmware_port.marlin.pid import PidGains
 from protocol.lines import with_checksum
 from protocol.printer import BUFSIZE
+from tools.tuning.evaluate import Evaluator, preset_problem
+from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
 from twin import batch_kernel
 from twin.batch import BatchTwin
 from twin.build import build_twin
 from twin.linear import SENSOR, TICK_S
 from twin.plants import SPECS, TransferFunction, make_plant
 from twin.scenario import PRESETS, with_overrides
-
 
 T = TypeVar("T")
 
@@ -127,21 +129,9 @@ def bench_open_loop(duration_s: float) -> list[str]:
 TUNE_TARGET_C = 210
 TUNE_PRESET = "hotend_cartridge"  # linear without dead time, fitted to a real printer (twin/plants.py)
 TUNE_BOUNDS = [(1.0, 100.0), (0.01, 10.0), (1.0, 500.0)]  # Kp, Ki /s, Kd s on Marlin's 0..255 scale
-OVERSHOOT_LIMIT_C = 5.0
-OVERSHOOT_PENALTY = 1e7  # C s^2 per C beyond the limit: a 1 C excess outweighs a bad ITAE (~1e6 here)
 SEED000_HORIZON_S, SEED000_POINTS = 50.0, 1000
 # Seed 000's Nelder-Mead bounds for its PID on the 5 C/W second-order extruder.
 SEED000_BOUNDS = [(0.01, 10.0), (0.001, 1.0), (0.001, 1.0)]
-
-
-def itae_cost(batch: BatchTwin, target_c: float) -> np.ndarray:
-    """Per lane: ITAE of the measured temperature (C s^2, rectangle rule on the readings), plus
-    a large penalty per degree of overshoot beyond 5 C. A placeholder objective."""
-    t_s = batch.t_s
-    error_c = np.abs(batch.measured_c - target_c)
-    itae = (t_s * np.diff(t_s, prepend=0.0)) @ error_c
-    excess_c = np.maximum(batch.measured_c.max(axis=0) - target_c - OVERSHOOT_LIMIT_C, 0.0)
-    return itae + OVERSHOOT_PENALTY * excess_c
 
 
 def _timed_value(fn: Callable[[], T]) -> tuple[T, float, float]:
@@ -199,27 +189,20 @@ def bench_evaluation_cost(plant, n_lanes: int, duration_s: float, seed: int, n_s
     ]
 
 
-def bench_de_tune(plant, duration_s: float, seed: int, popsize: int = 15, generations: int = 100) -> list[str]:
-    """scipy's differential evolution on the firmware twin, one batch per population."""
-    evaluations = []
-
-    def cost(params: np.ndarray) -> np.ndarray:
-        evaluations.append(params.shape[1])
-        batch = _heat_and_hold(plant, [PidGains(*map(float, g)) for g in params.T], duration_s)
-        return itae_cost(batch, TUNE_TARGET_C)
-
+def bench_de_tune(preset: str, seed: int, popsize: int = 15, generations: int = 100) -> list[str]:
+    """scipy's differential evolution on the firmware twin with twin-tune's heater objective on its
+    default scenario (heat-up, hold, disturbances), one batch per population."""
+    problem = preset_problem(preset, TUNE_TARGET_C)
+    evaluate = Evaluator(problem, objective(DEFAULT_OBJECTIVE))
     de, wall_s, cpu_s = _timed_value(lambda: scipy.optimize.differential_evolution(
-        cost, TUNE_BOUNDS, popsize=popsize, maxiter=generations, tol=0.0, polish=False, vectorized=True,
-        updating="deferred", rng=np.random.default_rng(seed)))
+        lambda population: evaluate(population.T), TUNE_BOUNDS, popsize=popsize, maxiter=generations, tol=0.0,
+        polish=False, vectorized=True, updating="deferred", rng=np.random.default_rng(seed)))
     kp, ki, kd = de.x
-    best = _heat_and_hold(plant, [PidGains(kp, ki, kd)], duration_s)
-    overshoot_c = best.measured_c.max() - TUNE_TARGET_C
     return [
-        f"DE tune of {plant.preset} (3 gains, population {popsize * len(TUNE_BOUNDS)}, {de.nit} generations, "
-        f"{sum(evaluations)} evaluations of {duration_s:g} s, seed {seed}): {wall_s:.3f} s wall (target < 5 s), "
-        f"{cpu_s:.3f} s CPU",
-        f"  best Kp {kp:.3f} Ki {ki:.4f} Kd {kd:.2f}: cost {de.fun:,.0f} C s^2 against {TUNE_TARGET_C} C, "
-        f"overshoot {overshoot_c:.2f} C",
+        f"DE tune of {preset} (3 gains, population {popsize * len(TUNE_BOUNDS)}, {de.nit} generations, "
+        f"{evaluate.evaluations} evaluations of {problem.scenario.duration_s:g} s, objective {DEFAULT_OBJECTIVE}, "
+        f"seed {seed}): {wall_s:.3f} s wall (target < 5 s), {cpu_s:.3f} s CPU",
+        f"  best Kp {kp:.3f} Ki {ki:.4f} Kd {kd:.2f}: cost {de.fun:.1f}",
     ]
 
 
@@ -400,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
     elif args.what == "tune":
         plant = tune_plant()
         lines = bench_evaluation_cost(plant, args.lanes, args.duration, args.seed, n_seed000=200)
-        lines += bench_de_tune(plant, args.duration, args.seed)
+        lines += bench_de_tune(plant.preset, args.seed)
     elif args.what == "scaling":
         lines = [f"python -m tools.bench scaling --seed {args.seed}"] + bench_scaling(args.seed)
     else:

@@ -117,6 +117,25 @@ def test_heating_failed_when_the_heater_is_disconnected_from_the_start():
     assert board.console.text.startswith("Error:Heating failed, system stopped! Heater_ID: E0\n\n")
 
 
+def test_without_thermal_protection_neither_runaway_nor_watch_halts_but_maxtemp_does():
+    """THERMAL_PROTECTION_HOTENDS off (seed 004's sketch): the two faults above pass unnoticed;
+    the heater stays on, as the sketch would leave it. MAXTEMP is not part of that option."""
+    for disconnect_after_s in (150, 0):
+        plant = LumpedPlant()
+        board = MarlinBoard(plant, has_bed=False, thermal_protection=False)
+        run(board, plant, 1)
+        board.set_target(HOTEND_CHANNEL, 200)
+        run(board, plant, disconnect_after_s)
+        plant.heater_connected[0] = False
+        run(board, plant, 120)
+        assert not board.halted and board.console.text == "" and board.pin(HOTEND_CHANNEL) is True
+    board.set_target(HOTEND_CHANNEL, 200)
+    plant.heater_connected[0] = True
+    plant.adc_override[0] = 0  # a shorted thermistor reads as far above MAXTEMP
+    run(board, plant, 1)
+    assert board.halted and "MAXTEMP" in board.console.text
+
+
 def test_mintemp_on_open_thermistor_only_when_heating():
     plant = LumpedPlant()
     plant.adc_override[0] = 1023

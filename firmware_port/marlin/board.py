@@ -69,9 +69,13 @@ class MarlinBoard:
         bed_table: TempTable = B3950_TABLE,
         console: Console | None = None,
         version: str = DEFAULT_VERSION,
+        thermal_protection: bool = True,
     ):
         self.console = console if console is not None else Console()
         self.version = version
+        # THERMAL_PROTECTION_HOTENDS / _BED: the runaway monitor and the heating watch (WATCH_TEMP_*),
+        # both off when False (a sketch without them, seed 004's); MINTEMP and MAXTEMP stay.
+        self.thermal_protection = thermal_protection
         hotend = Heater(
             0,
             hotend_controller if hotend_controller is not None else PidFixed(),
@@ -314,12 +318,12 @@ class MarlinBoard:
         temp_q5 = heater.temp_q5
         if heater.temp_range.maxtemp_tripped(temp_q5):
             return self.temp_error(heater, TempError.MAXTEMP)
-        if heater.runaway.run(temp_q5, heater.target_c, now_ms):
+        if self.thermal_protection and heater.runaway.run(temp_q5, heater.target_c, now_ms):
             return self.temp_error(heater, TempError.THERMAL_RUNAWAY)
         in_range = heater.temp_range.mintemp_c * TEMP_ONE < temp_q5 < heater.temp_range.maxtemp_c * TEMP_ONE
         amount = heater.controller.update(temp_q5, heater.target_c, now_ms) >> 1 if in_range else 0
         self.pwm.set_amount(HOTEND_CHANNEL, amount)
-        if heater.watch.heating_failed(temp_q5, heater.target_c, now_ms):
+        if self.thermal_protection and heater.watch.heating_failed(temp_q5, heater.target_c, now_ms):
             self.temp_error(heater, TempError.HEATING_FAILED)
 
     def _manage_bed(self, heater: Heater, now_ms: int) -> None:
@@ -327,14 +331,14 @@ class MarlinBoard:
         temp_q5 = heater.temp_q5
         if heater.temp_range.maxtemp_tripped(temp_q5):
             return self.temp_error(heater, TempError.MAXTEMP)
-        if heater.watch.heating_failed(temp_q5, heater.target_c, now_ms):
+        if self.thermal_protection and heater.watch.heating_failed(temp_q5, heater.target_c, now_ms):
             return self.temp_error(heater, TempError.HEATING_FAILED)
         interval_ms = heater.controller.check_interval_ms
         if interval_ms is not None:
             if time_pending(now_ms, heater.next_check_ms):
                 return
             heater.next_check_ms = now_ms + interval_ms
-        if heater.runaway.run(temp_q5, heater.target_c, now_ms):
+        if self.thermal_protection and heater.runaway.run(temp_q5, heater.target_c, now_ms):
             return self.temp_error(heater, TempError.THERMAL_RUNAWAY)
         limits = heater.temp_range
         if limits.mintemp_c * TEMP_ONE <= temp_q5 <= limits.maxtemp_c * TEMP_ONE:

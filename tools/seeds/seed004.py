@@ -40,7 +40,6 @@ from firmware_port.fuzzy_pi import (
     FuzzyPi,
     FuzzyPiConfig,
 )
-from firmware_port.marlin.protection import RunawayMonitor
 from firmware_port.thermistor import B3950, KELVIN_OFFSET, Divider, SteinhartHart
 from twin.engine import BOOT_S, Twin
 from twin.plants import SPECS, Lumped, make_plant
@@ -58,7 +57,6 @@ PAPER_EXTRUDER = {"setpoint_c": 214.0, "max_c": 260.0, "steady_max_c": 240.0, "s
 TOLERANCE = 0.10  # the acceptance: rise and settling within 10 % of the paper's
 BED_RUN_S = 1500.0
 EXTRUDER_RUN_S = 600.0
-NO_RUNAWAY_HYSTERESIS_C = 1000  # beyond any reading of the table (-27..938 C)
 STEADY_FROM_S = 300.0  # the extruder's "steady state": twice the paper's settling time on
 DU_Q4_LO, DU_Q4_HI = 2 << DU_FRAC_BITS, 16 << DU_FRAC_BITS  # output-change ranges searched, Q4 counts
 RESPONSIVENESS_LO = 0.005  # slowest sensor searched, 1/s (the fastest: the preset's 0.22)
@@ -108,13 +106,12 @@ class Seed004Result:
 
 
 def _twin(hotend_plant, bed_plant=None, controllers=(), sensors=None) -> Twin:
-    """A booted twin on the plants. The paper's Arduino sketch has no thermal protection, so each
-    heater's runaway monitor gets a hysteresis no reading can leave (Marlin's would halt a limit
-    cycle of +-20 C within its 40 s period); MINTEMP and MAXTEMP stay."""
+    """A booted twin on the plants. The paper's Arduino sketch has no thermal protection, so the
+    board is built without it (Marlin's runaway check would halt a limit cycle of +-20 C within its
+    40 s period); MINTEMP and MAXTEMP stay."""
     plants = [hotend_plant] if bed_plant is None else [hotend_plant, bed_plant]
-    twin = Twin(plants, "fuzzy_pi", controllers=controllers, sensors=sensors)
-    for heater in twin.board.heaters:
-        heater.runaway = RunawayMonitor(heater.runaway.period_s, NO_RUNAWAY_HYSTERESIS_C)
+    twin = Twin(plants, "fuzzy_pi", controllers=controllers, sensors=sensors,
+                board_options={"thermal_protection": False})
     twin.set_ambient(AMBIENT_C)
     twin.boot(BOOT_S)
     return twin

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from tools.seeds import seed001
-from tools.ident.fit import Fopdt
-from tools.seeds.ideal_fopdt import simulate
+from tools.tuning.ideal import closed_loop
+from tools.tuning.models import model_of
+from twin.plants import TransferFunction
 
 
 @pytest.fixture(scope="module")
@@ -30,13 +31,13 @@ def test_ultimate_point_is_a_phase_crossover():
 
 def test_ideal_loop_is_exact_for_an_open_loop_step():
     """Constant input 1: y = K (1 - e^-(t - L)/T) after the dead time, 0 before (exact ZOH)."""
-    plant = Fopdt(2.0, 10.0, 3.0)
-    run = simulate(plant, lambda e: 1.0, 1.0, 50.0, 0.5)
+    plant = model_of(TransferFunction(2.0, 1.0, lag1_s=10.0, delay_s=3.0))
+    run = closed_loop(plant, lambda e: 1.0, 1.0, 50.0, 0.5)
     t = run.t_s
     want = np.where(t > 3.0, 2.0 * (1 - np.exp(-(t - 3.0) / 10.0)), 0.0)
-    assert np.allclose(run.y, want, atol=1e-12)
-    with pytest.raises(ValueError, match="dt_s"):
-        simulate(plant, lambda e: 1.0, 1.0, 10.0, 0.7)
+    assert np.allclose(run.output, want, atol=1e-12)
+    with pytest.raises(ValueError, match="step_s"):
+        closed_loop(plant, lambda e: 1.0, 1.0, 10.0, 0.7)
 
 
 def test_verdicts(result):

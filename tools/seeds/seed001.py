@@ -4,7 +4,7 @@ The paper steps its FOPDT nozzle model (eq. 9, 0.196 e^(-20.7 s) / (24 s + 1)) f
 under the fuzzy-PID of section 3 and a PID, in Simulink, and prints Table 1 (settling time,
 overshoot, steady-state error). Here:
 
-- the paper-compatible loop (``tools.seeds.ideal_fopdt``: unbounded controller output, unity
+- the paper-compatible loop (``tools.tuning.ideal.closed_loop``: unbounded controller output, unity
   feedback) and the firmware twin (the ``seed001_fopdt`` preset behind the 10-bit ADC, the
   thermistor table and the 7-bit soft PWM of a saturating heater; integer controllers);
 - the fuzzy-PID in both readings of its tables (``firmware_port.fuzzy_pid``): literal, with the
@@ -41,7 +41,8 @@ from firmware_port.fuzzy_pid import (
 )
 from firmware_port.marlin.pid import PidGains
 from tools.ident.fit import Fopdt, ultimate_point
-from tools.seeds.ideal_fopdt import simulate
+from tools.tuning.ideal import closed_loop
+from tools.tuning.models import model_of
 from twin.engine import BOOT_S, Twin
 from twin.metrics import step_metrics
 from twin.plants import SPECS, TransferFunction, make_plant
@@ -49,6 +50,7 @@ from twin.plants import SPECS, TransferFunction, make_plant
 PRESET = "seed001_fopdt"
 _SPEC = cast(TransferFunction, SPECS[PRESET])
 PLANT = Fopdt(_SPEC.gain, _SPEC.lag1_s, _SPEC.delay_s)  # eq. (9)
+IDEAL_MODEL = model_of(replace(_SPEC, input_full_scale=1.0))  # eq. (9) per unit of the controller's output
 STEP_C = 180.0  # section 3: "喷头起始温度为 0℃, 目标温度为 180℃"
 # Table 1 as printed: settling time (s), overshoot (%), steady-state error (units not stated).
 PAPER_TABLE1 = {
@@ -140,9 +142,9 @@ def _response(name: str, loop: str, t_s, rise_c, halted_note: str) -> Response:
 def ideal_response(name: str, gains: PidGains, config: FuzzyPidConfig) -> tuple[Response, float]:
     """The paper's loop; also returns when its output first moves."""
     ctl = FuzzyPidFloat(gains, config, dt_s=IDEAL_DT_S, out_max=None)
-    run = simulate(PLANT, ctl.step, STEP_C, DURATION_S, IDEAL_DT_S)
-    first_move_s = float(run.t_s[next(i for i, y in enumerate(run.y) if y > 0)])
-    return _response(name, "ideal", run.t_s, run.y, ""), first_move_s
+    run = closed_loop(IDEAL_MODEL, ctl.step, STEP_C, DURATION_S, IDEAL_DT_S)
+    first_move_s = float(run.t_s[next(i for i, y in enumerate(run.output) if y > 0)])
+    return _response(name, "ideal", run.t_s, run.output, ""), first_move_s
 
 
 def twin_response(name: str, gains: PidGains, config: FuzzyPidConfig) -> Response:

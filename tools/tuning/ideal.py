@@ -14,6 +14,7 @@ the continuous loop the papers plot.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -34,28 +35,25 @@ class LoopRun(NamedTuple):
     diverged: bool
 
 
-def step_response(model: LinearModel, gains: tuple[float, float, float], setpoint: float = 1.0,
-                  duration_s: float = 600.0, step_s: float = STEP_S, derivative_filter_s: float = 0.0,
-                  control_limits: tuple[float, float] | None = None) -> LoopRun:
-    """The closed loop from rest after a set-point step at t = 0: u = kp e + ki int e + kd de/dt
-    (filtered by derivative_filter_s), clipped to control_limits if given (no anti-windup: the
-    papers' linear loop has none)."""
-    if duration_s <= 0 or step_s <= 0 or derivative_filter_s < 0:
-        raise ValueError("duration_s and step_s must be > 0, derivative_filter_s >= 0")
-    kp, ki, kd = gains
-    delay_steps = math.ceil(model.delay_s / step_s - 1e-9) if model.delay_s else 0
-    h = model.delay_s / delay_steps if delay_steps else step_s
+def closed_loop(model: LinearModel, controller: Callable[[float], float], setpoint: float = 1.0,
+                duration_s: float = 600.0, step_s: float = STEP_S) -> LoopRun:
+    """The loop from rest after a set-point step at t = 0, unity feedback: ``controller(error)``
+    once per step_s, its output held (zero-order hold) through the model, whose dead time step_s
+    must divide (whole steps: exact). Any controller: a PID (``step_response``), seed 001's fuzzy PID."""
+    if duration_s <= 0 or step_s <= 0:
+        raise ValueError("duration_s and step_s must be > 0")
+    delay_steps = round(model.delay_s / step_s)
+    if abs(model.delay_s / step_s - delay_steps) > 1e-9:
+        raise ValueError(f"step_s={step_s!r} must divide the dead time {model.delay_s} s")
     n = len(model.b)
     aug = np.zeros((n + 1, n + 1))
     aug[:n, :n], aug[:n, n] = model.a, model.b
-    disc = scipy.linalg.expm(aug * h)
+    disc = scipy.linalg.expm(aug * step_s)
     phi, gam = disc[:n, :n], disc[:n, n]
-    steps = int(round(duration_s / h))
+    steps = int(round(duration_s / step_s))
     y, u = np.zeros(steps + 1), np.zeros(steps + 1)
     buffer = np.zeros(delay_steps)
     x = np.zeros(n)
-    integral = derivative = 0.0
-    previous_error = 0.0  # the loop at rest before the step: e = 0
     diverged = False
     for k in range(steps + 1):
         y[k] = model.c @ x
@@ -63,15 +61,42 @@ def step_response(model: LinearModel, gains: tuple[float, float, float], setpoin
             diverged = True
             y, u = y[: k + 1], u[: k + 1]
             break
-        error = setpoint - y[k]
-        integral += ki * error * h
-        derivative = (derivative_filter_s * derivative + kd * (error - previous_error)) / (derivative_filter_s + h)
-        previous_error = error
-        u[k] = kp * error + integral + derivative
-        if control_limits is not None:
-            u[k] = min(max(u[k], control_limits[0]), control_limits[1])
-        applied = u[k]
+        u[k] = applied = controller(setpoint - y[k])
         if delay_steps:
             applied, buffer[k % delay_steps] = buffer[k % delay_steps], u[k]
         x = phi @ x + gam * applied
-    return LoopRun(h * np.arange(len(y)), y, u, diverged)
+    return LoopRun(step_s * np.arange(len(y)), y, u, diverged)
+
+
+class Pid:
+    """The papers' parallel PID as a controller for ``closed_loop``: integral by the rectangle rule,
+    derivative by the backward difference through a first-order filter, output clipped to
+    control_limits if given (no anti-windup: the papers' linear loop has none)."""
+
+    def __init__(self, gains: tuple[float, float, float], step_s: float, derivative_filter_s: float = 0.0,
+                 control_limits: tuple[float, float] | None = None):
+        self.kp, self.ki, self.kd = gains
+        self.step_s, self.filter_s, self.limits = step_s, derivative_filter_s, control_limits
+        self.integral = self.derivative = 0.0
+        self.previous_error = 0.0  # the loop at rest before the step: e = 0
+
+    def __call__(self, error: float) -> float:
+        self.integral += self.ki * error * self.step_s
+        self.derivative = (self.filter_s * self.derivative + self.kd * (error - self.previous_error)) \
+            / (self.filter_s + self.step_s)
+        self.previous_error = error
+        u = self.kp * error + self.integral + self.derivative
+        return u if self.limits is None else min(max(u, self.limits[0]), self.limits[1])
+
+
+def step_response(model: LinearModel, gains: tuple[float, float, float], setpoint: float = 1.0,
+                  duration_s: float = 600.0, step_s: float = STEP_S, derivative_filter_s: float = 0.0,
+                  control_limits: tuple[float, float] | None = None) -> LoopRun:
+    """The closed loop under ``Pid``: u = kp e + ki int e + kd de/dt (filtered by
+    derivative_filter_s), clipped to control_limits if given; the step shortened to divide the
+    dead time."""
+    if derivative_filter_s < 0:
+        raise ValueError("derivative_filter_s must be >= 0")
+    delay_steps = math.ceil(model.delay_s / step_s - 1e-9) if model.delay_s and step_s > 0 else 0
+    h = model.delay_s / delay_steps if delay_steps else step_s
+    return closed_loop(model, Pid(gains, h, derivative_filter_s, control_limits), setpoint, duration_s, h)

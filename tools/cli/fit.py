@@ -6,6 +6,7 @@ are listed (tools/ident/fit.py log_segments: heat-ups with their hold, pulses, s
 fitted (--segment, default the first with at least half the longest time at full power). The
 output gives each parameter with its standard error, the residuals, a FOPDT equivalent, and
 Marlin (M306 for two_node, M301/M304) and Klipper settings (PID gains by the AMIGO rule).
+--loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
 """
 
 from __future__ import annotations

@@ -19,6 +19,11 @@ which is rarely stated. The lumped models hold power_w fixed (Marlin's default 4
 and fit C, A and R: with the real wattage P', C and A scale by P'/P. ``FitResult.derived()`` gives
 the power-free numbers.
 
+Heat loss: the lumped models' loss is linear (Marlin's MPC model) unless ``loss`` asks for the
+radiation-like term too (an effective area at emissivity 1, twin/plants.py ``Lumped``), fitted from
+the linear fit's values; "auto" keeps whichever has the lower AIC (``fit_losses``). A radiating
+plant is simulated by ``radiating_response``.
+
 Tuning: a fitted model's FOPDT equivalent (the two-point method on its step response) plus the
 control loop's own delay gives PID gains by the AMIGO rule, and its ultimate point (Ku, Tu), what
 an ideal relay autotune would find; relay_fopdt turns a logged relay result back into a FOPDT.
@@ -451,10 +456,11 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
     ValueError for an unusable series or option.
     """
     _check_loss(model, loss)
-    options = {"power_w": power_w, "fixed": fixed, "start": start, "observed": observed}
     if loss == "linear":
-        return _fit_loss(model, "linear", t_s, temp_c, duty, ambient_c, **options)
-    choice = fit_losses(model, t_s, temp_c, duty, ambient_c, **options)
+        return _fit_loss(model, "linear", t_s, temp_c, duty, ambient_c, power_w=power_w, fixed=fixed, start=start,
+                         observed=observed)
+    choice = fit_losses(model, t_s, temp_c, duty, ambient_c, power_w=power_w, fixed=fixed, start=start,
+                        observed=observed)
     return choice.fits[choice.kept if loss == "auto" else "radiating"]
 
 

@@ -6,6 +6,7 @@ are listed (tools/ident/fit.py log_segments: heat-ups with their hold, pulses, s
 fitted (--segment, default the first with at least half the longest time at full power). The
 output gives each parameter with its standard error, the residuals, a FOPDT equivalent, and
 Marlin (M306 for two_node, M301/M304) and Klipper settings (PID gains by the AMIGO rule).
+--loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
 """
 
 from __future__ import annotations
@@ -19,11 +20,19 @@ from tools.cli.args import OneLineParser, ranged_float
 from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c
 from tools.ident.fit import (
     CONTROL_DELAY_S,
+    LOSSES,
+    LUMPED_MODELS,
     MODELS,
+    RADIATING_BOUNDS_M2,
+    RADIATING_EMISSIVITY,
+    RADIATING_PARAM,
     FitResult,
     Fopdt,
     NotFittable,
+    Segment,
+    aic,
     default_segment,
+    fit_losses,
     fit_model,
     fopdt_equivalent,
     log_segments,
@@ -52,6 +61,7 @@ EXAMPLES = """examples:
   twin-fit heattest.csv --model three_node --ambient 21.4
   twin-fit m303_capture.txt --ambient 24                an M303 console capture (relay trace)
   twin-fit m303_bed.txt --heater heater_bed             a capture without its M303 E-1 line
+  twin-fit heattest.csv --model three_node --loss auto  with a radiation-like loss too, if AIC prefers it
 """
 AMBIENT_RANGE_C = (-40.0, 100.0)  # a room, a heated enclosure: a wider value is a typo
 POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
@@ -77,7 +87,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--power-w", type=ranged_float(*POWER_RANGE_W, "W"),
                         help="heater power in W for two_node/three_node (default: assumed "
                         f"{MPC_HEATER_POWER_W:g} W for a hotend, {BED_POWER_W:g} W for a bed)")
-    return parser.parse_args(argv)
+    parser.add_argument("--loss", choices=LOSSES, default="linear",
+                        help="two_node/three_node heat loss: linear (the default, Marlin's MPC model), radiating "
+                             "(plus sigma area (T^4 - Ta^4), an effective area at emissivity 1 fitted within "
+                             f"{RADIATING_BOUNDS_M2[0] * 1e4:g}..{RADIATING_BOUNDS_M2[1] * 1e4:g} cm^2) or auto "
+                             "(both, the lower AIC kept)")
+    args = parser.parse_args(argv)
+    if args.loss != "linear" and args.model not in (None, *LUMPED_MODELS):
+        parser.error(f"--loss {args.loss} needs --model two_node or three_node: {args.model} has no heat-loss term")
+    return args
 
 
 def _param_lines(result: FitResult) -> list[str]:
@@ -112,7 +130,9 @@ def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str
     if heater == BED:
         lines.append(f"  Marlin:  M304 P{kp:.4g} I{ki:.4g} D{kd:.4g}   (Marlin's MPC, M306, is for hotends only)")
     else:
-        if result.model == "two_node":
+        if result.model == "two_node" and result.loss == "radiating":
+            lines.append("  Marlin:  (M306 has no radiation term: --loss linear fits Marlin's MPC model)")
+        elif result.model == "two_node":
             lines.append(f"  Marlin:  M306 P{v['power_w']:.2f} C{v['block_heat_capacity_j_k']:.2f} "
                          f"R{v['sensor_responsiveness_per_s']:.4f} A{v['ambient_xfer_w_k']:.4f} "
                          f"F{v['ambient_xfer_w_k']:.4f}")
@@ -124,6 +144,26 @@ def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str
     lines += ["  Klipper:", f"    [{heater}]", "    control: pid", f"    pid_Kp: {kp:.4g}", f"    pid_Ki: {ki:.4g}",
               f"    pid_Kd: {kd:.4g}"]
     return lines
+
+
+def _fit(model: str, seg: Segment, ambient_c: float | None, power_w: float | None,
+         loss: str) -> tuple[FitResult, list[str]]:
+    """The fit --loss asks for; for auto also the line comparing both losses."""
+    series = (model, seg.t_s, seg.temp_c, seg.duty, ambient_c)
+    if loss != "auto":
+        return fit_model(*series, power_w=power_w, observed=seg.observed, loss=loss), []
+    choice = fit_losses(*series, power_w=power_w, observed=seg.observed)
+    compared = "; ".join(f"{name} RMSE {fit.rmse_c:.2f} C, AIC {aic(fit):.0f}" for name, fit in choice.fits.items())
+    return choice.fits[choice.kept], [f"loss (--loss auto): {compared}: kept {choice.kept} (lower AIC)"]
+
+
+def _radiation_line(result: FitResult) -> str:
+    """The fitted radiating area in cm^2 with its standard error, and what it stands for."""
+    area_cm2 = result.params[RADIATING_PARAM] * 1e4
+    error = result.std_errors[RADIATING_PARAM] * 1e4
+    spread = "at its bound" if np.isnan(error) else "not determined" if np.isinf(error) else f"+- {error:.2g} cm^2"
+    return (f"  radiation: effective area {area_cm2:.4g} cm^2 {spread}, at emissivity {RADIATING_EMISSIVITY:g} "
+            "(stands for every loss that grows faster than linearly with temperature)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -147,10 +187,13 @@ def run(args: argparse.Namespace) -> int:
         ambient_c = ambient_hint_c(log)
         print(f"ambient {ambient_c:g} C: {'the idle heater reads it' if log.idle_readings_c else 'a room, assumed'}"
               " (a relay trace near its target cannot tell; --ambient sets it)")
-    result = fit_model(model, seg.t_s, seg.temp_c, seg.duty, ambient_c, power_w=power_w, observed=seg.observed)
-    print(f"fit: {model} on segment {chosen}" + (f", power_w {power_w:g} W assumed (the log fixes P/C and P/A,"
-                                                 " not the wattage)" if args.power_w is None and power_w else ""))
-    print("\n".join(_param_lines(result)))
+    result, compared = _fit(model, seg, ambient_c, power_w, args.loss)
+    for line in compared:
+        print(line)
+    print(f"fit: {model}{', radiating loss' if result.loss == 'radiating' else ''} on segment {chosen}"
+          + (f", power_w {power_w:g} W assumed (the log fixes P/C and P/A, not the wattage)"
+             if args.power_w is None and power_w else ""))
+    print("\n".join(_param_lines(result) + ([_radiation_line(result)] if result.loss == "radiating" else [])))
     print(f"  RMSE {result.rmse_c:.2f} C, max |residual| {result.max_abs_residual_c:.2f} C"
           f" over {result.n_samples} samples")
     if derived := result.derived():

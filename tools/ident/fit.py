@@ -19,6 +19,11 @@ which is rarely stated. The lumped models hold power_w fixed (Marlin's default 4
 and fit C, A and R: with the real wattage P', C and A scale by P'/P. ``FitResult.derived()`` gives
 the power-free numbers.
 
+Heat loss: the lumped models' loss is linear (Marlin's MPC model) unless ``loss`` asks for the
+radiation-like term too (an effective area at emissivity 1, twin/plants.py ``Lumped``), fitted from
+the linear fit's values; "auto" keeps whichever has the lower AIC (``fit_losses``). A radiating
+plant is simulated by ``radiating_response``.
+
 Tuning: a fitted model's FOPDT equivalent (the two-point method on its step response) plus the
 control loop's own delay gives PID gains by the AMIGO rule, and its ultimate point (Ku, Tu), what
 an ideal relay autotune would find; relay_fopdt turns a logged relay result back into a FOPDT.
@@ -51,6 +56,7 @@ from twin.linear import SENSOR, TICK_S, TickModel
 from twin.plants import (
     MPC_HEATER_POWER_W,
     ONION_CARTRIDGE_HEAT_CAPACITY_J_K,
+    V6_BLOCK_AREA_M2,
     Lumped,
     Plant,
     Spec,
@@ -72,6 +78,20 @@ HELD = {  # held fixed unless given: the log cannot tell them apart from the fit
     # the fit is flat in the cartridge's capacity (python -m tools.validation.plant_check --fit refits 1..8 J/K)
     "three_node": {"power_w": MPC_HEATER_POWER_W, "cartridge_heat_capacity_j_k": ONION_CARTRIDGE_HEAT_CAPACITY_J_K},
 }
+LUMPED_MODELS = ("two_node", "three_node")
+# The heat loss of the lumped models: "linear" A (Tb - Ta) alone; "radiating" adds Lumped's radiation
+# term sigma eps area (Tb^4 - Ta^4) at emissivity 1, fitting the effective area; "auto" fits both
+# and keeps the one of lower AIC (``information_criterion``).
+LOSSES = ("linear", "radiating", "auto")
+RADIATING_PARAM = "radiating_area_m2"
+RADIATING_EMISSIVITY = 1.0  # held: the area absorbs it (emissivity times the onionheater block's own
+# 14.7 cm^2 wanted 2.7 > 1, more than the block radiates: the term also stands for the heat break,
+# the nozzle and convection's own rise with temperature, python -m tools.validation.plant_check --fit)
+RADIATING_START_M2 = 2 * V6_BLOCK_AREA_M2  # twice an E3D V6 block's surface
+# Up to 100 cm^2: about seven V6 blocks, more than a whole hot end's surface. From 0.01 cm^2: at 200 C
+# a conductance of 1.5e-5 W/K, nothing beside a hot end's linear loss (0.07 W/K and up); the area is
+# fitted as its logarithm, which on a plant without the term would run towards 0 for ever.
+RADIATING_BOUNDS_M2 = (1e-6, 0.01)
 LINEAR_PARAMS = ("ambient_c", "initial_c", "delay_s")  # fitted as they are; the others as their logarithms
 LOG_X_SCALE = 0.1  # least_squares x_scale of a logarithm (10 % steps); 1 C or 1 s for the linear ones
 MAX_EVALUATIONS = 400  # residual evaluations: a segment that has not converged by then holds too little
@@ -103,6 +123,7 @@ MAX_SENSOR_RESPONSIVENESS_PER_S = 10.0  # a sensor lag under 0.1 s: beyond every
 CONTROL_DELAY_S = 0.3 + 0.3 / 2
 PID_SCALE = PID_PARAM_BASE  # gains per C on 0..255: Klipper's PID_PARAM_BASE, Marlin's PID_MAX output range
 STEP_RESPONSE_POINTS = 20000  # the grid of a model's step response for its FOPDT equivalent
+RADIATING_STEP_POINTS = 2000  # a radiating model's: a matrix exponential per point (0.4 % of a time constant each)
 
 
 class Fopdt(NamedTuple):
@@ -300,6 +321,7 @@ class FitResult:
     std_errors: dict[str, float]  # NaN: stopped at a bound; inf: the segment does not determine it
     fixed: dict[str, float]  # held: power_w, ambient_c when given, ...
     residuals_c: np.ndarray
+    loss: str = "linear"  # the lumped models' heat loss: "linear" or "radiating" (LOSSES)
 
     @property
     def values(self) -> dict[str, float]:
@@ -328,14 +350,24 @@ class FitResult:
 
     def derived(self) -> dict[str, float]:
         """Numbers that do not depend on the assumed power: for the lumped models the heating rate
-        at full power (C/s), the rise at full power (C), the loss time constant and the sensor lag."""
+        at full power (C/s), the rise at full power (C), the loss time constant and the sensor lag.
+        With the radiating loss the rise solves P = (A + h(T)) (T - Ta), h the radiation's secant
+        conductance (twin/plants.py ``Lumped.radiation_w_k``), and the time constant is the one near
+        ambient, where h is 4 sigma eps area Ta^3: both scale with P like C, A and the area."""
         v = self.values
-        if self.model not in ("two_node", "three_node"):
+        spec = self.spec()
+        if not isinstance(spec, Lumped):
             return {}
         capacity_j_k = v["block_heat_capacity_j_k"] + v.get("cartridge_heat_capacity_j_k", 0.0)
-        return {"heating_rate_c_s": v["power_w"] / capacity_j_k,
-                "rise_at_full_power_c": v["power_w"] / v["ambient_xfer_w_k"],
-                "loss_time_constant_s": capacity_j_k / v["ambient_xfer_w_k"],
+        ambient_c, power_w, linear_w_k = v["ambient_c"], v["power_w"], v["ambient_xfer_w_k"]
+        near_ambient_w_k = linear_w_k + spec.radiation_w_k(ambient_c, ambient_c)
+        rise_c = power_w / near_ambient_w_k  # the secant conductance only grows with temperature: an upper bound
+        if not spec.linear:
+            rise_c = scipy.optimize.brentq(
+                lambda r: (linear_w_k + spec.radiation_w_k(ambient_c + r, ambient_c)) * r - power_w, 0.0, rise_c)
+        return {"heating_rate_c_s": power_w / capacity_j_k,
+                "rise_at_full_power_c": float(rise_c),
+                "loss_time_constant_s": capacity_j_k / near_ambient_w_k,
                 "sensor_lag_s": 1.0 / v["sensor_responsiveness_per_s"]}
 
 
@@ -394,9 +426,20 @@ def _start_values(model: str, guess: Fopdt, held: dict[str, float]) -> dict[str,
     return {name: start[name] for name in FITTED[model]}
 
 
+def _check_loss(model: str, loss: str) -> None:
+    """ValueError for an unknown model or loss, or a nonlinear loss on a transfer function."""
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}; valid: {', '.join(MODELS)}")
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss {loss!r}; valid: {', '.join(LOSSES)}")
+    if loss != "linear" and model not in LUMPED_MODELS:
+        raise ValueError(f"loss {loss!r} needs a lumped model ({', '.join(LUMPED_MODELS)}): {model} has no heat-loss "
+                         "term to make nonlinear")
+
+
 def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, power_w: float | None = None,
               fixed: dict[str, float] | None = None, start: dict[str, float] | None = None,
-              observed: np.ndarray | None = None) -> FitResult:
+              observed: np.ndarray | None = None, loss: str = "linear") -> FitResult:
     """Fit a model to one segment: readings temp_c at t_s under the duty (0..1) held from each sample.
 
     model: "fopdt" (gain_c, time_constant_s, delay_s), "sopdt" (two lags, lag1_s >= lag2_s),
@@ -407,16 +450,33 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
     the lowest reading and, give or take the readings' noise, not above it. power_w (lumped models,
     default 40 W) and other values in ``fixed`` are held; ``start`` overrides start values.
     observed (bool per sample, default all): the samples whose readings are compared; the others
-    only carry a duty change (a relay's reconstructed switch instant). ValueError for an unusable series.
+    only carry a duty change (a relay's reconstructed switch instant).
+    loss (lumped models): "linear", "radiating" (plus radiating_area_m2 at emissivity 1, within
+    RADIATING_BOUNDS_M2) or "auto" (both, the lower AIC kept: ``fit_losses``).
+    ValueError for an unusable series or option.
     """
-    if model not in MODELS:
-        raise ValueError(f"unknown model {model!r}; valid: {', '.join(MODELS)}")
+    _check_loss(model, loss)
+    if loss == "linear":
+        return _fit_loss(model, "linear", t_s, temp_c, duty, ambient_c, power_w=power_w, fixed=fixed, start=start,
+                         observed=observed)
+    choice = fit_losses(model, t_s, temp_c, duty, ambient_c, power_w=power_w, fixed=fixed, start=start,
+                        observed=observed)
+    return choice.fits[choice.kept if loss == "auto" else "radiating"]
+
+
+def _fit_loss(model: str, loss: str, t_s, temp_c, duty, ambient_c: float | None, *, power_w: float | None = None,
+              fixed: dict[str, float] | None = None, start: dict[str, float] | None = None,
+              observed: np.ndarray | None = None) -> FitResult:
+    """``fit_model`` with one loss, "linear" or "radiating", from start values guessed or given."""
+    radiating = loss == "radiating"
+    fitted = FITTED[model] + ((RADIATING_PARAM,) if radiating else ())
     t_s, temp_c, duty = (np.asarray(a, dtype=float) for a in (t_s, temp_c, duty))
-    _check_series(t_s, temp_c, duty, len(FITTED[model]) + 1 + (ambient_c is None))
-    unknown = (set(fixed or {}) | set(start or {})) - {*FITTED[model], *HELD[model], "ambient_c", "initial_c"}
+    _check_series(t_s, temp_c, duty, len(fitted) + 1 + (ambient_c is None))
+    held = {**HELD[model], **({"emissivity": RADIATING_EMISSIVITY} if radiating else {})}
+    unknown = (set(fixed or {}) | set(start or {})) - {*fitted, *held, "ambient_c", "initial_c"}
     if unknown:
-        raise ValueError(f"{model} has no parameter {', '.join(sorted(unknown))}")
-    held = {**HELD[model], **(fixed or {})}
+        raise ValueError(f"{model} ({loss} loss) has no parameter {', '.join(sorted(unknown))}")
+    held.update(fixed or {})
     if power_w is not None:
         held["power_w"] = float(power_w)
     if ambient_c is not None:
@@ -427,19 +487,43 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
     slack_c = AMBIENT_SLACK_SIGMAS * reading_noise_c(temp_c[seen]) + READING_STEP_C
     ambient_start_c = float(ambient_c if ambient_c is not None else temp_c.min())
     guess = _first_order_guess(t_s, temp_c, duty, ambient_start_c)
-    first = {**_start_values(model, guess, held), "initial_c": float(temp_c[0]),
-             **({} if ambient_c is not None else {"ambient_c": ambient_start_c}), **(start or {})}
+    first = {**_start_values(model, guess, held), **({RADIATING_PARAM: RADIATING_START_M2} if radiating else {}),
+             "initial_c": float(temp_c[0]), **({} if ambient_c is not None else {"ambient_c": ambient_start_c}),
+             **(start or {})}
     first = {k: v for k, v in first.items() if k not in held}
     est = least_squares_fit(lambda p: (_response(model, {**held, **p}, t_s, duty) - temp_c)[seen], first,
                             bounds={"ambient_c": (temp_c.min() - AMBIENT_BELOW_C, temp_c.min() + slack_c),
                                     "initial_c": (temp_c[0] - slack_c, temp_c[0] + slack_c),
                                     "delay_s": (0.0, math.inf),
-                                    "sensor_responsiveness_per_s": (0.0, MAX_SENSOR_RESPONSIVENESS_PER_S)})
+                                    "sensor_responsiveness_per_s": (0.0, MAX_SENSOR_RESPONSIVENESS_PER_S),
+                                    RADIATING_PARAM: RADIATING_BOUNDS_M2})
     params, std = est.values, est.std_errors
     if model == "sopdt" and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
         for d in (params, std):
             d["lag1_s"], d["lag2_s"] = d["lag2_s"], d["lag1_s"]
-    return FitResult(model, params, std, held, est.residuals_c)
+    return FitResult(model, params, std, held, est.residuals_c, loss)
+
+
+class LossChoice(NamedTuple):
+    """Both losses fitted to one segment, by loss name, and the name of the one of lower AIC."""
+
+    fits: dict[str, FitResult]
+    kept: str
+
+
+def fit_losses(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *,
+               start: dict[str, float] | None = None, **options) -> LossChoice:
+    """A lumped model fitted with the linear loss, then with the radiating one from the linear fit's
+    values (a nested model: the radiating fit starts where the linear one ended, plus
+    RADIATING_START_M2; ``start`` overrides both), ``fit_model``'s other options as given; kept: the
+    lower AIC, which charges the radiating fit its extra parameter (``aic``)."""
+    _check_loss(model, "auto")
+    linear = _fit_loss(model, "linear", t_s, temp_c, duty, ambient_c,
+                       start={k: v for k, v in (start or {}).items() if k != RADIATING_PARAM}, **options)
+    radiating = _fit_loss(model, "radiating", t_s, temp_c, duty, ambient_c,
+                          start={**linear.params, RADIATING_PARAM: RADIATING_START_M2, **(start or {})}, **options)
+    fits = {"linear": linear, "radiating": radiating}
+    return LossChoice(fits, min(fits, key=lambda name: aic(fits[name])))
 
 
 def aic(result: FitResult) -> float:
@@ -517,15 +601,26 @@ def relay_fopdt(ku: float, tu_s: float, gain_c: float) -> Fopdt:
 
 def fopdt_equivalent(result: FitResult) -> Fopdt:
     """The fitted model as a FOPDT: itself, or the two-point method on its unit step response (exact
-    zero-order-hold steps of the model on a grid up to 8 of its slowest time constants)."""
+    zero-order-hold steps of the model on a grid up to 8 of its slowest time constants; a radiating
+    model's own nonlinear step from ambient, ``radiating_response``, time constants taken at ambient,
+    where its loss is least)."""
     if result.model == "fopdt":
         return Fopdt(*(result.params[name] for name in FITTED["fopdt"]))
     spec = result.spec()
-    lti = spec.lti(spec.conditions(0.0, 0.0, 0.0, 0.0))
-    gain_c = float(-(lti.c[SENSOR] @ np.linalg.solve(lti.a, lti.b)))
-    step_s = 8.0 / float(np.min(np.abs(np.linalg.eigvals(lti.a).real))) / STEP_RESPONSE_POINTS
-    step_c = TickModel(lti, step_s).u_steps(STEP_RESPONSE_POINTS) @ lti.c[SENSOR]
-    t_s = spec.delay_ticks * TICK_S + step_s * np.arange(STEP_RESPONSE_POINTS + 1)
+    ambient_c = result.values.get("ambient_c", 0.0)
+    lti = spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))
+    slowest_s = 1.0 / float(np.min(np.abs(np.linalg.eigvals(lti.a).real)))
+    if spec.linear:
+        gain_c = float(-(lti.c[SENSOR] @ np.linalg.solve(lti.a, lti.b)))
+        step_s = 8.0 * slowest_s / STEP_RESPONSE_POINTS
+        step_c = TickModel(lti, step_s).u_steps(STEP_RESPONSE_POINTS) @ lti.c[SENSOR]
+    else:
+        gain_c = result.derived()["rise_at_full_power_c"]
+        step_s = 8.0 * slowest_s / RADIATING_STEP_POINTS
+        grid_s = step_s * np.arange(RADIATING_STEP_POINTS + 1)
+        step_c = radiating_response(Plant(result.model, spec, ambient_c, ambient_c), grid_s,
+                                    np.ones(len(grid_s))) - ambient_c
+    t_s = spec.delay_ticks * TICK_S + step_s * np.arange(len(step_c))
     k, tau, delay = two_point_fopdt(np.r_[0.0, t_s], np.r_[0.0, step_c], 1.0, final_c=gain_c)
     return Fopdt(k, tau, max(delay, 0.0))  # a lag too short for the step's shape reads as a few ms either way
 

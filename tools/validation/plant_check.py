@@ -20,11 +20,11 @@ from functools import partial
 import numpy as np
 import scipy.optimize
 
-from tools.ident.fit import Estimate, Segment, fit_plants, zoh_response
+from tools.ident.fit import FitResult, Segment, aic, fit_losses, fit_model, fit_plants, zoh_response
 from tools.logs import csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
-from twin.plants import MK3_POWER_W, V6_BLOCK_AREA_M2, make_plant
+from twin.plants import MK3_POWER_W, SPECS, make_plant
 
 # Onionheater pulse tests (README section B; the author's notes in the files' headers).
 ONION_LOG = "klipper_heattest_onionheater_{}.csv"
@@ -36,12 +36,7 @@ ONION_FIT_FIXED = ("power_w", "cartridge_heat_capacity_j_k")
 ONION_CARTRIDGE_PROFILE_J_K = (1.0, 4.0, 8.0)  # the fit is flat in the cartridge's capacity: shown by refits
 ONION_FIT_START = {"block_heat_capacity_j_k": 16.7, "cartridge_xfer_w_k": 1.0,  # MPC defaults, a 1 W/K contact
                    "sensor_responsiveness_per_s": 0.22, "ambient_xfer_w_k": 0.068}
-# The radiation-like loss sigma eps area (Tb^4 - Ta^4), fitted as an effective area at emissivity 1
-# (emissivity times the block's own 14.7 cm^2 wanted 2.7 > 1: more than the block radiates, i.e. the
-# heat break, nozzle and convection's own rise with temperature), from twice the block's area,
-# bounded by 100 cm^2: about seven V6 blocks, more than the whole hot end's surface.
-ONION_RADIATING_START_M2 = 2 * V6_BLOCK_AREA_M2
-ONION_RADIATING_BOUNDS_M2 = (0.0, 0.01)
+# and, fitting the radiation-like loss too, tools/ident/fit.py's RADIATING_START_M2 within RADIATING_BOUNDS_M2
 
 # Chesleavens bed (README section A): session 0, heat-up to 65 C, hold, step down to 60 C.
 BED_LOG = "klippy_stats_chesleavens_cartesian_stm32f103.csv"
@@ -229,43 +224,40 @@ def bed_report() -> list[str]:
     return lines
 
 
-def onion_fits() -> dict[str, tuple[Estimate, dict[str, float]]]:
-    """The no-fan first pulse fitted without and with the radiation-like loss: each fit and the
-    fixed values it was fitted with."""
+def onion_fit_options(**fixed: float) -> dict:
+    """fit_model's arguments for the no-fan first pulse: three_node at the onionheater's ambient, every
+    node at the run's first reading, power_w and the cartridge's capacity as in hotend_cartridge (or
+    as ``fixed``), from ONION_FIT_START."""
     first = onion_runs()[0][1]
-    fits = {}
-    for name, fixed, start, bounds in (
-        ("linear", {"emissivity": 0.0}, ONION_FIT_START, None),
-        ("radiating", {"emissivity": 1.0}, {**ONION_FIT_START, "radiating_area_m2": ONION_RADIATING_START_M2},
-         {"radiating_area_m2": ONION_RADIATING_BOUNDS_M2}),
-    ):
-        fits[name] = (fit_plants(partial(onion_plant, **fixed), start, [first], bounds), fixed)
-    return fits
+    preset = {name: getattr(SPECS["hotend_cartridge"], name) for name in ONION_FIT_FIXED}
+    return {"model": "three_node", "t_s": first.t_s, "temp_c": first.temp_c, "duty": first.duty,
+            "ambient_c": ONION_AMBIENT_C, "fixed": {**preset, "initial_c": float(first.temp_c[0]), **fixed},
+            "start": ONION_FIT_START}
 
 
-def _fit_lines(name: str, fit: Estimate, fixed: dict[str, float], held_out: Segment) -> list[str]:
+def _preset_params(fit: FitResult) -> dict[str, float]:
+    """A fit's values as hotend_cartridge's parameters: the fitted ones and the emissivity."""
+    return {**fit.params, "emissivity": fit.values.get("emissivity", 0.0)}
+
+
+def _fit_lines(name: str, fit: FitResult, held_out: Segment) -> list[str]:
     """A fit's values +- standard errors, RMSE, AIC, and its RMSE on the held-out run."""
-    values = {**fit.values, **fixed}
-    err = zoh_response(onion_plant(held_out, **values), held_out.t_s, held_out.duty) - held_out.temp_c
-    return ([f"  {name} ({', '.join(f'{k} {v:g}' for k, v in fixed.items())}):"]
-            + [f"    {k} = {v:.4g} +- {fit.std_errors[k]:.2g}" for k, v in fit.values.items()]
-            + [f"    RMSE {fit.rmse_c:.2f} C, AIC {fit.aic:.0f}; held out ({held_out.label}): RMSE {rms(err):.2f} C"])
+    params = _preset_params(fit)
+    err = zoh_response(onion_plant(held_out, **params), held_out.t_s, held_out.duty) - held_out.temp_c
+    return ([f"  {name} (emissivity {params['emissivity']:g}):"]
+            + [f"    {k} = {v:.4g} +- {fit.std_errors[k]:.2g}" for k, v in fit.params.items()]
+            + [f"    RMSE {fit.rmse_c:.2f} C, AIC {aic(fit):.0f}; held out ({held_out.label}): RMSE {rms(err):.2f} C"])
 
 
 def fit_report() -> list[str]:
     """The least-squares fits behind hotend_cartridge (and ONION_RADIATING_PARAMS) and bed, and the MK3 loss solve."""
     runs = [run for _, run in onion_runs()]
-    fits = onion_fits()
-    chosen = min(fits, key=lambda name: fits[name][0].aic)
-
-    def refit_rmse_c(capacity_j_k: float) -> float:
-        make = partial(onion_plant, emissivity=0.0, cartridge_heat_capacity_j_k=capacity_j_k)
-        return fit_plants(make, ONION_FIT_START, runs[:1]).rmse_c
-
-    profile = {capacity: refit_rmse_c(capacity) for capacity in ONION_CARTRIDGE_PROFILE_J_K}
+    fits, chosen = fit_losses(**onion_fit_options())
+    profile = {capacity: fit_model(**onion_fit_options(cartridge_heat_capacity_j_k=capacity)).rmse_c
+               for capacity in ONION_CARTRIDGE_PROFILE_J_K}
     fan_runs = [run for run in runs if run.fan]
-    fan_fits = {name: fit_plants(partial(onion_plant, **fixed, **fit.values), {"fan_ambient_xfer_w_k": 0.09}, fan_runs)
-                for name, (fit, fixed) in fits.items()}
+    fan_fits = {name: fit_plants(partial(onion_plant, **_preset_params(fit)), {"fan_ambient_xfer_w_k": 0.09}, fan_runs)
+                for name, fit in fits.items()}
     bed_fit = fit_plants(bed_plant, BED_FIT_START, [bed_run()])
     bed, bed_rms = bed_fit.values, bed_fit.rmse_c
 
@@ -278,7 +270,7 @@ def fit_report() -> list[str]:
     return (
         [f"hotend_cartridge ({', '.join(ONION_FIT_FIXED)} as in the preset): heattest_200 first pulse,",
          f"  from {ONION_FIT_START}"]
-        + [line for name, (fit, fixed) in fits.items() for line in _fit_lines(name, fit, fixed, runs[2])]
+        + [line for name, fit in fits.items() for line in _fit_lines(name, fit, runs[2])]
         + [f"  lower AIC: {chosen} (hotend_cartridge holds the linear fit, ONION_RADIATING_PARAMS the other)"]
         + ["  linear RMSE refitted with another cartridge_heat_capacity_j_k: "
            + ", ".join(f"{capacity:g} J/K {rmse:.2f} C" for capacity, rmse in profile.items())]

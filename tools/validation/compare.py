@@ -35,7 +35,6 @@ from tools.ident.fit import (
     FitResult,
     fit_model,
     log_segments,
-    zoh_response,
 )
 from tools.logs import (
     HeattestLog,
@@ -44,10 +43,12 @@ from tools.logs import (
     load_log,
     parse_heattest,
 )
+from tools.ident.runs import Run, run_response
 from twin.klipper_twin import PULLUP_OHM, PWM_CYCLE_TIME_S, HeaterSetup, KlipperTwin
 from twin.plants import Plant
 
 ONION_AMBIENT_C = 21.4  # the author's room temperature (README B)
+ONION_FAN = 1.0  # "part fan on" (README B): its speed is not logged; taken as full
 ONION_NO_FAN = "klipper_heattest_onionheater_heattest_200.csv"
 ONION_FAN_FIT = "klipper_heattest_onionheater_heattest_fan_200.csv"
 ONION_FAN_TEST = "klipper_heattest_onionheater_heattest_fan_200_2.csv"
@@ -121,20 +122,22 @@ class OpenLoopResult:
     fit_max_err_c: float
     # one row per direction: fan coefficient fitted on run "fitted_on", predicted run "predicted"
     rows: list[dict] = field(default_factory=list)
+    # the no-fan session's later pulse from the same fit: how a later pulse misses with no fan change
+    later_pulse: dict = field(default_factory=dict)
     traces: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)  # t, log, twin
 
 
-def _fan_response(fit: FitResult, fan_xfer_w_k: float, log: HeattestLog) -> np.ndarray:
+def _response(fit: FitResult, fan_xfer_w_k: float, run: Run) -> np.ndarray:
+    """The fitted plant with fan loss F at the run's samples, from the state the run declares."""
     spec = replace(fit.spec(), fan_ambient_xfer_w_k=float(fan_xfer_w_k))
-    plant = Plant(fit.model, spec, fit.values["ambient_c"], float(log.temp_c[0]))
-    plant.set_inputs(1.0, 0.0, fit.values["ambient_c"])
-    return zoh_response(plant, log.t_s, log.pwm)
+    return run_response(spec, fit.model, fit.values["ambient_c"], run)
 
 
-def _fit_fan(fit: FitResult, log: HeattestLog) -> float:
+def _fit_fan(fit: FitResult, run: Run) -> float:
+    """The fan loss F (W/K at the run's fan) that fits the run best, its session carried through."""
     a = fit.values["ambient_xfer_w_k"]
     best = scipy.optimize.minimize_scalar(
-        lambda f: float(np.mean(np.square(_fan_response(fit, f, log) - log.temp_c))),
+        lambda f: float(np.mean(np.square(_response(fit, f, run) - run.temp_c))),
         bounds=(0.5 * a, 6.0 * a), method="bounded", options={"xatol": 1e-4})
     return float(best.x)
 
@@ -144,30 +147,56 @@ def _errors(pred: np.ndarray, logged: np.ndarray) -> tuple[float, float]:
     return float(np.sqrt(np.mean(err ** 2))), float(np.max(np.abs(err)))
 
 
+def onion_fan_runs(logs_dir: Path) -> dict[str, Run]:
+    """The two fan runs as they declare themselves (README B): part fan on, one session: the second
+    file's clock continues the first's, so it starts where the first left the hotend."""
+    first, second = (parse_heattest(logs_dir / name) for name in (ONION_FAN_FIT, ONION_FAN_TEST))
+    run1 = Run(ONION_FAN_FIT, first.t_s, first.temp_c, first.pwm, fan=ONION_FAN)
+    return {ONION_FAN_FIT: run1,
+            ONION_FAN_TEST: Run(ONION_FAN_TEST, second.t_s, second.temp_c, second.pwm, fan=ONION_FAN, follows=run1)}
+
+
+def _later_pulse(fit: FitResult, log: HeattestLog) -> dict:
+    """The no-fan log's second pulse predicted after its first (state carried) and from a settled
+    start: a later pulse of a session with no fan in either, the fan runs' situation without a fan change."""
+    on = np.flatnonzero(np.diff(log.pwm) > 0) + 1  # the samples where a pulse starts
+    split = int(on[1]) - 1  # the second pulse's run starts one sample before it, as the fan files do
+    first = Run("first pulse", log.t_s[:split], log.temp_c[:split], log.pwm[:split])
+    runs = {start: Run("second pulse", log.t_s[split:], log.temp_c[split:], log.pwm[split:], follows=follows)
+            for start, follows in (("after", first), ("settled", None))}
+    errors = {start: _errors(_response(fit, fit.values["ambient_xfer_w_k"], r), r.temp_c) for start, r in runs.items()}
+    pred = _response(fit, fit.values["ambient_xfer_w_k"], runs["after"])
+    return {"t_s": float(log.t_s[split]), "rmse_after_c": errors["after"][0], "rmse_settled_c": errors["settled"][0],
+            "peak_log_c": float(runs["after"].temp_c.max()), "peak_twin_c": float(pred.max())}
+
+
 def open_loop_check(logs_dir: Path | None = None, model: str = "three_node",
                     both_ways: bool = True) -> OpenLoopResult:
     """Fit on the no-fan first pulse; fit the fan coefficient on one fan run and predict the other
-    over the whole run (both ways round unless both_ways is False)."""
+    over the whole run, each from the state it declares (both ways round unless both_ways is False);
+    and the no-fan second pulse from the same fit."""
     logs_dir = hardware_logs_dir() if logs_dir is None else Path(logs_dir)
     no_fan = parse_heattest(logs_dir / ONION_NO_FAN)
     _, segments = log_segments(no_fan)
     seg = segments[0]
     fit = fit_model(model, seg.t_s, seg.temp_c, seg.duty, ONION_AMBIENT_C)
-    result = OpenLoopResult(fit, seg.label, *_errors(fit.simulate(seg.t_s, seg.duty), seg.temp_c))
+    result = OpenLoopResult(fit, seg.label, *_errors(fit.simulate(seg.t_s, seg.duty), seg.temp_c),
+                            later_pulse=_later_pulse(fit, no_fan))
     result.traces[ONION_NO_FAN] = (seg.t_s, seg.temp_c, fit.simulate(seg.t_s, seg.duty))
-    fans = {name: parse_heattest(logs_dir / name) for name in (ONION_FAN_FIT, ONION_FAN_TEST)}
+    runs = onion_fan_runs(logs_dir)
     pairs = [(ONION_FAN_FIT, ONION_FAN_TEST)] + ([(ONION_FAN_TEST, ONION_FAN_FIT)] if both_ways else [])
     for fitted_on, predicted in pairs:
-        f = _fit_fan(fit, fans[fitted_on])
-        own = _errors(_fan_response(fit, f, fans[fitted_on]), fans[fitted_on].temp_c)
-        log = fans[predicted]
-        pred = _fan_response(fit, f, log)
-        rmse, max_err = _errors(pred, log.temp_c)
-        result.rows.append({"fitted_on": fitted_on, "predicted": predicted, "fan_xfer_w_k": f,
-                            "no_fan_xfer_w_k": fit.values["ambient_xfer_w_k"], "fit_rmse_c": own[0],
-                            "rmse_c": rmse, "max_err_c": max_err, "peak_log_c": float(log.temp_c.max()),
-                            "peak_twin_c": float(pred.max()), "passed": rmse <= GOAL_OPEN_LOOP_RMSE_C})
-        result.traces.setdefault(predicted, (log.t_s, log.temp_c, pred))
+        f = _fit_fan(fit, runs[fitted_on])
+        own = _errors(_response(fit, f, runs[fitted_on]), runs[fitted_on].temp_c)
+        run = runs[predicted]
+        pred = _response(fit, f, run)
+        rmse, max_err = _errors(pred, run.temp_c)
+        result.rows.append({"fitted_on": fitted_on, "predicted": predicted, "start": run.start, "fan": run.fan,
+                            "fan_xfer_w_k": f, "no_fan_xfer_w_k": fit.values["ambient_xfer_w_k"],
+                            "fit_rmse_c": own[0], "rmse_c": rmse, "max_err_c": max_err,
+                            "peak_log_c": float(run.temp_c.max()), "peak_twin_c": float(pred.max()),
+                            "passed": rmse <= GOAL_OPEN_LOOP_RMSE_C})
+        result.traces.setdefault(predicted, (run.t_s, run.temp_c, pred))
     return result
 
 
@@ -468,14 +497,21 @@ def open_loop_table(r: OpenLoopResult) -> str:
              f"no-fan loss A = {v['ambient_xfer_w_k']:.4f} W/K, block C = {v['block_heat_capacity_j_k']:.2f} J/K, "
              f"sensor R = {v['sensor_responsiveness_per_s']:.4f} /s, cartridge G = {v['cartridge_xfer_w_k']:.4f} W/K."),
              "",
-             ("| fan coefficient fitted on | predicted run (whole run) | fan loss F (W/K) | F/A | RMSE on fitted run (C) "
+             ("| fan coefficient fitted on | predicted run (whole run) | predicted run starts | fan (declared) "
+              "| fan loss F (W/K) | F/A | RMSE on fitted run (C) "
              "| RMSE (C) | max error (C) | peak log / twin (C) | goal RMSE <= 3 C |"),
-             "|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in r.rows:
-        lines.append(f"| `{row['fitted_on']}` | `{row['predicted']}` | {row['fan_xfer_w_k']:.4f} | "
+        lines.append(f"| `{row['fitted_on']}` | `{row['predicted']}` | {row['start']} | {row['fan']:g} | "
+                     f"{row['fan_xfer_w_k']:.4f} | "
                      f"{row['fan_xfer_w_k'] / row['no_fan_xfer_w_k']:.2f} | {row['fit_rmse_c']:.2f} | "
                      f"{row['rmse_c']:.2f} | {row['max_err_c']:.2f} | {row['peak_log_c']:.1f} / "
                      f"{row['peak_twin_c']:.1f} | {_pm(row['passed'])} |")
+    p = r.later_pulse
+    lines += ["", (f"The same fit on the no-fan log's second pulse (from {p['t_s']:.1f} s; no fan in either pulse): "
+                   f"RMSE {p['rmse_after_c']:.2f} C with the state carried from the first pulse, "
+                   f"{p['rmse_settled_c']:.2f} C from a settled start; peak log / twin "
+                   f"{p['peak_log_c']:.1f} / {p['peak_twin_c']:.1f} C.")]
     return "\n".join(lines)
 
 

@@ -61,6 +61,7 @@ GOAL_TU_REL = 0.15
 
 NEAR_TARGET_C = 2.0  # heat-up time: to target - this
 STEADY_LAST_S = 60.0
+LEAD_IN_S = 60.0  # a replay starts this long before the heat-up's target change (where the log has it)
 HOLD_S = 300.0  # a replay runs this long after the log first reaches target - 2 C (or to a target change)  # steady pwm: the mean over the last this-many seconds of the hold
 
 FALLBACK_SENSOR = "Generic 3950"  # for a custom thermistor table the twin does not have (a B3950)
@@ -228,6 +229,10 @@ class Window:
     target_c: np.ndarray
     temp_c: np.ndarray
     pwm: np.ndarray
+    # the same part's samples up to LEAD_IN_S before the target change: replayed, not compared
+    lead_t_s: np.ndarray = field(default_factory=lambda: np.empty(0))
+    lead_target_c: np.ndarray = field(default_factory=lambda: np.empty(0))
+    lead_temp_c: np.ndarray = field(default_factory=lambda: np.empty(0))
 
 
 def _heatup_windows(log: StatsLog, heater: str) -> tuple[list, list[Window]]:
@@ -265,9 +270,14 @@ def _heatup_windows(log: StatsLog, heater: str) -> tuple[list, list[Window]]:
                     continue
                 if not np.any(part.temp_c[start:j] >= target - NEAR_TARGET_C):
                     continue  # the log never reaches this target: nothing to compare
+                # the lead-in: back LEAD_IN_S, from after any 0.0 (Klipper's reading before its first report)
+                unread = np.flatnonzero(part.temp_c[:start] <= 0.0)
+                first = max(int(np.searchsorted(part.t_s, part.t_s[start] - LEAD_IN_S)),
+                            int(unread[-1]) + 1 if unread.size else 0)
+                lead = slice(first, start)
                 windows.append(Window(f"session {index}, {part.t_s[start]:.0f}..{part.t_s[j - 1]:.0f} s", index,
                                       part.t_s[start:j], part.target_c[start:j], part.temp_c[start:j],
-                                      part.pwm[start:j]))
+                                      part.pwm[start:j], part.t_s[lead], part.target_c[lead], part.temp_c[lead]))
     return segments, windows
 
 
@@ -342,18 +352,29 @@ def fit_heater(log: StatsLog, heater: str, model: str = "two_node") -> tuple[Fit
     return fit, seg, windows
 
 
+def target_times_s(t_s: np.ndarray, target_c: np.ndarray) -> np.ndarray:
+    """When the logged targets took effect: a change first shown at a Stats line happened between
+    that line and the one before, so halfway (the first sample's own time for the first)."""
+    return np.r_[t_s[:1], np.where(np.diff(target_c) != 0, (t_s[:-1] + t_s[1:]) / 2.0, t_s[1:])]
+
+
 def replay(fit: FitResult, info: HeaterInfo, heater: str, window: Window):
-    """KlipperTwin through the window's targets from the window's first reading; twin at the log's instants."""
-    t0 = float(window.t_s[0])
-    plant = Plant(fit.model, fit.spec(), fit.values["ambient_c"], float(window.temp_c[0]))
+    """KlipperTwin through the logged targets of the window and its lead-in, from the lead-in's
+    first reading (the twin's first report comes ADC_FIRST_SAMPLE_S after its start and its PID
+    starts from Klipper's initial state: the lead-in settles both as the printer's were when the
+    target changed); the twin at the window's instants."""
+    t_all = np.r_[window.lead_t_s, window.t_s]
+    temp0 = float(np.r_[window.lead_temp_c, window.temp_c][0])
+    plant = Plant(fit.model, fit.spec(), fit.values["ambient_c"], temp0)
     twin = KlipperTwin([make_setup(info, heater, plant)])
-    rel = window.t_s - t0
-    twin.schedule_targets(heater, rel, window.target_c)
+    targets = np.r_[window.lead_target_c, window.target_c]
+    twin.schedule_targets(heater, target_times_s(t_all - t_all[0], targets), targets)
+    rel = window.t_s - t_all[0]
     twin.run_until(float(rel[-1]) + 0.01)
     rt, rtemp, rpwm = (twin.column(heater, f) for f in ("t_s", "temp_c", "pwm"))
     idx = np.searchsorted(rt, rel, side="right") - 1
     ok = idx >= 0
-    twin_temp = np.where(ok, rtemp[np.maximum(idx, 0)], window.temp_c[0])
+    twin_temp = np.where(ok, rtemp[np.maximum(idx, 0)], temp0)
     twin_pwm = np.where(ok, rpwm[np.maximum(idx, 0)], 0.0)
     return twin_temp, twin_pwm, twin.shutdown_message
 

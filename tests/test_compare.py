@@ -5,13 +5,14 @@ The logs come from hardware_logs_dir(): a missing folder fails these tests (neve
 
 import math
 
+import numpy as np
 import pytest
 
 from tools.cli import compare as compare_cli
 from tools.validation import compare
 from tools.validation import doc as validation
 from tools.validation.doc_compare import compare_docs
-from tools.logs import hardware_logs_dir
+from tools.logs import hardware_logs_dir, load_log
 
 CHES = "klippy_stats_chesleavens_cartesian_stm32f103.csv"
 
@@ -40,6 +41,54 @@ def test_closed_loop_replay_chesleavens_bed(logs):
             assert math.isfinite(value)
     assert math.isfinite(r.hold_rmse_c) and set(r.checks) == {"heat-up", "overshoot", "hold"}
     assert 60.0 < r.log.heatup_s < 200.0  # README: 26 -> 65 C in ~128 s
+
+
+def test_target_changes_are_set_halfway_between_stats_lines():
+    t = np.array([10.0, 11.0, 12.0, 13.5, 14.5])
+    target = np.array([0.0, 0.0, 150.0, 150.0, 220.0])
+    assert compare.target_times_s(t, target).tolist() == [10.0, 11.0, 11.5, 13.5, 14.0]
+
+
+def test_lead_in_skips_the_readings_before_klippers_first_report(logs):
+    """jc1rb's sessions start with temp 0.0 lines (no report yet): a lead-in from there would start
+    the plant at 0 C and trip the ADC range check."""
+    _, windows = compare._heatup_windows(load_log(logs / "klippy_stats_jc1rb_manta_m8p.csv"), "extruder")
+    for w in windows:
+        assert w.lead_t_s.size and np.all(w.lead_temp_c > 0.0)
+        assert w.t_s[0] - compare.LEAD_IN_S <= w.lead_t_s[0] < w.t_s[0]
+
+
+def test_replay_from_a_warm_hold_heats_at_once(logs):
+    """chesleavens' held-out heat-up starts from a hold at 150 C: the log sends full power at the
+    target change. Without the lead-in the twin's PID started at Klipper's 25 C and its derivative
+    held the pwm at 0 for 3 s."""
+    r = compare.closed_loop_check(logs / CHES, "extruder")
+    assert not r.same_segment and r.target_c == 220
+    t, log_temp, twin_temp, log_pwm, twin_pwm = r.trace
+    assert log_pwm[1] == 1.0 and twin_pwm[1] == r.info.max_power
+    assert abs(twin_temp[0] - log_temp[0]) < 2.0  # the lead-in held 150 C as the printer did
+
+
+def test_miss_evidence_replays_the_missed_heat_up_in_sample(logs):
+    path = logs / "klippy_stats_ianryeng_corexy_ebbcan.csv"
+    r = compare.closed_loop_check(path, "extruder")
+    assert not r.same_segment and not r.checks["overshoot"]
+    e = compare.miss_evidence(path, r)
+    assert e.own is not None and e.own.same_segment and e.own.replay_label == r.replay_label
+    assert e.own.fit_label.startswith("session 0,") and r.fit_label.startswith("session 1,")
+    assert not e.own.checks["overshoot"]  # the model misses it fitted on it too
+    assert math.isfinite(e.heating_rate_sigmas) and all(0.0 < d < 1.0 for d in e.hold_duty)
+    assert r.log.hold_rms_c > compare.GOAL_HOLD_RMSE_C  # the log's own limit cycle about 150 C
+    note = compare.miss_note(e)
+    assert "held-out replay of session 0" in note and "even fitted on it" in note
+
+
+def test_miss_evidence_of_an_in_sample_replay_is_the_replay_itself(logs):
+    path = logs / "klippy_stats_jakew02_redoubt_longprint.csv"
+    r = compare.closed_loop_check(path, "heater_bed")
+    e = compare.miss_evidence(path, r)
+    assert r.same_segment and e.own is None
+    assert "in-sample replay" in compare.miss_note(e) and "max_power 0.6" in compare.miss_note(e)
 
 
 def test_autotune_cross_check_returns_tu(logs):

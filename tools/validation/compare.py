@@ -33,6 +33,7 @@ from firmware_port.thermistor import KLIPPER_SENSORS
 from tools.ident.fit import (
     MIN_HEATUP_S,
     FitResult,
+    Segment,
     fit_model,
     log_segments,
 )
@@ -62,6 +63,7 @@ GOAL_TU_REL = 0.15
 
 NEAR_TARGET_C = 2.0  # heat-up time: to target - this
 STEADY_LAST_S = 60.0
+LEAD_IN_S = 60.0  # a replay starts this long before the heat-up's target change (where the log has it)
 HOLD_S = 300.0  # a replay runs this long after the log first reaches target - 2 C (or to a target change)  # steady pwm: the mean over the last this-many seconds of the hold
 
 FALLBACK_SENSOR = "Generic 3950"  # for a custom thermistor table the twin does not have (a B3950)
@@ -257,6 +259,10 @@ class Window:
     target_c: np.ndarray
     temp_c: np.ndarray
     pwm: np.ndarray
+    # the same part's samples up to LEAD_IN_S before the target change: replayed, not compared
+    lead_t_s: np.ndarray = field(default_factory=lambda: np.empty(0))
+    lead_target_c: np.ndarray = field(default_factory=lambda: np.empty(0))
+    lead_temp_c: np.ndarray = field(default_factory=lambda: np.empty(0))
 
 
 def _heatup_windows(log: StatsLog, heater: str) -> tuple[list, list[Window]]:
@@ -294,9 +300,14 @@ def _heatup_windows(log: StatsLog, heater: str) -> tuple[list, list[Window]]:
                     continue
                 if not np.any(part.temp_c[start:j] >= target - NEAR_TARGET_C):
                     continue  # the log never reaches this target: nothing to compare
+                # the lead-in: back LEAD_IN_S, from after any 0.0 (Klipper's reading before its first report)
+                unread = np.flatnonzero(part.temp_c[:start] <= 0.0)
+                first = max(int(np.searchsorted(part.t_s, part.t_s[start] - LEAD_IN_S)),
+                            int(unread[-1]) + 1 if unread.size else 0)
+                lead = slice(first, start)
                 windows.append(Window(f"session {index}, {part.t_s[start]:.0f}..{part.t_s[j - 1]:.0f} s", index,
                                       part.t_s[start:j], part.target_c[start:j], part.temp_c[start:j],
-                                      part.pwm[start:j]))
+                                      part.pwm[start:j], part.t_s[lead], part.target_c[lead], part.temp_c[lead]))
     return segments, windows
 
 
@@ -356,7 +367,7 @@ class ClosedLoopResult:
                 "hold": _finite(self.hold_rmse_c) and self.hold_rmse_c <= GOAL_HOLD_RMSE_C}
 
 
-def fit_heater(log: StatsLog, heater: str, model: str = "two_node") -> tuple[FitResult, object, list[Window]]:
+def fit_heater(log: StatsLog, heater: str, model: str = "two_node") -> tuple[FitResult, Segment, list[Window]]:
     """two_node on the heat-up segment with the most time at max_power; the replay windows."""
     segments, windows = _heatup_windows(log, heater)
     if not windows:
@@ -371,34 +382,52 @@ def fit_heater(log: StatsLog, heater: str, model: str = "two_node") -> tuple[Fit
     return fit, seg, windows
 
 
+def target_times_s(t_s: np.ndarray, target_c: np.ndarray) -> np.ndarray:
+    """When the logged targets took effect: a change first shown at a Stats line happened between
+    that line and the one before, so halfway (the first sample's own time for the first)."""
+    return np.r_[t_s[:1], np.where(np.diff(target_c) != 0, (t_s[:-1] + t_s[1:]) / 2.0, t_s[1:])]
+
+
 def replay(fit: FitResult, info: HeaterInfo, heater: str, window: Window):
-    """KlipperTwin through the window's targets from the window's first reading; twin at the log's instants."""
-    t0 = float(window.t_s[0])
-    plant = Plant(fit.model, fit.spec(), fit.values["ambient_c"], float(window.temp_c[0]))
+    """KlipperTwin through the logged targets of the window and its lead-in, from the lead-in's
+    first reading (the twin's first report comes ADC_FIRST_SAMPLE_S after its start and its PID
+    starts from Klipper's initial state: the lead-in settles both as the printer's were when the
+    target changed); the twin at the window's instants."""
+    t_all = np.r_[window.lead_t_s, window.t_s]
+    temp0 = float(np.r_[window.lead_temp_c, window.temp_c][0])
+    plant = Plant(fit.model, fit.spec(), fit.values["ambient_c"], temp0)
     twin = KlipperTwin([make_setup(info, heater, plant)])
-    rel = window.t_s - t0
-    twin.schedule_targets(heater, rel, window.target_c)
+    targets = np.r_[window.lead_target_c, window.target_c]
+    twin.schedule_targets(heater, target_times_s(t_all - t_all[0], targets).tolist(), targets.tolist())
+    rel = window.t_s - t_all[0]
     twin.run_until(float(rel[-1]) + 0.01)
     rt, rtemp, rpwm = (twin.column(heater, f) for f in ("t_s", "temp_c", "pwm"))
     idx = np.searchsorted(rt, rel, side="right") - 1
     ok = idx >= 0
-    twin_temp = np.where(ok, rtemp[np.maximum(idx, 0)], window.temp_c[0])
+    twin_temp = np.where(ok, rtemp[np.maximum(idx, 0)], temp0)
     twin_pwm = np.where(ok, rpwm[np.maximum(idx, 0)], 0.0)
     return twin_temp, twin_pwm, twin.shutdown_message
 
 
-def closed_loop_check(path: str | Path, heater: str) -> ClosedLoopResult:
-    path = Path(path)
+def _load_stats(path: Path) -> StatsLog:
     log = load_log(path)
     if not isinstance(log, StatsLog):
         raise Unusable("not a Klipper Stats log")
-    info = heater_info(log, heater)
-    fit, seg, windows = fit_heater(log, heater)
-    fit_label = seg.label
-    seg_session = int(seg.label.split(",")[0].split()[1])
-    others = [w for w in windows if w.session != seg_session or w.t_s[-1] < seg.t_s[0] or w.t_s[0] > seg.t_s[-1]]
-    same = not others
-    window = (others or windows)[0]
+    return log
+
+
+def _session(label: str) -> int:
+    """The session number of a segment's label ("session 1, 1039.5..1158.5 s")."""
+    return int(label.split(",")[0].split()[1])
+
+
+def _overlaps(window: Window, seg: Segment) -> bool:
+    return window.session == _session(seg.label) and window.t_s[0] <= seg.t_s[-1] and seg.t_s[0] <= window.t_s[-1]
+
+
+def score_replay(file: str, heater: str, fit: FitResult, fit_label: str, info: HeaterInfo, window: Window,
+                 same_segment: bool) -> ClosedLoopResult:
+    """Replay one window on one fitted plant and measure both traces."""
     target = float(window.target_c[-1])
     twin_temp, twin_pwm, shutdown = replay(fit, info, heater, window)
     rel = window.t_s - window.t_s[0]
@@ -408,8 +437,63 @@ def closed_loop_check(path: str | Path, heater: str) -> ClosedLoopResult:
     hold = slice(int(reached[0]) if reached.size else len(rel), None)
     err = twin_temp[hold] - window.temp_c[hold]
     hold_rmse = float(np.sqrt(np.mean(err ** 2))) if err.size else math.nan
-    return ClosedLoopResult(path.name, heater, fit, fit_label, window.label, same, info, log_m, twin_m, hold_rmse,
+    return ClosedLoopResult(file, heater, fit, fit_label, window.label, same_segment, info, log_m, twin_m, hold_rmse,
                             target, shutdown, (rel, window.temp_c, twin_temp, window.pwm, twin_pwm))
+
+
+def closed_loop_check(path: str | Path, heater: str) -> ClosedLoopResult:
+    """The heater's fitted plant replaying its first heat-up other than the fitted one (held-out),
+    else the fitted one (in-sample)."""
+    path = Path(path)
+    log = _load_stats(path)
+    info = heater_info(log, heater)
+    fit, seg, windows = fit_heater(log, heater)
+    others = [w for w in windows if not _overlaps(w, seg)]
+    return score_replay(path.name, heater, fit, seg.label, info, (others or windows)[0], not others)
+
+
+@dataclass
+class MissEvidence:
+    """What the log says about a replay that misses. Held-out: the same heat-up replayed on a plant
+    fitted to itself (in-sample), and the two fits' power-free numbers side by side (held-out fit
+    first): the heating rate at full power P / C, with how many standard errors apart, and the
+    steady duty the plant needs at the replayed target, (target - ambient) / rise at full power."""
+
+    result: ClosedLoopResult
+    own: ClosedLoopResult | None = None  # None: the replay was in-sample already
+    heating_rate_c_s: tuple[float, float] = (math.nan, math.nan)
+    heating_rate_sigmas: float = math.nan  # |difference| / sqrt(sum of squared standard errors)
+    hold_duty: tuple[float, float] = (math.nan, math.nan)
+
+
+def _heating_rate(fit: FitResult) -> tuple[float, float]:
+    """P / C and its standard error (delta method on C; the power is held)."""
+    rate = fit.derived()["heating_rate_c_s"]
+    return rate, rate * fit.std_errors["block_heat_capacity_j_k"] / fit.params["block_heat_capacity_j_k"]
+
+
+def _hold_duty(fit: FitResult, target_c: float) -> float:
+    return (target_c - fit.values["ambient_c"]) / fit.derived()["rise_at_full_power_c"]
+
+
+def miss_evidence(path: str | Path, result: ClosedLoopResult) -> MissEvidence:
+    """For a held-out replay: the replayed heat-up's own segment fitted the same way and replayed
+    (does the model miss that heat-up even in-sample?) and the two fits compared."""
+    path = Path(path)
+    if result.same_segment:
+        return MissEvidence(result)
+    log = _load_stats(path)
+    segments, windows = _heatup_windows(log, result.heater)
+    window = next(w for w in windows if w.label == result.replay_label)
+    seg = next(s for s in segments if s.full_power_s >= MIN_HEATUP_S and _overlaps(window, s))
+    try:
+        own_fit = fit_model(result.fit.model, seg.t_s, seg.temp_c, seg.duty)
+    except ValueError as error:
+        raise Unusable(f"{result.heater}: the fit of the replayed heat-up failed: {error}") from None
+    own = score_replay(path.name, result.heater, own_fit, seg.label, result.info, window, True)
+    (rate_a, se_a), (rate_b, se_b) = _heating_rate(result.fit), _heating_rate(own_fit)
+    return MissEvidence(result, own, (rate_a, rate_b), abs(rate_a - rate_b) / math.hypot(se_a, se_b),
+                        (_hold_duty(result.fit, result.target_c), _hold_duty(own_fit, result.target_c)))
 
 
 # --- 3. autotune -------------------------------------------------------------------------------
@@ -539,6 +623,55 @@ def closed_loop_row(r: ClosedLoopResult) -> str:
             f"{_f(r.log.overshoot_c, '.1f')} / {_f(r.twin.overshoot_c, '.1f')} | {_f(r.hold_rmse_c)} | "
             f"{_f(r.log.steady_pwm, '.3f')} / {_f(r.twin.steady_pwm, '.3f')} | {_pm(c['heat-up'])} | "
             f"{_pm(c['overshoot'])} | {_pm(c['hold'])} | {'; '.join(notes)} |")
+
+
+def _and(names: list[str]) -> str:
+    return " and ".join(filter(None, (", ".join(names[:-1]), names[-1])))
+
+
+def _misses(r: ClosedLoopResult) -> list[str]:
+    return [name for name, ok in r.checks.items() if not ok]
+
+
+def _replay_numbers(r: ClosedLoopResult) -> str:
+    return (f"heat-up {_f(100 * r.heatup_rel, '+.1f')} %, overshoot {_f(r.log.overshoot_c, '.1f')} / "
+            f"{_f(r.twin.overshoot_c, '.1f')} C, hold RMSE {_f(r.hold_rmse_c)} C")
+
+
+def _hold_note(r: ClosedLoopResult) -> str:
+    """The log's own hold about its target: above the hold goal, a twin at the target throughout misses."""
+    twin = f" (twin {r.twin.hold_rms_c:.2f} C)" if _finite(r.twin.hold_rms_c) else ""
+    note = f"the log's own hold RMS about its target is {_f(r.log.hold_rms_c)} C{twin}"
+    if _finite(r.log.hold_rms_c) and r.log.hold_rms_c > GOAL_HOLD_RMSE_C:
+        note += f", above the {GOAL_HOLD_RMSE_C:g} C goal: a twin holding the target exactly would miss it too"
+    return note
+
+
+def _settles_c(r: ClosedLoopResult) -> float:
+    """Where the fitted plant settles at the heater's max_power (linear loss: ambient + rise x duty)."""
+    return r.fit.values["ambient_c"] + r.info.max_power * r.fit.derived()["rise_at_full_power_c"]
+
+
+def miss_note(e: MissEvidence) -> str:
+    """One line of evidence for a replay that misses, every number computed (``miss_evidence``)."""
+    r = e.result
+    head = (f"`{r.file}` {r.heater}: the {'in-sample' if e.own is None else 'held-out'} replay of {r.replay_label} "
+            f"misses {_and(_misses(r))}")
+    if e.own is None:
+        return (f"{head} ({r.fit.model} RMSE {r.fit.rmse_c:.2f} C on the heat-up itself; steady pwm "
+                f"log / twin {_f(r.log.steady_pwm, '.3f')} / {_f(r.twin.steady_pwm, '.3f')} at max_power "
+                f"{r.info.max_power:g}, where the fitted plant settles at {_settles_c(r):.1f} C); {_hold_note(r)}.")
+    own_misses = _misses(e.own)
+    if set(own_misses) >= set(_misses(r)):
+        verdict = "the model misses this heat-up even fitted on it: its structure or the data, not the held-out fit"
+    else:
+        verdict = "fitted on this heat-up the model meets what the held-out fit misses: the heat-ups differ"
+    return (f"{head}. Fitted on that heat-up itself ({e.own.fit_label}, RMSE {e.own.fit.rmse_c:.2f} C "
+            f"against {r.fit.rmse_c:.2f} C for the held-out fit), its in-sample replay gives {_replay_numbers(e.own)} "
+            f"({'misses ' + _and(own_misses) if own_misses else 'all three goals met'}): {verdict}. The two fits' "
+            f"heating rates at full power {e.heating_rate_c_s[0]:.2f} / {e.heating_rate_c_s[1]:.2f} C/s "
+            f"({_f(e.heating_rate_sigmas, '.1f')} standard errors apart), steady duty at {r.target_c:g} C "
+            f"{e.hold_duty[0]:.3f} / {e.hold_duty[1]:.3f} (log {_f(r.log.steady_pwm, '.3f')}); {_hold_note(r)}.")
 
 
 def unusable_row(file: str, heater: str, why: str, columns: int) -> str:

@@ -18,8 +18,10 @@ DOC = Path(__file__).resolve().parents[2] / "docs" / "validation.md"
 COMMAND = "python -m tools.validation.doc"
 
 
-def _closed_and_autotune(logs_dir: Path) -> tuple[list[str], list[str], dict]:
+def _closed_and_autotune(logs_dir: Path) -> tuple[list[str], list[str], dict, list[str]]:
+    """Section 2's rows, section 3's, the tallies, and a line of evidence per closed-loop miss."""
     closed_rows, fits, tally = [], {}, {"closed": [0, 0], "tu": [0, 0], "band": [0, 0]}
+    evidence = []
     for file in compare.STATS_FILES:
         path = logs_dir / file
         log = load_log(path)
@@ -35,6 +37,8 @@ def _closed_and_autotune(logs_dir: Path) -> tuple[list[str], list[str], dict]:
                 continue
             fits[(file, heater)] = r.fit
             closed_rows.append(compare.closed_loop_row(r))
+            if not all(r.checks.values()):
+                evidence.append("  - " + compare.miss_note(compare.miss_evidence(path, r)))
             if not r.same_segment:  # the score counts held-out replays only
                 tally["closed"][0] += all(r.checks.values())
                 tally["closed"][1] += 1
@@ -50,7 +54,7 @@ def _closed_and_autotune(logs_dir: Path) -> tuple[list[str], list[str], dict]:
         tally["tu"][1] += 1
         tally["band"][0] += t.passed_in_band
         tally["band"][1] += 1
-    return closed_rows, tune_rows, tally
+    return closed_rows, tune_rows, tally, evidence
 
 
 def _m303_rows(logs_dir: Path) -> tuple[list[str], list[str], list[int], list[str]]:
@@ -72,7 +76,8 @@ def _m303_rows(logs_dir: Path) -> tuple[list[str], list[str], list[int], list[st
     return rows, without, tally, notes
 
 
-# Why the checks miss, from inspecting the runs (no numbers here: the tables above hold them).
+# Why the checks miss, from inspecting the runs (no numbers here: the tables above hold them). The
+# closed-loop item is followed by a computed line of evidence per miss (compare.miss_note).
 MISSES = (
     "- Fan prediction: the first fan run needs a fan loss F about equal to the no-fan loss A (F/A in the table), "
     "so the fan barely shows in it; the later pulse of each session, with or without a fan, comes out too hot "
@@ -81,8 +86,9 @@ MISSES = (
     "so the hotend holds a state after a pulse that they do not model. A fan constant cannot be separated from "
     "that with these files.",
     "- Closed-loop replay: most rows replay the heat-up the plant was fitted on (the log has only one): they "
-    "are marked in-sample and not scored. Held-out misses come from lags faster than the 1 Hz Stats sampling (a Revo-class "
-    "hotend), and a linear loss that under-fits a bed held at 110 C under a 0.6 power cap.",
+    "are marked in-sample and not scored. Each row that misses, and what the log says about it (computed by "
+    "tools/validation/compare.py miss_evidence: a held-out miss is also replayed on a plant fitted to the "
+    "replayed heat-up itself; standard errors are lower bounds, tools/ident/fit.py):",
     "- PID_CALIBRATE: the relay period is set by sub-second lags that 1 Hz Stats data with the last *sent* "
     "pwm cannot resolve, and no log states its calibration temperature (200 C / 60 C are assumed). Most hotend "
     "periods come out short: the fitted two-node model puts too little lag between heater and "
@@ -90,12 +96,13 @@ MISSES = (
     "- M303: the #8081 hotend at 250 C prints one cycle only: not judged; its off level is 70-87/127, so the "
     "relay barely changes the heat flow and the trace cannot separate the lags (their standard errors below).",
 )
+CLOSED_MISS = 1  # the closed-loop item of MISSES
 
 
 def render(logs_dir: Path | None = None) -> str:
     logs_dir = hardware_logs_dir() if logs_dir is None else Path(logs_dir)
     open_loop = compare.open_loop_check(logs_dir)
-    closed_rows, tune_rows, tally = _closed_and_autotune(logs_dir)
+    closed_rows, tune_rows, tally, closed_evidence = _closed_and_autotune(logs_dir)
     m303_rows, m303_without, m303_tally, m303_notes = _m303_rows(logs_dir)
     open_pass = sum(row["passed"] for row in open_loop.rows)
     parts = [
@@ -133,9 +140,12 @@ def render(logs_dir: Path | None = None) -> str:
         ("`two_node` fitted (ambient fitted) on the heat-up with the largest rise; KlipperTwin with the "
         "printer's own pid gains, max_power, sensor_type, pullup_resistor, smooth_time and pwm_cycle_time "
         "(Klipper before 2025-04 resend rule, MAX_HEAT_TIME 3 s for v0.13) replays the logged targets of "
-        "another heat-up where the log has one, from its first reading, sampled at the Stats instants (last "
-        "raw report, last sent pwm). Heat-up: from the target change to target-2 C. Overshoot: max temp - "
-        "target after that. Hold RMSE: twin - log from the log's first reach of target-2 C up to 300 s (or "
+        "another heat-up where the log has one, sampled at the Stats instants (last raw report, last sent "
+        f"pwm). The replay starts {compare.LEAD_IN_S:g} s before the target change where the log has those "
+        "samples, from the first reading there, so that the twin's first sensor report (1 s after its start) "
+        "and its PID's state (Klipper starts it at 25 C with no integral) are settled as the printer's were; "
+        "a target change shown by a Stats line is set halfway since the line before. Heat-up: from the target "
+        "change to target-2 C. Overshoot: max temp - target after that. Hold RMSE: twin - log from the log's first reach of target-2 C up to 300 s (or "
         "the next target change). Steady pwm: mean over the last 60 s. Goals: heat-up within 10 %, "
         "overshoot within 1.5 C, hold RMSE <= 1 C."),
         "",
@@ -175,7 +185,9 @@ def render(logs_dir: Path | None = None) -> str:
         "",
         "## What the model lacks where it misses",
         "",
-        *MISSES,
+        *MISSES[:CLOSED_MISS + 1],
+        *closed_evidence,
+        *MISSES[CLOSED_MISS + 1:],
         *m303_notes,
         "",
     ]

@@ -5,16 +5,42 @@ celsius_q5 (int16 Q10.5, 1/32 degC), the target in whole degC and millis(); the 
 returns its output on Marlin's 0..255 scale (``PID_MAX``), which the board shifts into the 7-bit
 soft PWM. A controller with ``check_interval_ms`` runs only that often on the bed (Marlin's
 bang-bang bed gate). A ``Tunable`` controller also takes PID gains (M301/M304, M303 U1).
+A controller may publish its internals (the P, I and D terms of its last update) as ``signals``:
+the engines record them beside the temperatures.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-from firmware_port.marlin.pid import PidGains
-
 OUTPUT_MAX = 255  # Marlin's PID_MAX: the top of every controller's output
+
+# The gain domain in user units that the firmware's fixed-point PID documents and derives its
+# bounds for (firmware_port/marlin/pid.py): what M301/M304 accept.
+KP_MAX = 1000.0
+KI_MAX = 100.0
+KD_MAX = 5000.0
+
+
+@dataclass(frozen=True)
+class PidGains:
+    """Gains in user units (what M301/M303/EEPROM use): Kp counts/degC, Ki counts/(degC s), Kd counts s/degC."""
+
+    kp: float
+    ki: float
+    kd: float
+
+    def __post_init__(self) -> None:
+        for name, value, top in (("kp", self.kp, KP_MAX), ("ki", self.ki, KI_MAX), ("kd", self.kd, KD_MAX)):
+            if not 0.0 <= value <= top:
+                raise ValueError(f"PID gain {name}={value} outside the supported range 0..{top}")
+
+    @classmethod
+    def clamped(cls, kp: float, ki: float, kd: float) -> PidGains:
+        """Gains forced into the supported ranges (M303 U1 on a degenerate oscillation)."""
+        return cls(min(max(kp, 0.0), KP_MAX), min(max(ki, 0.0), KI_MAX), min(max(kd, 0.0), KD_MAX))
 
 
 @runtime_checkable
@@ -37,6 +63,13 @@ class Tunable(Controller, Protocol):
     gains: PidGains
 
     def set_gains(self, gains: PidGains) -> None: ...
+
+
+@runtime_checkable
+class Observable(Protocol):
+    """A controller that publishes internals of its last update: name -> value (e.g. PID terms in counts)."""
+
+    def signals(self) -> dict[str, float]: ...
 
 
 # A controller instance, or a factory the board calls for a fresh one at each reset.

@@ -4,12 +4,20 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat
-from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat
+from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat, fuzzy_pi_space
+from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat, fuzzy_pid_space
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
-from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed
-from firmware_port.marlin.pid_float import PidFloat
-from firmware_port.seed000 import adaptive_controller, fuzzy_controller, gaussian_controller
+from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed, pid_space
+from firmware_port.marlin.pid_float import PidFloat, pid_float_space
+from firmware_port.params import ParamSpace
+from firmware_port.seed000 import (
+    adaptive_controller,
+    adaptive_space,
+    fuzzy_controller,
+    fuzzy_space,
+    gaussian_controller,
+    gaussian_space,
+)
 
 # name -> (hotend controller factory, bed controller factory, one-line description)
 FIRMWARES: dict[str, tuple[Callable, Callable, str]] = {
@@ -73,3 +81,31 @@ def build_controllers(name: str):
     except KeyError:
         raise ValueError(f"unknown firmware {name!r}; choose one of: {', '.join(FIRMWARES)}") from None
     return hotend(), bed()
+
+
+HEATERS = ("hotend", "bed")
+# name -> (hotend space, bed space): the builds whose controllers have parameters to tune, each
+# space's defaults being what the build runs on that heater.
+PARAM_SPACES: dict[str, tuple[Callable[[], ParamSpace], Callable[[], ParamSpace]]] = {
+    "pid": (lambda: pid_space(HOTEND_GAINS), lambda: pid_space(BED_GAINS)),
+    "pid_float": (lambda: pid_float_space(HOTEND_GAINS), lambda: pid_float_space(BED_GAINS)),
+    "fuzzy_pi": (lambda: fuzzy_pi_space(SEED004_HOTEND), lambda: fuzzy_pi_space(SEED004_BED)),
+    "fuzzy_pi_float": (lambda: fuzzy_pi_space(SEED004_HOTEND, integer=False),
+                       lambda: fuzzy_pi_space(SEED004_BED, integer=False)),
+    "fuzzy_pid": (lambda: fuzzy_pid_space(HOTEND_GAINS), lambda: fuzzy_pid_space(BED_GAINS)),
+    "fuzzy_pid_float": (lambda: fuzzy_pid_space(HOTEND_GAINS, integer=False),
+                        lambda: fuzzy_pid_space(BED_GAINS, integer=False)),
+    "seed000_fuzzy": (fuzzy_space, fuzzy_space),
+    "seed000_gauss": (gaussian_space, gaussian_space),
+    "seed000_adaptive": (adaptive_space, adaptive_space),
+}
+
+
+def param_space(name: str, heater: str = "hotend") -> ParamSpace:
+    """The tunable parameters of a firmware build's controller on a heater; ValueError names the valid builds."""
+    if heater not in HEATERS:
+        raise ValueError(f"heater must be one of {', '.join(HEATERS)}, not {heater!r}")
+    if name not in PARAM_SPACES:
+        why = "has no parameters to tune" if name in FIRMWARES else "is not a firmware build"
+        raise ValueError(f"{name!r} {why}; tunable: {', '.join(PARAM_SPACES)}")
+    return PARAM_SPACES[name][HEATERS.index(heater)]()

@@ -29,10 +29,11 @@ Integer formats (why: one set step must be an exact power of two for any n, so t
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
 from typing import Any
-from dataclasses import dataclass
 
 from firmware_port.fixed import INT16_MAX, clamp, div_round, shr_round, to_q, wrap_s32
+from firmware_port.params import Param, ParamSpace
 from firmware_port.thermistor import TEMP_FRAC_BITS, TEMP_ONE
 
 N_SETS_MIN = 3
@@ -110,6 +111,36 @@ SEED004_HOTEND_SETPOINT_C = 214
 # Kp ~ 36 counts/degC, Ti = 480 samples (79 s), overshoot under 0.5 degC in simulation.
 SEED004_BED = FuzzyPiConfig.from_input_range(0.0, 120.0, derr_range_c=0.25, du_range_counts=16.0, out_max=220)
 SEED004_BED_SETPOINT_C = 105
+
+# Tuning bounds of the three ranges (log scale; each a power of two from its quantum): errors of
+# 1 to 1023 degC, changes of 1/32 to 64 degC per sample, duty changes of 1/16 to 255 counts per sample.
+ERR_RANGE_BOUNDS_C = (1.0, RANGE_Q5_MAX / (1 << TEMP_FRAC_BITS))
+DERR_RANGE_BOUNDS_C = (1.0 / (1 << TEMP_FRAC_BITS), 64.0)
+DU_RANGE_BOUNDS_COUNTS = (1.0 / (1 << DU_FRAC_BITS), float(DU_MAX_COUNTS))
+
+
+def _held(value: float, frac_bits: int) -> float:
+    """The nearest positive multiple of 2**-frac_bits: what the integer port can hold."""
+    return max(round(value * (1 << frac_bits)), 1) / (1 << frac_bits)
+
+
+def fuzzy_pi_space(default: FuzzyPiConfig = SEED004_HOTEND, integer: bool = True) -> ParamSpace:
+    """Seed 004's controller as a tunable family: its three ranges (the scaling factors), searched on
+    log scales; ``n_sets`` and ``out_max`` stay as in ``default``. Values are held as the integer port
+    holds them (the nearest multiple of its quantum), so the integer and float builds run the same law."""
+
+    def held(err_range_c: float, derr_range_c: float, du_range_counts: float) -> tuple[float, float, float]:
+        return (_held(err_range_c, TEMP_FRAC_BITS), _held(derr_range_c, TEMP_FRAC_BITS),
+                _held(du_range_counts, DU_FRAC_BITS))
+
+    def factory(err_range_c: float, derr_range_c: float, du_range_counts: float) -> FuzzyPi | FuzzyPiFloat:
+        config = replace(default, err_range_c=err_range_c, derr_range_c=derr_range_c, du_range_counts=du_range_counts)
+        return FuzzyPi(config) if integer else FuzzyPiFloat(config)
+
+    params = (Param("err_range_c", "C", *ERR_RANGE_BOUNDS_C, default.err_range_c, log=True),
+              Param("derr_range_c", "C/sample", *DERR_RANGE_BOUNDS_C, default.derr_range_c, log=True),
+              Param("du_range_counts", "counts/sample", *DU_RANGE_BOUNDS_COUNTS, default.du_range_counts, log=True))
+    return ParamSpace("fuzzy_pi" if integer else "fuzzy_pi_float", params, factory, held=held)
 
 
 def membership(pos: int, set_index: int, n_sets: int, br: int) -> int:

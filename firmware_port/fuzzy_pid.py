@@ -41,6 +41,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
 from firmware_port.fixed import checked_s32, checked_s64, clamp, div_round, sat_s16, sat_s32, shr_round
 from firmware_port.marlin.constants import PID_DT_S, PID_MAX
 from firmware_port.marlin.pid import (
@@ -51,6 +52,7 @@ from firmware_port.marlin.pid import (
     PidGains,
     q_scaled,
 )
+from firmware_port.params import Param, ParamSpace
 from firmware_port.thermistor import TEMP_FRAC_BITS, TEMP_ONE
 
 LITERAL, INCREMENTAL = "literal", "incremental"
@@ -384,6 +386,25 @@ class FuzzyPid:
         d_q8 = sat_s32(shr_round(checked_s64(k.kd_q16 * f_d * derr_q5), D_SHIFT))
         # p + i + d can reach 2**31.6: summed in int64, then clamped to the output range.
         return clamp(checked_s64(p_q8 + self.i_q8 + d_q8), 0, OUT_MAX_Q8)
+
+
+SEARCH_FACTOR = 8.0  # tuning bounds: each base gain from 0 to 8 x the build's default
+
+
+def fuzzy_pid_space(default: PidGains = HOTEND_GAINS, integer: bool = True) -> ParamSpace:
+    """Seed 001's controller on the board as a tunable family: its base gains Kp, Ki, Kd (M301 units)
+    under the board build's incremental fuzzy correction, each from 0 to ``SEARCH_FACTOR`` x its default."""
+    tops = (KP_MAX, KI_MAX, KD_MAX)
+    units = ("counts/C", "counts/(C s)", "counts s/C")
+    params = tuple(Param(name, unit, 0.0, min(SEARCH_FACTOR * value, top) or top, value)
+                   for name, unit, value, top in zip(("kp", "ki", "kd"), units,
+                                                     (default.kp, default.ki, default.kd), tops))
+
+    def factory(kp: float, ki: float, kd: float) -> FuzzyPid | FuzzyPidFloat:
+        gains = PidGains(kp, ki, kd)
+        return FuzzyPid(gains) if integer else FuzzyPidFloat.board(gains)
+
+    return ParamSpace("fuzzy_pid" if integer else "fuzzy_pid_float", params, factory)
 
 
 # RAM and flash on the AVR, as C structs lay them out (uint8 1, int16 2, int32 4).

@@ -37,6 +37,7 @@ import numpy as np
 
 from firmware_port.controller import OUTPUT_MAX
 from firmware_port.marlin.constants import ISR_PERIOD_S, TICKS_PER_READING
+from firmware_port.params import Param, ParamSpace
 from firmware_port.thermistor import TEMP_ONE
 
 BOARD_SAMPLE_S = float(TICKS_PER_READING * ISR_PERIOD_S)  # 0.16384 s between fresh readings
@@ -218,6 +219,7 @@ class FuzzyPidLaw:
     scheduler: FuzzyScheduler
     integral_limit: float | None = None
     output_limit: float | None = None
+    gain_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)  # the scheduled gains' scaling factors (tuning)
     integral: float = 0.0
     prev_error: float = 0.0
     last_gains: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -227,8 +229,9 @@ class FuzzyPidLaw:
 
     def step(self, error: float, setpoint: float) -> float:
         delta = error - self.prev_error
-        kp, ki, kd = self.last_gains = self.scheduler.gains(
-            min(max(error, -ERROR_CLIP), ERROR_CLIP), min(max(delta, -DELTA_CLIP), DELTA_CLIP))
+        scheduled = self.scheduler.gains(min(max(error, -ERROR_CLIP), ERROR_CLIP), min(max(delta, -DELTA_CLIP), DELTA_CLIP))
+        kp, ki, kd = (g * s for g, s in zip(scheduled, self.gain_scale, strict=True))
+        self.last_gains = (kp, ki, kd)
         self.integral += error
         if self.integral_limit is not None:
             self.integral = min(max(self.integral, -self.integral_limit), self.integral_limit)
@@ -242,14 +245,14 @@ class FuzzyPidLaw:
         return self.output_limit or FUZZY_FULL_SCALE
 
 
-def fuzzy_law() -> FuzzyPidLaw:
+def fuzzy_law(gain_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> FuzzyPidLaw:
     """The first fuzzy listing: no integral clamp, no output clamp."""
-    return FuzzyPidLaw(triangular_scheduler())
+    return FuzzyPidLaw(triangular_scheduler(), gain_scale=gain_scale)
 
 
-def gaussian_law() -> FuzzyPidLaw:
+def gaussian_law(gain_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> FuzzyPidLaw:
     """The Gaussian listing: integral clamped to +-50, output to +-100."""
-    return FuzzyPidLaw(gaussian_scheduler(), integral_limit=50.0, output_limit=100.0)
+    return FuzzyPidLaw(gaussian_scheduler(), integral_limit=50.0, output_limit=100.0, gain_scale=gain_scale)
 
 
 # Seed 000, adaptive PI-D listing: Kp_init, Ki_init, Kd_init = 6.0, 1.0, 1.0; Kp_min 0.5, Ki_min 0.01
@@ -418,3 +421,35 @@ def gaussian_controller() -> SeedController:
 
 def adaptive_controller() -> SeedController:
     return SeedController(AdaptivePidLaw(dt_s=BOARD_SAMPLE_S))
+
+
+# Tuning: the schedulers' three output scaling factors, 1/20 to 20 on log scales (1 = the listing);
+# the adaptive law's initial gains, 1/100 to 100 x the listing's, log scales.
+GAIN_SCALE_BOUNDS = (0.05, 20.0)
+ADAPTIVE_SPAN = 100.0
+
+
+def _scale_params() -> tuple[Param, ...]:
+    return tuple(Param(f"{name}_scale", "", *GAIN_SCALE_BOUNDS, 1.0, log=True) for name in ("kp", "ki", "kd"))
+
+
+def fuzzy_space() -> ParamSpace:
+    """seed000_fuzzy with its scheduled gains scaled by (kp_scale, ki_scale, kd_scale)."""
+    return ParamSpace("seed000_fuzzy", _scale_params(), lambda *scale: SeedController(fuzzy_law(scale)))
+
+
+def gaussian_space() -> ParamSpace:
+    """seed000_gauss with its scheduled gains scaled by (kp_scale, ki_scale, kd_scale)."""
+    return ParamSpace("seed000_gauss", _scale_params(), lambda *scale: SeedController(gaussian_law(scale)))
+
+
+def adaptive_space() -> ParamSpace:
+    """seed000_adaptive with its initial gains (law output units of the setpoint per degC) as parameters."""
+    units = ("1/C", "1/(C s)", "s/C")  # law output (setpoint units) per degC, per degC s, per degC/s
+    params = tuple(Param(name, unit, value / ADAPTIVE_SPAN, value * ADAPTIVE_SPAN, value, log=True)
+                   for name, unit, value in zip(("kp_init", "ki_init", "kd_init"), units, ADAPTIVE_INIT))
+
+    def factory(kp_init: float, ki_init: float, kd_init: float) -> SeedController:
+        return SeedController(AdaptivePidLaw(dt_s=BOARD_SAMPLE_S, kp_init=kp_init, ki_init=ki_init, kd_init=kd_init))
+
+    return ParamSpace("seed000_adaptive", params, factory)

@@ -30,7 +30,7 @@ from firmware_port.fuzzy_pid import (
     parse_rule_table,
     ram_report,
 )
-from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PidGains
+from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX, PidGains
 from firmware_port.thermistor import B3950_TABLE, TEMP_ONE
 from twin import Twin
 

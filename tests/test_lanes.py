@@ -7,7 +7,8 @@ from hypothesis import strategies as st
 
 from firmware_port.marlin.lanes import HotendLanes, PidLanes, div_round, lookup_q5, trunc_c
 from firmware_port.marlin.softpwm import SoftPwm
-from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidFixed, PidGains
+from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
+from firmware_port.marlin.pid import PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidFixed, PidGains
 from firmware_port.fixed import div_round as scalar_div_round
 from firmware_port.thermistor import B3950, B3950_TABLE, KLIPPER_SENSORS, MAX_RAW_THERMISTOR_VALUE, Divider
 from twin.adc_table import adc_edges_c

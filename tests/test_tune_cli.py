@@ -12,14 +12,15 @@ import pytest
 from distributed import Client, LocalCluster
 
 from tools.logs import DEFAULT_LOGS, LOGS_ENV
-from tools.cli.tune import main, parse_args, tune
+from tools.cli.tune import main
 from tools.tuning import table
 from tools.tuning.evaluate import preset_problem, rule_names
+from tools.tuning.tuner import tune
 
 ROW = re.compile(r"^ [ *](\S+(?: C8)?)\s+Kp \S+ Ki \S+ Kd \S+\s+cost\s+(\S+)", re.M)
 LOG_DIR = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)
 BEST = re.compile(r"^best: (\S+)\s+Kp (\S+) Ki (\S+) Kd (\S+)\s+cost (\S+)\s+\((beats|does not beat) "
-                  r"M303 C8: Kp \S+ Ki \S+ Kd \S+\s+cost (\S+)\)$", re.M)
+                  r"M303 C8: Kp \S+ Ki \S+ Kd \S+\s+cost (\S+); (?:beats|does not beat) defaults: ", re.M)
 
 
 def test_every_rule_on_hotend_cartridge_beats_or_loses_to_m303_and_the_best_beats_it(capsys, tmp_path):
@@ -58,7 +59,14 @@ def test_a_fitted_log_is_tuned(capsys, tmp_path):
     (["--plant", "nope"], "--plant"),
     (["--plant", "hotend_cartridge", "--target", "900"], "--target"),
     (["--plant", "hotend_cartridge", "--objective", "fastest"], "--objective"),
-    (["--plant", "hotend_cartridge", "--firmware", "repetier"], "--firmware"),
+    (["--plant", "hotend_cartridge", "--loop", "repetier"], "argument --loop"),
+    (["--plant", "hotend_cartridge", "--target", "nan"], "argument --target"),
+    (["--plant", "hotend_cartridge", "--target", "-50"], "--target"),
+    (["--plant", "hotend_cartridge", "--plot", "/nonexistent/t.png"], "--plot"),
+    (["--plant", "hotend_cartridge", "--controller", "bangbang"], "--controller bangbang: 'bangbang' has no parameters"),
+    (["--plant", "hotend_cartridge", "--controller", "nomodule_xyz:SPACE"], "--controller"),
+    (["--plant", "hotend_cartridge", "--controller", "fuzzy_pi", "--loop", "klipper"], "--loop klipper"),
+    (["--plant", "hotend_cartridge", "--controller", "fuzzy_pi", "--method", "amigo"], "--method amigo"),
     (["--plant", "hotend_cartridge", "--budget", "0"], "--budget"),
     (["--plant", "hotend_cartridge", "--method", "guess"], "--method"),
     (["--plant", "hotend_cartridge", "--method", "alo", "--budget", "3"], "--method alo --budget 3"),
@@ -78,13 +86,12 @@ def test_a_missing_log_is_one_line(capsys, tmp_path):
 
 def test_a_tune_on_a_local_dask_cluster_equals_in_process():
     """Same seed, DE's three generations of 45 on two workers: the same gains and costs."""
-    args = parse_args(["--plant", "hotend_cartridge", "--method", "de", "--budget", "135", "--seed", "3"])
     problem = preset_problem("hotend_cartridge", 210)
-    local, _ = tune(args, problem)
+    local = tune(problem, method="de", budget=135, seed=3)
     with LocalCluster(n_workers=2, processes=False, dashboard_address=None) as cluster, Client(cluster) as client:
-        remote, _ = tune(args, problem, client)
-    assert [c.method for c in remote] == [c.method for c in local]
-    for a, b in zip(local, remote, strict=True):
+        remote = tune(problem, method="de", budget=135, seed=3, client=client)
+    assert [c.method for c in remote.candidates] == [c.method for c in local.candidates]
+    for a, b in zip(local.candidates + local.references, remote.candidates + remote.references, strict=True):
         assert (a.gains, a.cost) == (b.gains, b.cost)  # identical chunks, identical arithmetic
 
 

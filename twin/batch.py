@@ -55,7 +55,7 @@ def lane_gains(controllers: Sequence[PidGains | Tunable], prev_temp_mode: str) -
     for lane, item in enumerate(controllers):
         if isinstance(item, PidGains):
             gains.append(item)
-        elif isinstance(item, PidFixed) and item.prev_temp_mode == prev_temp_mode:
+        elif BatchTwin.accepts(item, prev_temp_mode):
             gains.append(item.gains)
         else:
             raise TypeError(f"lane {lane}: a batch runs PidGains or PidFixed controllers with prev_temp_mode "
@@ -69,6 +69,11 @@ class BatchTwin:
     Records one row per firmware reading: arrays of shape (rows, N) for the firmware's measured
     temperature, the true block and sensor temperatures and the duty (amount / 127).
     """
+
+    @staticmethod
+    def accepts(controller: object, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE) -> bool:
+        """Whether a lane can run this controller: the fixed-point PID the lanes vectorise, in their mode."""
+        return isinstance(controller, PidFixed) and controller.prev_temp_mode == prev_temp_mode
 
     def __init__(self, plant, gains: Sequence[PidGains | Tunable], *, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE,
                  sensor: SensorChain | None = None, kernel: str | None = None):

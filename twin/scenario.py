@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn, cast
 
-from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX
+from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
 
 HEATERS = ("hotend", "bed")
 FAULT_KINDS = (

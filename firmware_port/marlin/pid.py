@@ -16,9 +16,9 @@ checks the bounds over the whole documented domain):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from fractions import Fraction
 
+from firmware_port.controller import PidGains
 from firmware_port.fixed import checked_s32, checked_s64, clamp, div_round, shr_round
 from firmware_port.marlin.constants import (
     DEFAULT_BED_KD,
@@ -33,6 +33,7 @@ from firmware_port.marlin.constants import (
     PID_MAX,
 )
 from firmware_port.marlin.versions import MarlinVersion
+from firmware_port.params import ParamSpace, pid_params
 from firmware_port.thermistor import TEMP_FRAC_BITS
 
 KP_FRAC_BITS = 12  # kp_q12: int32 Q.12, Kp in user units (Kp is not scaled by PID_dT)
@@ -43,11 +44,6 @@ P_SHIFT = KP_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.17 product -> Q.8
 I_SHIFT = KI_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.29 product -> Q.8
 D_SHIFT = KD_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.21 product -> Q.8
 
-# Documented gain domain (user units). Bounds below are derived for these maxima.
-KP_MAX = 1000.0
-KI_MAX = 100.0
-KD_MAX = 5000.0
-
 FUNCTIONAL_RANGE_Q5 = PID_FUNCTIONAL_RANGE_C << TEMP_FRAC_BITS  # 320
 OUT_MAX_Q8 = PID_MAX << OUT_FRAC_BITS  # 65280
 # Integral sum ceiling when Ki is tiny or zero: keeps i_sum in int32 (Ki*i_sum stays < PID_MAX).
@@ -56,25 +52,6 @@ I_SUM_CAP_Q5 = 1 << 30
 # filter state and (raw - state) inside int32 in Q.8.
 D_RAW_LIMIT_Q8 = 1 << (21 + OUT_FRAC_BITS)
 D_FILTER_DIVISOR = int(1 / (1 - PID_K1))  # 1 - PID_K1 = 0.05 = 1/20 exactly
-
-
-@dataclass(frozen=True)
-class PidGains:
-    """Gains in user units (what M301/M303/EEPROM use)."""
-
-    kp: float
-    ki: float
-    kd: float
-
-    def __post_init__(self) -> None:
-        for name, value, top in (("kp", self.kp, KP_MAX), ("ki", self.ki, KI_MAX), ("kd", self.kd, KD_MAX)):
-            if not 0.0 <= value <= top:
-                raise ValueError(f"PID gain {name}={value} outside the supported range 0..{top}")
-
-    @classmethod
-    def clamped(cls, kp: float, ki: float, kd: float) -> PidGains:
-        """Gains forced into the supported ranges (M303 U1 on a degenerate oscillation)."""
-        return cls(min(max(kp, 0.0), KP_MAX), min(max(ki, 0.0), KI_MAX), min(max(kd, 0.0), KD_MAX))
 
 
 HOTEND_GAINS = PidGains(DEFAULT_KP, DEFAULT_KI, DEFAULT_KD)
@@ -128,6 +105,7 @@ class PidFixed:
         self.i_sum_q5 = 0
         self.d_term_q8 = 0
         self.reset_pending = True
+        self.p_q8 = self.i_q8 = 0  # the last update's P and I terms, Q.8 (published; the law never reads them)
 
     def update(self, temp_q5: int, target_c: int, now_ms: int = 0) -> int:
         """One step on a fresh reading; returns the output 0..255 (soft PWM gets ``>> 1``)."""
@@ -137,6 +115,7 @@ class PidFixed:
     def update_q8(self, temp_q5: int, target_c: int) -> int:
         """The law with its Q.8 output (0..65280), for comparison with the float reference."""
         e_q5 = checked_s32((target_c << TEMP_FRAC_BITS) - temp_q5)  # |e| < 2**16
+        self.p_q8 = self.i_q8 = 0
         if target_c == 0 or e_q5 < -FUNCTIONAL_RANGE_Q5:
             out_q8 = 0
             self.reset_pending = True
@@ -161,12 +140,24 @@ class PidFixed:
             self.d_term_q8 += div_round(checked_s32(d_in_q8 - self.d_term_q8), D_FILTER_DIVISOR)
             # p + i + d: |sum| < 2**27 + 2**16 + 2**29 < 2**31.
             out_q8 = clamp(checked_s32(p_q8 + i_q8 + self.d_term_q8), 0, OUT_MAX_Q8)
+            self.p_q8, self.i_q8 = p_q8, i_q8
             if self.prev_temp_mode == PREV_TEMP_IN_BAND:
                 self.prev_q5 = temp_q5
         if self.prev_temp_mode == PREV_TEMP_EVERY_SAMPLE:
             self.prev_q5 = temp_q5
         return out_q8
 
+
+    def signals(self) -> dict[str, float]:
+        """The last update's P and I terms (0 outside the band, where the output is bang-bang) and the
+        filtered D term, in output counts of 0..255."""
+        return {"p_counts": self.p_q8 / 256, "i_counts": self.i_q8 / 256, "d_counts": self.d_term_q8 / 256}
+
+
+def pid_space(default: PidGains = HOTEND_GAINS, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE) -> ParamSpace:
+    """Marlin's fixed-point PID as a tunable family: Kp, Ki, Kd in M301 units."""
+    return ParamSpace("pid", pid_params(default),
+                      lambda kp, ki, kd: PidFixed(PidGains(kp, ki, kd), prev_temp_mode), pid=True)
 
 
 def float_error_bound_counts(gains: PidGains, max_dtemp_c: float) -> float:

@@ -18,6 +18,7 @@ from firmware_port.marlin.constants import (
     TEMP_TIMER_FREQUENCY,
 )
 from firmware_port.marlin.pid import HOTEND_GAINS, PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidGains
+from firmware_port.params import ParamSpace, pid_params
 from firmware_port.thermistor import TEMP_ONE
 
 F32 = np.float32
@@ -89,3 +90,8 @@ class PidFloat:
         if self.prev_temp_mode == PREV_TEMP_EVERY_SAMPLE:
             self.prev_c = current
         return F32(out)
+
+
+def pid_float_space(default: PidGains = HOTEND_GAINS) -> ParamSpace:
+    """Marlin's float32 PID as a tunable family: Kp, Ki, Kd in M301 units."""
+    return ParamSpace("pid_float", pid_params(default), lambda kp, ki, kd: PidFloat(PidGains(kp, ki, kd)), pid=True)

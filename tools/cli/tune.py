@@ -1,12 +1,13 @@
-"""twin-tune: tune a heater's PID on the firmware in the loop; print gains ready to paste.
+"""twin-tune: tune a heater controller on the firmware in the loop; print its settings ready to paste.
 
-The plant is a preset (``--plant``) or fitted to a log as twin-fit does (``--from-log``). Every
-candidate (the tuning rules of tools/tuning/rules, an optimiser's search) runs the same scenario
-on the firmware twin (tools/tuning/evaluate.py: heat-up, then disturbances) and is scored by the
-objective (tools/tuning/objectives.py, default ``heater``). The best is printed first with its
-settings (M301 + M500, Configuration.h defines, a Klipper section), then every candidate next to
-the firmware's own autotune on the same twin (Marlin M303 C8 or Klipper PID_CALIBRATE), and a
-plot of the responses (and the optimiser's convergence) is written.
+The plant is a preset (``--plant``) or fitted to a log as twin-fit does (``--from-log``); the
+controller is a firmware build with parameters (``--controller``, default Marlin's fixed-point
+PID) or your own ``module:attribute`` naming a firmware_port.params.ParamSpace. Every candidate
+(the tuning rules for a PID, an optimiser's search) runs the same scenario in the loop
+(tools/tuning/evaluate.py: heat-up, then disturbances) and is scored by the objective
+(tools/tuning/objectives.py). The best is printed first with its settings, then every candidate
+beside the references (the controller's defaults and, for a PID, the firmware's own autotune on
+the same twin: Marlin M303 C8 or Klipper PID_CALIBRATE), and a plot of the responses is written.
 """
 
 from __future__ import annotations
@@ -14,36 +15,28 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from tools.tuning.evaluate import (
-    GAIN_MAX,
-    Candidate,
-    Evaluator,
-    Problem,
-    default_scenario,
-    firmware_autotune,
-    optimiser_names,
-    rule_gains,
-    rule_names,
-    score,
-    simulate,
-)
-from tools.tuning.gains import Gains
-from tools.tuning.optim import METHODS
-from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, Run, heater_terms, objective
+from tools.cli.args import OneLineParser, finite_float, plot_path
+from tools.cli.entry import run_main
+from tools.tuning.controllers import controller_names, resolve_controller
+from tools.tuning.evaluate import AMBIENT_C, LOOPS, Candidate, Problem, default_scenario, heater_of
+from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, heater_terms
+from tools.tuning.tuner import DEFAULT_BUDGET, TuneResult, methods, tune
 from twin.metrics import step_metrics
 from twin.plants import SPECS, Spec
 
-FIRMWARES = ("marlin", "klipper")  # --firmware: also the name of the evaluation loop
 BED_TARGET_C, HOTEND_TARGET_C = 60.0, 210.0
-DEFAULT_BUDGET = 900  # optimiser evaluations: 20 generations of DE's default population of 45
-SEARCH_FACTOR = 4.0  # optimiser bounds: 0 .. 4 x the best rule's gains (capped at the firmware's range)
-MIN_BOUND = np.array([1.0, 0.05, 1.0])  # so a rule's zero Ki or Kd still leaves room to search
+MODELS = ("two_node", "three_node", "fopdt", "sopdt")
+EPILOG = """examples:
+  twin-tune --plant hotend_cartridge --target 210            # rules, then DE, against M303 C8
+  twin-tune --plant hotend_cartridge --method ocalo --budget 900 --seed 1
+  twin-tune --controller fuzzy_pi --plant bed --target 60    # seed 004's fuzzy PI: its three ranges
+  twin-tune --controller my_module:SPACE --plant hotend      # your own controller (a ParamSpace)
+  twin-tune --from-log klippy.log --heater extruder --loop klipper
+"""
 
 
 # -- the plant ---------------------------------------------------------------------------------
@@ -73,32 +66,20 @@ def make_problem(args: argparse.Namespace) -> tuple[Problem, bool]:
     else:
         if args.plant not in SPECS:
             raise ValueError(f"--plant {args.plant!r}: valid presets: {', '.join(SPECS)}")
-        name, spec, is_bed = args.plant, SPECS[args.plant], args.plant.startswith("bed")
+        name, spec, is_bed = args.plant, SPECS[args.plant], heater_of(args.plant) == "bed"
     target_c = args.target if args.target is not None else (BED_TARGET_C if is_bed else HOTEND_TARGET_C)
+    if target_c <= AMBIENT_C:
+        raise ValueError(f"--target {target_c:g}: a heater tune needs a target above the ambient {AMBIENT_C:g} C")
     try:
         scenario = default_scenario(spec, target_c)
     except ValueError as exc:
         raise ValueError(f"--target {target_c:g}: {exc}") from None
-    return Problem(name, spec, scenario, "ideal" if args.ideal else args.firmware), is_bed
-
-
-# -- candidates ---------------------------------------------------------------------------------
-def search_bounds(start: Gains) -> list[tuple[float, float]]:
-    top = np.minimum(np.maximum(SEARCH_FACTOR * np.array([start.kp, start.ki, start.kd]), MIN_BOUND), GAIN_MAX)
-    return [(0.0, float(t)) for t in top]
-
-
-def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, start: Gains, budget: int,
-             seed: int, client=None, progress=None) -> Candidate:
-    """Search with an optimiser of tools/tuning/optim on the firmware twin, within search_bounds(start)."""
-    evaluator = Evaluator(problem, cost, client, on_batch=progress)
+    controller = resolve_controller(args.controller, "bed" if is_bed else "hotend")
     try:
-        result = METHODS[method](evaluator, search_bounds(start), rng=np.random.default_rng(seed), budget=budget)
-    except ValueError as exc:  # e.g. a budget below two of the optimiser's generations
-        raise ValueError(f"--method {method} --budget {budget}: {exc}") from None
-    best = Gains(*np.clip(result.x, 0.0, GAIN_MAX))
-    run = simulate(problem, [[best.kp, best.ki, best.kd]], client)
-    return Candidate(method, best, float(cost(run)[0]), run, np.asarray(result.history, float))
+        problem = Problem(name, spec, scenario, args.loop, controller)
+    except ValueError as exc:
+        raise ValueError(f"--loop {args.loop}: {exc}") from None
+    return problem, is_bed
 
 
 # -- output -------------------------------------------------------------------------------------
@@ -117,27 +98,58 @@ def metrics_line(candidate: Candidate) -> str:
             f"hold |e| {terms.hold_error_c[0]:.2f} C" + (", PROTECTION TRIP" if terms.tripped[0] else ""))
 
 
-def settings_lines(gains: Gains, is_bed: bool) -> list[str]:
-    heater = "heater_bed" if is_bed else "extruder"
+def describe(problem: Problem, candidate: Candidate) -> str:
+    """A candidate's parameters: gains for a PID family, else each parameter with its unit."""
+    return str(candidate.gains) if problem.controller.pid else problem.controller.describe(candidate.params)
+
+
+def settings_lines(problem: Problem, best: Candidate, is_bed: bool) -> list[str]:
+    """Ready to paste: Marlin's M301/M304 and Configuration.h, Klipper's section; or the parameters."""
+    if not problem.controller.pid:
+        return [f"{problem.controller.name} parameters (the firmware's units):",
+                *(f"  {p.name} = {v:.6g} {p.unit}".rstrip() for p, v in zip(problem.controller.params, best.params))]
+    gains, heater = best.gains, "heater_bed" if is_bed else "extruder"
     return ["Marlin (send, then M500 to keep it):", f"  {gains.marlin_command(bed=is_bed)}", "  M500",
             "Marlin Configuration.h:", *("  " + line for line in gains.marlin_defines(bed=is_bed).splitlines()),
             "Klipper printer.cfg:", *("  " + line for line in gains.klipper_section(heater).splitlines())]
 
 
-def write_plot(path: Path, candidates: list[Candidate], reference: Candidate | str, title: str) -> None:
-    """Responses of the best candidates and the reference; the convergence of any optimiser."""
+def report(result: TuneResult, is_bed: bool) -> None:
+    problem, best = result.problem, result.best
+    print(f"twin-tune: {problem.name} at {problem.scenario.target_c:g} C, controller {problem.controller.name}, "
+          f"objective {result.objective}, loop {problem.loop}")
+    versus = "; ".join(f"{'beats' if result.beats(r) else 'does not beat'} {r.method}: {describe(problem, r)}  "
+                       f"cost {r.cost:.4g}" for r in result.references)
+    print(f"best: {best.method}  {describe(problem, best)}  cost {best.cost:.4g}  ({versus})")
+    by_rule = [c for c in result.candidates if c.history is None]
+    if by_rule and by_rule[0] is not best:
+        print(f"best rule: {by_rule[0].method}  {describe(problem, by_rule[0])}  cost {by_rule[0].cost:.4g}")
+    print("\n".join(settings_lines(problem, best, is_bed)))
+    print(f"candidates on the {problem.loop} loop (best first), then the references:")
+    shown = result.candidates + result.references
+    width = max(len(c.method) for c in shown)
+    texts = [describe(problem, c) for c in shown]
+    text_width = max(len(t) for t in texts)
+    for c, text in zip(shown, texts):
+        mark = "*" if c is best else " "
+        print(f" {mark}{c.method:{width}}  {text:{text_width}}  cost {c.cost:10.4g}  {metrics_line(c)}")
+
+
+def write_plot(path: Path, result: TuneResult, title: str) -> None:
+    """Responses of the best candidates and the references; the convergence of any optimiser."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    shown = candidates[:4] + ([reference] if isinstance(reference, Candidate) else [])
+    candidates = result.candidates
+    shown = candidates[:4] + result.references
     searched = [c for c in candidates if c.history is not None]
     fig, axes = plt.subplots(1 + bool(searched), 1, figsize=(10, 6 + 3 * bool(searched)), squeeze=False)
     ax = axes[0, 0]
     for c in shown:
         ax.plot(c.run.t_s, c.run.temp_c[:, 0], lw=1.2 if c is candidates[0] else 0.8,
-                label=f"{c.method}: {c.gains} (cost {c.cost:.4g})")
+                label=f"{c.method}: {describe(result.problem, c)} (cost {c.cost:.4g})")
     ax.axhline(candidates[0].run.target_c, color="k", ls=":", lw=0.8)
     for t_s in candidates[0].run.disturbances_s:
         ax.axvline(t_s, color="grey", ls="--", lw=0.6)
@@ -156,117 +168,50 @@ def write_plot(path: Path, candidates: list[Candidate], reference: Candidate | s
 
 # -- the command ----------------------------------------------------------------------------------
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="twin-tune", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="twin-tune", description=__doc__.split("\n\n")[0], epilog=EPILOG)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--plant", help=f"a plant preset: {', '.join(SPECS)}")
     source.add_argument("--from-log", metavar="LOG", help="fit a plant to this log (as twin-fit), then tune it")
-    parser.add_argument("--target", type=float, help=f"setpoint in C (default {HOTEND_TARGET_C:g}, a bed "
+    parser.add_argument("--target", type=finite_float, help=f"setpoint in C (default {HOTEND_TARGET_C:g}, a bed "
                         f"{BED_TARGET_C:g})")
-    parser.add_argument("--method", default="auto",
-                        help="a rule, an optimiser, 'all' (every rule and optimiser) or 'auto' (default: every "
-                             "rule, then the default optimiser from the best rule)")
-    parser.add_argument("--objective", default=DEFAULT_OBJECTIVE, help=f"one of: {', '.join(OBJECTIVES)}")
-    parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET, help="optimiser evaluations")
-    parser.add_argument("--seed", type=int, default=0, help="optimiser random seed")
-    parser.add_argument("--firmware", default="marlin", help="marlin or klipper: the controller in the loop")
-    parser.add_argument("--ideal", action="store_true", help="score on the papers' idealised linear loop instead")
-    parser.add_argument("--model", default="two_node", help="--from-log: the model to fit (as twin-fit)")
-    parser.add_argument("--heater", help="--from-log: extruder or heater_bed")
-    parser.add_argument("--segment", type=int, help="--from-log: the segment to fit")
+    parser.add_argument("--controller", default="pid", metavar="NAME",
+                        help=f"a firmware build with parameters ({', '.join(controller_names())}) or a "
+                             "module:attribute naming your ParamSpace (default: pid)")
+    parser.add_argument("--loop", default="marlin", choices=LOOPS,
+                        help="the loop the candidates run in: Marlin's board, Klipper's host PID, or the papers' "
+                             "idealised continuous loop (default: marlin)")
+    parser.add_argument("--ideal", action="store_const", dest="loop", const="ideal", help="same as --loop ideal")
+    parser.add_argument("--method", default="auto", metavar="METHOD",
+                        help=f"one of: {', '.join(methods())}. 'all': every rule and optimiser; 'auto' (default): "
+                             "every rule (a PID), then DE")
+    parser.add_argument("--objective", default=DEFAULT_OBJECTIVE, metavar="NAME",
+                        help=f"one of: {', '.join(OBJECTIVES)} (default: {DEFAULT_OBJECTIVE})")
+    parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET,
+                        help=f"objective evaluations per optimiser (default: {DEFAULT_BUDGET})")
+    parser.add_argument("--seed", type=int, default=0, help="optimiser random seed (default: 0)")
+    parser.add_argument("--model", default="two_node", metavar="MODEL",
+                        help=f"--from-log: the model to fit, one of {', '.join(MODELS)} (default: two_node)")
+    parser.add_argument("--heater", help="--from-log: extruder or heater_bed (default: the log's first)")
+    parser.add_argument("--segment", type=int, help="--from-log: the segment to fit (default: the longest heat-up)")
     parser.add_argument("--plot", help="plot file (default twin-out/twin-tune-<plant>.png); 'none' for no plot")
     parser.add_argument("--dask", metavar="ADDRESS", help="a dask.distributed scheduler (tcp://host:port)")
     return parser.parse_args(argv)
 
 
 def check_args(args: argparse.Namespace) -> None:
-    if args.firmware not in FIRMWARES:
-        raise ValueError(f"--firmware {args.firmware!r}: choose marlin or klipper")
     if args.objective not in OBJECTIVES:
         raise ValueError(f"--objective {args.objective!r}: choose one of: {', '.join(OBJECTIVES)}")
     if args.budget < 1:
         raise ValueError(f"--budget {args.budget}: must be at least 1")
-    known = rule_names() + optimiser_names() + ["all", "auto"]
-    if args.method not in known:
-        raise ValueError(f"--method {args.method!r}: choose one of: {', '.join(known)}")
-    if args.model not in ("two_node", "three_node", "fopdt", "sopdt"):
-        raise ValueError(f"--model {args.model!r}: choose two_node, three_node, fopdt or sopdt")
-
-
-def plan(method: str) -> tuple[list[str], list[str]]:
-    """(rules, optimisers) that --method asks for."""
-    rules, optimisers = rule_names(), optimiser_names()
-    if method == "all":
-        return rules, optimisers
-    if method == "auto":
-        return rules, [DEFAULT_OPTIMISER] if DEFAULT_OPTIMISER in optimisers else []
-    return ([method], []) if method in rules else ([], [method])
-
-
-DEFAULT_OPTIMISER = "de"
-
-
-def progress_bar(total: int):
-    """A terminal progress bar on stderr (tqdm hides itself when stderr is not a terminal)."""
-    from tqdm import tqdm
-
-    return tqdm(total=total, unit="eval", file=sys.stderr, disable=None, leave=False)
-
-
-def autotune_reference(problem: Problem, cost: Callable[[Run], np.ndarray], client=None) -> Candidate | str:
-    """The firmware's own autotune on the same twin, scored; or why it failed."""
-    try:
-        name, gains = firmware_autotune(replace(problem, loop="klipper" if problem.loop == "klipper" else "marlin"))
-    except ValueError as exc:
-        return str(exc)
-    return score(problem, cost, {name: gains}, client)[0]
-
-
-def tune(args: argparse.Namespace, problem: Problem, client=None) -> tuple[list[Candidate], Candidate | str]:
-    """Every planned candidate scored, best first, and the firmware's autotune on the same twin."""
-    cost = objective(args.objective)
-    rules, optimisers = plan(args.method)
-    reference = autotune_reference(problem, cost, client)
-    gains, failures = rule_gains(problem, rules)
-    for rule, why in failures.items():
-        print(f"twin-tune: rule {rule} gives no gains here: {why}", file=sys.stderr)
-    candidates = score(problem, cost, gains, client) if gains else []
-    if candidates:
-        start = candidates[0].gains
-    elif isinstance(reference, Candidate):
-        start = reference.gains
-    else:
-        raise ValueError(f"--method {args.method}: no rule to start the search from, and {reference}")
-    for method in optimisers:
-        with progress_bar(args.budget) as bar:
-            def step(costs: np.ndarray, bar=bar) -> None:
-                bar.update(len(costs))
-                bar.set_postfix(best=f"{np.min(costs):.4g}")
-
-            candidates.append(optimise(problem, cost, method, start, args.budget, args.seed, client, step))
-    return sorted(candidates, key=lambda c: c.cost), reference
-
-
-def report(args: argparse.Namespace, problem: Problem, is_bed: bool, candidates: list[Candidate],
-           reference: Candidate | str) -> None:
-    best = candidates[0]
-    print(f"twin-tune: {problem.name} at {problem.scenario.target_c:g} C, objective {args.objective}, "
-          f"loop {problem.loop}")
-    if isinstance(reference, Candidate):
-        verdict = "beats" if best.cost < reference.cost else "does not beat"
-        versus = f"{verdict} {reference.method}: {reference.gains}  cost {reference.cost:.4g}"
-        shown = candidates + [reference]
-    else:
-        versus, shown = reference, candidates
-    print(f"best: {best.method}  {best.gains}  cost {best.cost:.4g}  ({versus})")
-    by_rule = [c for c in candidates if c.history is None]
-    if by_rule and by_rule[0] is not best:
-        print(f"best rule: {by_rule[0].method}  {by_rule[0].gains}  cost {by_rule[0].cost:.4g}")
-    print("\n".join(settings_lines(best.gains, is_bed)))
-    print(f"candidates on the {problem.loop} loop (best first):")
-    width = max(len(c.method) for c in shown)
-    for c in shown:
-        mark = "*" if c is best else " "
-        print(f" {mark}{c.method:{width}}  {str(c.gains):36}  cost {c.cost:10.4g}  {metrics_line(c)}")
+    if args.method not in methods():
+        raise ValueError(f"--method {args.method!r}: choose one of: {', '.join(methods())}")
+    if args.model not in MODELS:
+        raise ValueError(f"--model {args.model!r}: choose one of: {', '.join(MODELS)}")
+    if args.plot not in (None, "none"):
+        try:
+            plot_path(args.plot)
+        except argparse.ArgumentTypeError as exc:
+            raise ValueError(f"--plot {args.plot}: {exc}") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -278,29 +223,26 @@ def run(args: argparse.Namespace) -> int:
 
         client = Client(args.dask)
     started = time.perf_counter()
-    candidates, reference = tune(args, problem, client)
-    report(args, problem, is_bed, candidates, reference)
+    result = tune(problem, args.objective, args.method, args.budget, args.seed, client, progress=True)
+    for note in result.notes:
+        print(f"twin-tune: {note}", file=sys.stderr)
+    report(result, is_bed)
     if args.plot != "none":
         stem = args.plant or Path(args.from_log).stem
         path = Path(args.plot or f"twin-out/twin-tune-{stem}.png")
-        write_plot(path, candidates, reference, f"{problem.name}: {args.objective} on the {problem.loop} loop")
+        write_plot(path, result, f"{problem.name}: {problem.controller.name}, {args.objective} on the "
+                                 f"{problem.loop} loop")
         print(f"plot: {path}")
     print(f"({time.perf_counter() - started:.1f} s)", file=sys.stderr)
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
     try:
-        return run(args)
-    except BrokenPipeError:
-        sys.stdout = None
-        return 0
-    except OSError as exc:
-        print(f"twin-tune: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
-    except ValueError as exc:
-        print(f"twin-tune: error: {exc}", file=sys.stderr)
-    return 2
+        args = parse_args(argv)
+    except SystemExit as exc:  # --help, or a usage error already printed on one line
+        return int(exc.code or 0)
+    return run_main("twin-tune", lambda: run(args))
 
 
 if __name__ == "__main__":

@@ -1,15 +1,17 @@
-"""Evaluate candidate gains on the firmware in the loop: gains (N, 3) on the 0..255 scale -> runs.
+"""Evaluate candidate controllers in the loop: parameters (N, d) of the problem's controller -> runs.
 
-A ``Problem`` is a plant (a preset's or a fitted spec), a ``TuneScenario`` and a loop:
+A ``Problem`` is a plant (a preset's or a fitted spec), a ``TuneScenario``, a loop and a
+controller family (firmware_port/params.py ``ParamSpace``: its parameters and a factory; by
+default Marlin's fixed-point PID, whose parameters are Kp, Ki, Kd on the 0..255 scale):
 
-- ``marlin`` (default): Marlin's integer PID on the board (ADC, soft PWM, thermal protection) in
-  lockstep with the plant. Linear plants without dead time run as numpy lanes (twin/batch.py
-  ``BatchTwin``), others one ``Twin`` per candidate.
-- ``klipper``: Klipper's host PID (twin/klipper_twin.py), one twin per candidate.
+- ``marlin`` (default): the controller on Marlin's board (ADC, soft PWM, thermal protection) in
+  lockstep with the plant. Candidates the batch twin runs (twin/batch.py ``BatchTwin.accepts``:
+  the fixed-point PID) on a linear plant without dead time run as lanes, others one ``Twin`` each.
+- ``klipper``: Klipper's host PID (twin/klipper_twin.py), one twin per candidate (PID families only).
 - ``ideal``: the papers' loop: a continuous PID, Kp + Ki/s + Kd s/(s/N + 1) with Simulink's
   default filter N = 100 1/s, on the plant's linear model, no saturation, no quantisation, the
   dead time exact; stepped with the plant's exact zero-order hold at ``IDEAL_DT_S`` (backward
-  Euler for the controller), all candidates at once.
+  Euler for the controller), all candidates at once (PID families only).
 
 The scenario heats from ambient to the target, then disturbs the loop: on a lumped heater a part
 fan kick, the filament flow starting, then an ambient change; on a transfer-function plant (no
@@ -26,7 +28,7 @@ import dataclasses
 import functools
 import math
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg
@@ -34,7 +36,9 @@ import scipy.signal
 
 from firmware_port.klipper import CommandError
 from firmware_port.marlin.board import HOTEND_CHANNEL
-from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PidGains
+from firmware_port.firmwares import param_space
+from firmware_port.marlin.pid import pid_space
+from firmware_port.params import ParamSpace
 from tools.ident.fit import CONTROL_DELAY_S
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of
@@ -50,7 +54,6 @@ from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
 from twin.scenario import Event
 
 LOOPS = ("marlin", "klipper", "ideal")
-GAIN_MAX = np.array([KP_MAX, KI_MAX, KD_MAX])  # what the firmware's fixed-point PID accepts
 CHUNK_LANES = 32  # candidates per batch: one dask task
 AMBIENT_C = 25.0
 HEATUP_FACTOR = 3.0  # heat-up phase = 3 x the open-loop time to the target at full power
@@ -85,16 +88,20 @@ class TuneScenario:
 
 @dataclass(frozen=True)
 class Problem:
-    """What a tune evaluates on: a named plant spec, a scenario, a loop."""
+    """What a tune evaluates on: a named plant spec, a scenario, a loop, a controller family."""
 
     name: str
     spec: Spec
     scenario: TuneScenario
     loop: str = "marlin"
+    controller: ParamSpace = field(default_factory=pid_space)
 
     def __post_init__(self) -> None:
         if self.loop not in LOOPS:
             raise ValueError(f"unknown loop {self.loop!r}; choose one of: {', '.join(LOOPS)}")
+        if self.loop != "marlin" and not self.controller.pid:
+            raise ValueError(f"the {self.loop} loop runs a PID: controller {self.controller.name} runs on the "
+                             "marlin loop only")
 
     @property
     def input_full_scale(self) -> float:
@@ -103,11 +110,18 @@ class Problem:
 
     @property
     def batched(self) -> bool:
-        return self.loop == "ideal" or (self.loop == "marlin" and self.spec.linear and not self.spec.delay_ticks)
+        """Whether candidates run as lanes of one batch (else one twin each)."""
+        if self.loop == "ideal":
+            return True
+        return (self.loop == "marlin" and self.spec.linear and not self.spec.delay_ticks
+                and BatchTwin.accepts(self.controller.make(self.controller.defaults)))
 
-    def plant_gains(self, gains: np.ndarray) -> np.ndarray:
-        """Gains (N, 3) on the 0..255 scale -> the plant's input units per degC (W/C for a heater)."""
-        return np.asarray(gains, float) / COUNTS_PER_DUTY * self.input_full_scale
+    def plant_gains(self, params: np.ndarray) -> np.ndarray | None:
+        """A PID family's gains (N, 3) on the 0..255 scale -> the plant's input units per degC (W/C for a
+        heater); None for other controllers."""
+        if not self.controller.pid:
+            return None
+        return np.asarray(params, float) / COUNTS_PER_DUTY * self.input_full_scale
 
 
 # -- the plant and its scenario ---------------------------------------------------------------------
@@ -183,12 +197,18 @@ def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C) 
     return TuneScenario(float(target_c), events[-1].at_s + phase_s, ambient_c, events)
 
 
-def preset_problem(preset: str, target_c: float, loop: str = "marlin") -> Problem:
-    """A problem on a twin/plants.py preset with the default scenario; ValueError names a bad preset."""
+def preset_problem(preset: str, target_c: float, loop: str = "marlin", controller: ParamSpace | None = None) -> Problem:
+    """A problem on a twin/plants.py preset with the default scenario (and by default Marlin's PID);
+    ValueError names a bad preset."""
     if preset not in SPECS:
         raise ValueError(f"unknown plant preset {preset!r}; valid: {', '.join(SPECS)}")
     spec = SPECS[preset]
-    return Problem(preset, spec, default_scenario(spec, target_c), loop)
+    return Problem(preset, spec, default_scenario(spec, target_c), loop, controller or param_space("pid", heater_of(preset)))
+
+
+def heater_of(plant_name: str) -> str:
+    """Which heater a plant preset is: "bed" for the bed presets, else "hotend"."""
+    return "bed" if plant_name.startswith("bed") else "hotend"
 
 
 def _value(event: Event) -> float:
@@ -230,38 +250,34 @@ class Traces:
     tripped: np.ndarray
 
 
-def _firmware_gains(row: np.ndarray) -> PidGains:
-    return PidGains(*np.clip(row, 0.0, GAIN_MAX))
-
-
-def _run_batch(problem: Problem, gains: np.ndarray) -> Traces:
+def _run_batch(problem: Problem, params: np.ndarray) -> Traces:
     scenario = problem.scenario
-    batch = BatchTwin(make_problem_plant(problem), [_firmware_gains(row) for row in gains])
+    batch = BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params])
     batch.set_target(int(round(scenario.target_c)))
     for event in scenario.events:
         batch.schedule(event.at_s, functools.partial(_batch_event, event=event))
     batch.run_until(scenario.duration_s)
-    return Traces(batch.t_s, batch.measured_c, batch.duty, batch.lanes.halted.copy())
+    hotend = batch.result().hotend
+    return Traces(hotend.t_s, hotend.measured_c, hotend.duty, batch.lanes.halted.copy())
 
 
-def _marlin_twin(problem: Problem, gains: PidGains | None) -> Twin:
-    """A scalar firmware twin on the problem's plant, the scenario scheduled (target not yet set)."""
+def _marlin_twin(problem: Problem, row: np.ndarray | None) -> Twin:
+    """A scalar firmware twin on the problem's plant running the candidate ``row`` (the firmware's
+    own PID when None), the scenario scheduled (target not yet set)."""
     plant = make_problem_plant(problem)
-    twin = Twin([plant], "pid")
+    twin = Twin([plant], "pid", controllers=[None if row is None else problem.controller.make(row)])
     twin.set_ambient(problem.scenario.ambient_c)
-    if gains is not None:
-        twin.board.set_gains(HOTEND_CHANNEL, gains)
     for event in problem.scenario.events:
         twin.schedule(event.at_s, functools.partial(_twin_load if event.kind == "load" else apply_event, event=event))
     return twin
 
 
 def _run_scalar_marlin(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    twin = _marlin_twin(problem, _firmware_gains(row))
+    twin = _marlin_twin(problem, row)
     twin.board.set_target(HOTEND_CHANNEL, int(round(problem.scenario.target_c)))
     twin.run_until(problem.scenario.duration_s)
-    rows = np.array(twin.trace.rows, dtype=float)  # time, then the hotend's target, measured, block, sensor, duty
-    return rows[:, 0], rows[:, 2], rows[:, 5], bool(twin.board.halted)
+    hotend = twin.result().hotend
+    return hotend.t_s, hotend.measured_c, hotend.duty, bool(twin.board.halted)
 
 
 def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
@@ -272,8 +288,8 @@ def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, 
         twin.schedule(event.at_s, functools.partial(_klipper_event, event=event))
     twin.set_target("extruder", problem.scenario.target_c)
     twin.run_until(problem.scenario.duration_s)
-    return (twin.column("extruder", "t_s"), twin.column("extruder", "temp_c"), twin.column("extruder", "duty"),
-            bool(twin.halted))
+    hotend = twin.result().hotend
+    return hotend.t_s, hotend.measured_c, hotend.duty, bool(twin.halted)
 
 
 def _klipper_event(twin: KlipperTwin, event: Event) -> None:
@@ -282,10 +298,10 @@ def _klipper_event(twin: KlipperTwin, event: Event) -> None:
     _apply_to_plant(channel.plant, event)
 
 
-def run_scalars(problem: Problem, gains: np.ndarray) -> Traces:
+def run_scalars(problem: Problem, params: np.ndarray) -> Traces:
     """One twin per candidate, resampled onto the first run's clock (their readings share it)."""
     run_one = _run_scalar_klipper if problem.loop == "klipper" else _run_scalar_marlin
-    results = [run_one(problem, row) for row in gains]
+    results = [run_one(problem, row) for row in params]
     t_s = results[0][0]
     temp = np.column_stack([np.interp(t_s, r[0], r[1]) for r in results])
     duty = np.column_stack([np.interp(t_s, r[0], r[2]) for r in results])
@@ -305,7 +321,7 @@ def _run_ideal(problem: Problem, gains: np.ndarray) -> Traces:
     """The papers' loop (module docstring); duty = controller output / full scale, unbounded."""
     scenario, dt = problem.scenario, IDEAL_DT_S
     plant = make_problem_plant(problem)
-    kp, ki, kd = (problem.plant_gains(gains) / problem.input_full_scale).T  # duty per degC
+    kp, ki, kd = (np.asarray(gains, float) / COUNTS_PER_DUTY).T  # duty per degC
     n_steps = int(round(scenario.duration_s / dt))
     delay = int(round(getattr(problem.spec, "delay_s", 0.0) / dt))
     pending = np.zeros((delay, len(gains)))
@@ -342,19 +358,19 @@ def _run_ideal(problem: Problem, gains: np.ndarray) -> Traces:
     return Traces(np.array(t_rows), np.array(temps), np.array(duties), np.zeros(len(gains), bool))
 
 
-def run_chunk(problem: Problem, gains: np.ndarray) -> Traces:
+def run_chunk(problem: Problem, params: np.ndarray) -> Traces:
     """One chunk of candidates on the problem's loop (a picklable task for dask)."""
     if problem.loop == "ideal":
-        return _run_ideal(problem, gains)
-    traces = _run_batch(problem, gains) if problem.batched else run_scalars(problem, gains)
+        return _run_ideal(problem, params)
+    traces = _run_batch(problem, params) if problem.batched else run_scalars(problem, params)
     if problem.loop == "marlin":  # Marlin's first reading after reset sums 15 oversamples, not 16: it reads high
         traces = Traces(traces.t_s[1:], traces.temp_c[1:], traces.duty[1:], traces.tripped)
     return traces
 
 
-def _chunks(gains: np.ndarray) -> Iterator[np.ndarray]:
-    for start in range(0, len(gains), CHUNK_LANES):
-        yield gains[start:start + CHUNK_LANES]
+def _chunks(params: np.ndarray) -> Iterator[np.ndarray]:
+    for start in range(0, len(params), CHUNK_LANES):
+        yield params[start:start + CHUNK_LANES]
 
 
 def _join(parts: list[Traces]) -> Traces:
@@ -363,12 +379,15 @@ def _join(parts: list[Traces]) -> Traces:
                   np.hstack([p.duty[:rows] for p in parts]), np.concatenate([p.tripped for p in parts]))
 
 
-def simulate(problem: Problem, gains, client=None) -> Run:
-    """Run candidate gains (N, 3) on the 0..255 scale; a dask.distributed client runs the chunks."""
-    gains = np.atleast_2d(np.asarray(gains, float))
-    if gains.ndim != 2 or gains.shape[1] != 3:
-        raise ValueError(f"gains must be an (N, 3) array of Kp, Ki, Kd, got shape {gains.shape}")
-    chunks = list(_chunks(gains))
+def simulate(problem: Problem, params, client=None) -> Run:
+    """Run candidates (N, d): rows of the problem's controller parameters (a PID's Kp, Ki, Kd on the
+    0..255 scale); a dask.distributed client runs the chunks."""
+    params = np.atleast_2d(np.asarray(params, float))
+    space = problem.controller
+    if params.ndim != 2 or params.shape[1] != space.dims:
+        raise ValueError(f"parameters must be an (N, {space.dims}) array of {', '.join(space.names)}, "
+                         f"got shape {params.shape}")
+    chunks = list(_chunks(params))
     if client is None:
         parts = [run_chunk(problem, chunk) for chunk in chunks]
     else:
@@ -376,13 +395,13 @@ def simulate(problem: Problem, gains, client=None) -> Run:
     traces = _join(parts)
     return Run(traces.t_s, traces.temp_c, traces.duty, problem.scenario.target_c,
                problem.scenario.ambient_c, problem.scenario.disturbances_s, traces.tripped,
-               problem.plant_gains(gains), problem.input_full_scale)
+               problem.plant_gains(params), problem.input_full_scale)
 
 
 class Evaluator:
-    """objective(population) for the optimisers: gains (N, 3) on the 0..255 scale -> costs (N,).
+    """objective(population) for the optimisers: parameters (N, d) of the problem's controller -> costs (N,).
 
-    Candidates outside the firmware's gain range (or negative) cost ``OUT_OF_RANGE_COST``.
+    Candidates outside the controller's declared bounds (or not finite) cost ``OUT_OF_RANGE_COST``.
     Counts evaluations; ``on_batch`` (if given) is called with each batch's costs (progress).
     """
 
@@ -391,13 +410,13 @@ class Evaluator:
         self.problem, self.cost, self.client, self.on_batch = problem, cost, client, on_batch
         self.evaluations = 0
 
-    def __call__(self, gains) -> np.ndarray:
-        gains = np.atleast_2d(np.asarray(gains, float))
-        valid = np.all((gains >= 0.0) & (gains <= GAIN_MAX), axis=1) & np.all(np.isfinite(gains), axis=1)
-        costs = np.full(len(gains), OUT_OF_RANGE_COST)
+    def __call__(self, params) -> np.ndarray:
+        params = np.atleast_2d(np.asarray(params, float))
+        valid = self.problem.controller.inside(params)
+        costs = np.full(len(params), OUT_OF_RANGE_COST)
         if valid.any():
-            costs[valid] = self.cost(simulate(self.problem, gains[valid], self.client))
-        self.evaluations += len(gains)
+            costs[valid] = self.cost(simulate(self.problem, params[valid], self.client))
+        self.evaluations += len(params)
         if self.on_batch is not None:
             self.on_batch(costs)
         return costs
@@ -408,7 +427,7 @@ def marlin_autotune(problem: Problem, cycles: int = M303_CYCLES) -> Gains:
     """M303 E0 S<target> C<cycles> on a Marlin twin of the problem's plant (at ambient, no
     disturbances): the gains it prints. ValueError if the autotune fails."""
     quiet = replace(problem, scenario=replace(problem.scenario, events=()))
-    twin = _marlin_twin(quiet, None)
+    twin = _marlin_twin(quiet, None)  # the firmware's own PID runs M303
     tune = twin.board.start_autotune(HOTEND_CHANNEL, int(round(problem.scenario.target_c)), cycles)
     limit_s = AUTOTUNE_TIMEOUT_S
     while not tune.done and twin.time_s < limit_s:
@@ -440,20 +459,28 @@ def firmware_autotune(problem: Problem) -> tuple[str, Gains]:
 # -- candidates: the rules' gains, scored together ---------------------------------------------------
 @dataclass(frozen=True)
 class Candidate:
-    """One tuned result: where it came from, its gains, its cost and its run on the firmware twin."""
+    """One tuned result: where it came from, its parameters, its cost and its run on the twin."""
 
     method: str
-    gains: Gains
+    params: np.ndarray
     cost: float
     run: Run
     history: np.ndarray | None = None  # an optimiser's best cost per iteration
 
+    @property
+    def gains(self) -> Gains:
+        """A PID family's parameters as gains (Kp, Ki, Kd on the 0..255 scale)."""
+        return Gains(*(float(v) for v in self.params))
+
 
 def rule_gains(problem: Problem, names: list[str]) -> tuple[dict[str, Gains], dict[str, str]]:
-    """Each named rule's gains for the problem's plant (tools/tuning/rules) as its linear model with
-    the loop's own delay added (tools/ident/fit.py CONTROL_DELAY_S, as twin-fit tunes); and, for the
-    rules that give none on this model, why (a rule's ValueError)."""
-    model = model_of(problem.spec).delayed(CONTROL_DELAY_S)
+    """Each named rule's gains for the problem's plant (tools/tuning/rules) as its linear model, with
+    the firmware loop's own delay added where a firmware is in the loop (tools/ident/fit.py
+    CONTROL_DELAY_S, as twin-fit tunes; none on the papers' idealised loop); and, for the rules that
+    give none on this model, why (a rule's ValueError)."""
+    model = model_of(problem.spec)
+    if problem.loop != "ideal":
+        model = model.delayed(CONTROL_DELAY_S)
     gains, failures = {}, {}
     for name in names:
         try:
@@ -471,11 +498,16 @@ def optimiser_names() -> list[str]:
     return list(METHODS)
 
 
-def score(problem: Problem, cost: Callable[[Run], np.ndarray], gains: dict[str, Gains], client=None) -> list[Candidate]:
-    """Every candidate in one batch on the firmware twin, best first."""
-    names = list(gains)
-    table = np.array([[g.kp, g.ki, g.kd] for g in gains.values()])
-    run = simulate(problem, np.clip(table, 0.0, GAIN_MAX), client)
+def score(problem: Problem, cost: Callable[[Run], np.ndarray], candidates: dict[str, np.ndarray | Gains],
+          client=None) -> list[Candidate]:
+    """Every candidate (parameters, or gains of a PID family) in one batch, clipped into the controller's
+    bounds, best first."""
+    names = list(candidates)
+    bounds = problem.controller.bounds
+    table = np.array([[c.kp, c.ki, c.kd] if isinstance(c, Gains) else np.ravel(c) for c in candidates.values()],
+                     float)
+    table = np.array([problem.controller.hold(row) for row in np.clip(table, bounds[:, 0], bounds[:, 1])])
+    run = simulate(problem, table, client)
     costs = cost(run)
-    scored = [Candidate(name, gains[name], float(costs[i]), run.lanes([i])) for i, name in enumerate(names)]
+    scored = [Candidate(name, table[i], float(costs[i]), run.lanes([i])) for i, name in enumerate(names)]
     return sorted(scored, key=lambda c: c.cost)

@@ -54,8 +54,9 @@ class Run:
     0..1 (the firmware's) or the controller's output in plant-input units / input_full_scale
     (idealised loop, unbounded); target_c: the setpoint; start_c: the temperature the heat-up
     starts from; disturbances_s: the times of the disturbances (the first ends the heat-up);
-    tripped: (N,) a protection trip; gains: (N, 3) Kp, Ki, Kd in plant-input units per degC;
-    input_full_scale: the plant input at duty 1 (W for a lumped heater).
+    tripped: (N,) a protection trip; gains: (N, 3) Kp, Ki, Kd in plant-input units per degC of a PID
+    family's candidates, None for other controllers; input_full_scale: the plant input at duty 1
+    (W for a lumped heater).
     """
 
     t_s: np.ndarray
@@ -65,7 +66,7 @@ class Run:
     start_c: float
     disturbances_s: tuple[float, ...]
     tripped: np.ndarray
-    gains: np.ndarray
+    gains: np.ndarray | None
     input_full_scale: float = 1.0
 
     def __post_init__(self) -> None:
@@ -76,7 +77,8 @@ class Run:
         object.__setattr__(self, "duty", duty)
         object.__setattr__(self, "t_s", np.asarray(self.t_s, float))
         object.__setattr__(self, "tripped", np.broadcast_to(np.asarray(self.tripped, bool), (temp.shape[1],)))
-        object.__setattr__(self, "gains", np.asarray(self.gains, float).reshape(temp.shape[1], 3))
+        if self.gains is not None:
+            object.__setattr__(self, "gains", np.asarray(self.gains, float).reshape(temp.shape[1], 3))
         if temp.shape != duty.shape or temp.shape[0] != self.t_s.size:
             raise ValueError(f"run arrays disagree: t_s {self.t_s.shape}, temp_c {temp.shape}, duty {duty.shape}")
 
@@ -95,8 +97,9 @@ class Run:
 
     def lanes(self, index) -> Run:
         """The run of some lanes only."""
+        gains = None if self.gains is None else self.gains[index]
         return Run(self.t_s, self.temp_c[:, index], self.duty[:, index], self.target_c, self.start_c,
-                   self.disturbances_s, self.tripped[index], self.gains[index], self.input_full_scale)
+                   self.disturbances_s, self.tripped[index], gains, self.input_full_scale)
 
 
 def _trapezoid(t_s: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -204,6 +207,8 @@ def _seed000(weights: tuple[float, float, float, float], squared: bool) -> Calla
     w_os, w_settle, w_sse, w_gain = weights
 
     def cost(run: Run) -> np.ndarray:
+        if run.gains is None:
+            raise ValueError("seed 000's objectives penalise PID gains: tune a PID controller with them")
         m = heatup_seed000(run)
         gains = run.gains ** 2 if squared else run.gains
         return (w_os * m.overshoot_c + w_settle * m.settling_time_s + w_sse * m.steady_state_error_c

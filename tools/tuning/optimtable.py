@@ -17,11 +17,12 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from tools.cli.tune import autotune_reference, make_problem, optimise, parse_args
+from tools.cli.tune import make_problem, parse_args
 from tools.logs import hardware_logs_dir
 from tools.tuning.evaluate import Candidate, rule_gains, rule_names, score
 from tools.tuning.objectives import heater_cost
 from tools.tuning.table import cost_verdict
+from tools.tuning.tuner import optimise, references, search_bounds
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "tuning.md"
 BEGIN, END = "<!-- optim-table: begin", "<!-- optim-table: end -->"
@@ -70,11 +71,12 @@ def _argv(label: str) -> list[str]:
 def run_plant(label: str, budget: int, seed: int, methods: tuple[str, ...] = OPTIMISERS) -> PlantResult:
     args = parse_args(_argv(label))
     problem, _ = make_problem(args)
-    reference = autotune_reference(problem, heater_cost)
+    refs, _ = references(problem, heater_cost)
     gains, _ = rule_gains(problem, rule_names())
     best_rule = score(problem, heater_cost, gains)[0]
-    optimised = {m: optimise(problem, heater_cost, m, best_rule.gains, budget, seed) for m in methods}
-    m303 = reference if isinstance(reference, Candidate) else None
+    box = search_bounds(problem, best_rule.params)
+    optimised = {m: optimise(problem, heater_cost, m, box, budget, seed) for m in methods}
+    m303 = next((r for r in refs if r.method.startswith("M303")), None)
     return PlantResult(label, problem.name, best_rule, m303, optimised)
 
 

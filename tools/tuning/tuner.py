@@ -1,0 +1,170 @@
+"""Tune any controller on the twin: rules, references and an optimiser's search, scored together.
+
+The canonical call, with a controller family of your own (firmware_port/params.py)::
+
+    from tools.tuning.tuner import Param, ParamSpace, preset_problem, tune
+    space = ParamSpace("my_pi", (Param("kp", "counts/C", 1, 100, 20), Param("ki", "counts/(C s)", 0.01, 10, 1, log=True)),
+                       factory=lambda kp, ki: MyPi(kp, ki))
+    result = tune(preset_problem("hotend_cartridge", 210, controller=space), method="de", budget=300, seed=1)
+    result.best.params, result.best.cost, result.beats(result.references[0])
+
+Every candidate runs the problem's scenario in its loop (tools/tuning/evaluate.py) and is scored by
+the objective (tools/tuning/objectives.py). The references are the controller's own defaults (the
+build's hand-set values) and, for a PID family, the firmware's own autotune on the same twin
+(M303 C8, or PID_CALIBRATE on the Klipper loop). A PID family also gets the tuning rules as
+candidates, and its search box is 0 .. ``SEARCH_FACTOR`` x the best rule's gains; other families
+search their declared bounds (on a log scale where a parameter says so).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from firmware_port.params import Param, ParamSpace
+from tools.tuning.evaluate import (
+    Candidate,
+    Evaluator,
+    Problem,
+    firmware_autotune,
+    optimiser_names,
+    preset_problem,
+    rule_gains,
+    rule_names,
+    score,
+    simulate,
+)
+from tools.tuning.objectives import DEFAULT_OBJECTIVE, Run, objective
+from tools.tuning.optim import METHODS
+
+__all__ = ["Candidate", "Param", "ParamSpace", "Problem", "TuneResult", "preset_problem", "simulate", "tune"]
+
+DEFAULT_OPTIMISER = "de"
+DEFAULT_BUDGET = 900  # optimiser evaluations: 20 generations of DE's default population of 45
+SEARCH_FACTOR = 4.0  # a PID family's search box: 0 .. 4 x the best rule's gains (within the declared bounds)
+MIN_BOUND = np.array([1.0, 0.05, 1.0])  # so a rule's zero Ki or Kd still leaves room to search
+DEFAULTS = "defaults"  # the reference candidate of the controller's own default parameters
+
+
+@dataclass(frozen=True)
+class TuneResult:
+    """Candidates best first, the references (defaults, the firmware's autotune), and notes on what failed."""
+
+    problem: Problem
+    objective: str
+    candidates: list[Candidate]
+    references: list[Candidate]
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def best(self) -> Candidate:
+        return self.candidates[0]
+
+    def beats(self, reference: Candidate) -> bool:
+        return self.best.cost < reference.cost
+
+
+def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
+    """(rules, optimisers) that ``method`` asks for; rules apply to PID families only."""
+    rules, optimisers = (rule_names() if pid else []), optimiser_names()
+    if method == "all":
+        return rules, optimisers
+    if method == "auto":
+        return rules, [DEFAULT_OPTIMISER]
+    if method in optimisers:
+        return [], [method]
+    if method in rule_names():
+        if not pid:
+            raise ValueError(f"--method {method}: tuning rules give PID gains; choose an optimiser, 'auto' or 'all'")
+        return [method], []
+    raise ValueError(f"--method {method!r}: choose one of: {', '.join(methods())}")
+
+
+def methods() -> list[str]:
+    """Every value ``--method`` takes."""
+    return rule_names() + optimiser_names() + ["all", "auto"]
+
+
+def search_bounds(problem: Problem, start: np.ndarray) -> np.ndarray:
+    """(d, 2) box an optimiser searches: a PID family's 0 .. SEARCH_FACTOR x start, else the declared bounds."""
+    declared = problem.controller.bounds
+    if not problem.controller.pid:
+        return declared
+    top = np.minimum(np.maximum(SEARCH_FACTOR * np.asarray(start, float), MIN_BOUND), declared[:, 1])
+    return np.column_stack([declared[:, 0], top])
+
+
+def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, bounds: np.ndarray, budget: int,
+             seed: int, client=None, progress: bool = False) -> Candidate:
+    """Search ``bounds`` (d, 2) with an optimiser of tools/tuning/optim, in the controller's search coordinates."""
+    space = problem.controller
+    with _bar(budget, method, progress) as bar:
+        evaluator = Evaluator(problem, cost, client, on_batch=bar)
+
+        def objective_z(z: np.ndarray) -> np.ndarray:
+            return evaluator(space.from_search(z))
+
+        box = np.column_stack([space.to_search(bounds[:, 0]), space.to_search(bounds[:, 1])])
+        try:
+            result = METHODS[method](objective_z, box, rng=np.random.default_rng(seed), budget=budget)
+        except ValueError as exc:  # e.g. a budget below two of the optimiser's generations
+            raise ValueError(f"--method {method} --budget {budget}: {exc}") from None
+    best = space.hold(np.clip(space.from_search(result.x), bounds[:, 0], bounds[:, 1]))
+    run = simulate(problem, best[None, :], client)
+    return Candidate(method, best, float(cost(run)[0]), run, np.asarray(result.history, float))
+
+
+def references(problem: Problem, cost: Callable[[Run], np.ndarray], client=None) -> tuple[list[Candidate], list[str]]:
+    """The controller's defaults and, for a PID family, the firmware's autotune on the same twin, scored;
+    and why any reference could not be had."""
+    table: dict[str, np.ndarray] = {}
+    notes = []
+    if problem.controller.pid:
+        try:
+            name, gains = firmware_autotune(replace(problem, loop="klipper" if problem.loop == "klipper" else "marlin"))
+            table[name] = np.array([gains.kp, gains.ki, gains.kd])
+        except ValueError as exc:
+            notes.append(str(exc))
+    table[DEFAULTS] = problem.controller.defaults
+    scored = {c.method: c for c in score(problem, cost, table, client)}
+    return [scored[name] for name in table], notes
+
+
+def tune(problem: Problem, objective_name: str = DEFAULT_OBJECTIVE, method: str = "auto",
+         budget: int = DEFAULT_BUDGET, seed: int = 0, client=None, progress: bool = False) -> TuneResult:
+    """Every planned candidate scored, best first, beside the references (see the module docstring)."""
+    cost = objective(objective_name)
+    rules, optimisers = plan(method, problem.controller.pid)
+    refs, notes = references(problem, cost, client)
+    gains, failures = rule_gains(problem, rules)
+    notes += [f"rule {rule} gives no gains here: {why}" for rule, why in failures.items()]
+    candidates = score(problem, cost, dict(gains), client) if gains else []
+    start = (candidates or refs)[0].params if problem.controller.pid else problem.controller.defaults
+    for name in optimisers:
+        candidates.append(optimise(problem, cost, name, search_bounds(problem, start), budget, seed, client,
+                                   progress))
+    return TuneResult(problem, objective_name, sorted(candidates, key=lambda c: c.cost), refs, notes)
+
+
+class _bar:
+    """A tqdm progress bar on stderr (hidden when stderr is not a terminal, or unless asked); called with
+    each batch's costs."""
+
+    def __init__(self, total: int, method: str, show: bool):
+        from tqdm import tqdm
+
+        self.tqdm = tqdm(total=total, unit="eval", desc=method, file=sys.stderr, disable=None if show else True,
+                         leave=False)
+
+    def __enter__(self) -> _bar:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.tqdm.close()
+
+    def __call__(self, costs: np.ndarray) -> None:
+        self.tqdm.update(len(costs))
+        self.tqdm.set_postfix(best=f"{np.min(costs):.4g}")

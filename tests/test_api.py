@@ -109,10 +109,10 @@ def test_batch_lanes_take_injected_controllers_equal_to_the_scalar_twin():
 
 
 def test_batch_refuses_a_controller_it_cannot_vectorise():
-    from firmware_port.fuzzy_pi import FuzzyPi
+    from firmware_port.fuzzy_pi import FuzzyPiFloat
 
     with pytest.raises(TypeError, match="lane 0"):
-        BatchTwin(make_plant("hotend"), [FuzzyPi()])
+        BatchTwin(make_plant("hotend"), [FuzzyPiFloat()])
 
 
 def test_one_result_type_for_the_klipper_twin():

@@ -136,7 +136,7 @@ def _assert_same_batches(a: BatchTwin, b: BatchTwin) -> None:
     for name in LANE_STATE:
         assert np.array_equal(getattr(a.lanes, name), getattr(b.lanes, name)), name
     for name in PID_STATE:
-        assert np.array_equal(getattr(a.lanes.pid, name), getattr(b.lanes.pid, name)), name
+        assert np.array_equal(getattr(a.lanes.control, name), getattr(b.lanes.control, name)), name
     # the ADC's running sums per lane (the numpy path's AdcSequencer resets them to a scalar 0)
     assert np.array_equal(*(np.broadcast_to(t.lanes.adc.acc[0], t.n_lanes) for t in (a, b)))
     assert (a.lanes.adc.phase, a.lanes.adc.temp_count, a.lanes.pwm_count, a.lanes.ticks, a.tick) == \
@@ -190,13 +190,19 @@ def test_every_kernel_equals_scalar_twins(kernel):
         assert np.array_equal(hotend.duty, batch.duty[:, lane])
 
 
-def test_noisy_sensor_takes_the_numpy_path_with_either_kernel():
-    """Noise draws from the chain's generator in the numpy path's order, whichever kernel is asked."""
-    runs = [_run_batch(kernel, "hotend", 25.0, [PidGains(22.2, 1.08, 114.0)] * 2, PREV_TEMP_EVERY_SAMPLE,
-                       [(0.0, 210)], 30.0, SensorChain(noise_lsb=1.0, rng=np.random.default_rng(5)))
+def test_a_noisy_sensor_gives_the_same_numbers_on_either_kernel():
+    """A chain with noise lends its generator as the lanes' one stream (common random numbers): both
+    kernels draw it in the same order, so they agree bit for bit, and lanes with the same gains read
+    the same noisy values."""
+    runs = [_run_batch(kernel, "hotend", 25.0, [PidGains(22.2, 1.08, 114.0)] * 2 + [PidGains(40.0, 3.0, 60.0)],
+                       PREV_TEMP_EVERY_SAMPLE, [(0.0, 210)], 30.0,
+                       SensorChain(noise_lsb=1.0, rng=np.random.default_rng(5)))
             for kernel in KERNELS]
     _assert_same_batches(*runs)
-    assert not np.array_equal(runs[0].measured_c[:, 0], runs[0].measured_c[:, 1])  # the noise is there
+    assert np.array_equal(runs[0].measured_c[:, 0], runs[0].measured_c[:, 1])
+    quiet = _run_batch("numba", "hotend", 25.0, [PidGains(22.2, 1.08, 114.0)], PREV_TEMP_EVERY_SAMPLE, [(0.0, 210)],
+                       30.0)
+    assert not np.array_equal(runs[0].measured_c[:, 0], quiet.measured_c[:, 0])  # the noise is there
 
 
 def test_kernel_choice_comes_from_the_environment(monkeypatch):

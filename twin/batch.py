@@ -1,32 +1,58 @@
-"""Batch twins: N hotend twins advanced together as numpy lanes (N candidate gain sets).
+"""Batch twins: N hotend twins advanced together as lanes: candidate controllers, plants and noise.
 
-Every lane has the same plant model, scenario and clock and its own PID gains; the firmware
-runs vectorised (``firmware_port.marlin.lanes``) and the plant's exact per-tick maps act on all
-lanes at once. A tuner evaluates a whole population in one run; tests/test_engine.py keeps each
-lane equal to a scalar ``Twin``.
+Every lane is a Marlin board (firmware_port.marlin.lanes: ADC, soft PWM, thermal protection)
+running its own controller on its own plant, with its own ADC noise; all lanes share the clock.
+A tuner evaluates a whole population (times an ensemble of plants and noise seeds) in one run;
+tests keep each lane equal to a scalar ``Twin`` (tests/twin/test_batch_paths.py, tests/test_lanes.py).
 
-Two implementations of the stretch between scenario events, equal bit for bit
-(tests/test_lanes.py): period by period on numpy lanes, or ``twin.batch_kernel``'s compiled
-loop over lanes and periods (``kernel="numba"``, the default when numba is installed). The shared
-clock (ADC phase, soft-PWM counter, millis) is planned once per stretch and cached, so a tuner
-that replays the same scenario each generation pays only for the lanes. A noisy or faulted
-sensor chain always takes the numpy path (its conversions draw from the chain's generator).
+- Controllers: ``PidFixed`` (either prev-temperature mode) or ``PidGains``, ``BangBangHotend``,
+  ``FuzzyPi``, ``FuzzyPid``: one family per batch (``BatchTwin.accepts``).
+- Plants: one for every lane, or one per lane; lanes given the same plant object share it (its
+  model, and the scenario's events, which act on ``batch.plants``). Linear plants, dead time (exact
+  on the tick grid) and the radiating loss (relinearised at the block's 0.5 C bin every period,
+  as the scalar engine does).
+- Noise: ``noise_lsb`` and ``seed`` for every lane or per lane. Common random numbers: lanes that
+  name the same seed draw the same normal sequence (scaled by their own noise_lsb), and it is the
+  one ``Twin(plants, seed=seed, noise_lsb=...)``'s hotend chain draws (one normal per ADC sample, in
+  order; ``SeedSequence(seed).spawn``'s first stream, ``twin.sensor.seeded_chains``). So a lane with
+  seed s and noise n reads what that scalar twin reads, and all candidates in a group see the same
+  noise. Without a seed, a ``sensor`` chain with noise lends its own generator as the one stream.
+- Records (``record=True``): one row per reading, arrays (rows, N). With ``score=ScoreSpec(...)``
+  the lanes also accumulate the heater objective's inputs (twin/streaming.py); ``record=False``
+  then keeps no trace: memory per lane independent of the horizon.
+
+Two implementations of the stretch between scenario events, equal bit for bit where both run:
+period by period on numpy lanes, or ``twin.batch_kernel``'s compiled loop over lanes and periods
+(``kernel="numba"``, the default when numba is installed), spread over threads (the loop releases
+the GIL; ``threads``, default every CPU this process may use, or ``HEATER_TWIN_THREADS``). The
+numpy lanes run linear plants without dead time; a faulted sensor chain, a thermistor placed on a
+gradient or a Steinhart-Hart part (no table of switching temperatures) always take them. The
+shared clock (ADC phase, soft-PWM counter, millis) is planned once per stretch and cached, and the
+plant's tables once per model, so a tuner that replays the same scenario pays only for the lanes.
 """
 
 from __future__ import annotations
 
+import copy
 import functools
+import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from firmware_port.controller import Tunable
+from firmware_port.fuzzy_pi import BR_BITS, CENTROID_BITS, DUTY_BITS, GRID_BITS, FuzzyPi
+from firmware_port.fuzzy_pid import D_SHIFT as FP_D_SHIFT, I_SHIFT as FP_I_SHIFT, P_SHIFT as FP_P_SHIFT, \
+    POS_SHIFT, RULES, FuzzyPid
 from firmware_port.marlin.adc import AdcSequencer
-from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, SOFT_PWM_MAX, SOFT_PWM_PERIOD_TICKS, \
+from firmware_port.marlin.bangbang import BangBangHotend
+from firmware_port.marlin.constants import BANG_MAX, MIN_ADC_ISR_LOOPS, SOFT_PWM_MAX, SOFT_PWM_PERIOD_TICKS, \
     TICKS_PER_READING, ticks_to_ms
-from firmware_port.marlin.lanes import HotendLanes, lookup_q5
+from firmware_port.marlin.lanes import HotendLanes, PidLanes, ScalarLanes, lookup_q5
 from firmware_port.marlin.pid import (
-    D_FILTER_DIVISOR,
     D_RAW_LIMIT_Q8,
     D_SHIFT,
     FUNCTIONAL_RANGE_Q5,
@@ -38,60 +64,201 @@ from firmware_port.marlin.pid import (
     PidFixed,
     PidGains,
 )
-from firmware_port.thermistor import ADC_MAX, MAX_RAW_THERMISTOR_VALUE, TEMP_FRAC_BITS, TEMP_ONE, TempTable
+from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, KELVIN_OFFSET, MAX_RAW_THERMISTOR_VALUE, \
+    TEMP_FRAC_BITS, TEMP_ONE, TempTable
 from twin import adc_table, batch_kernel as bk
 from twin.clock import TICK_S, EventQueue, ticks_at
-from twin.linear import BLOCK, SENSOR, TickModel
+from twin.lane_tables import MAX_SAMPLES, Tables, bin_tables, block_bin, linear_tables
+from twin.linear import BLOCK
 from twin.result import RunResult
-from twin.sensor import SensorChain
+from twin.sensor import SensorChain, seeded_chains
+from twin.streaming import ScoreSpec, ScoreTotals
 
-PLAN_COLUMNS = 6  # n ticks, first sample offset, reading, soft-PWM count at start, millis at end, kind
+CONTROLS = {PidFixed: bk.PID, BangBangHotend: bk.BANG_BANG, FuzzyPi: bk.FUZZY_PI, FuzzyPid: bk.FUZZY_PID}
+THREADS_ENV = "HEATER_TWIN_THREADS"
+MIN_LANES_PER_THREAD = 4  # fewer lanes than this per thread run on the calling thread
+BIN_MARGIN = 40  # radiating plants: bins (of 0.5 C) built beyond the ones the lanes need, each way
+TARGET_HEADROOM_C = 20.0  # radiating plants: bins built up front to this far above the target (the block leads)
 
 
-def lane_gains(controllers: Sequence[PidGains | Tunable], prev_temp_mode: str) -> list[PidGains]:
-    """Each lane's gains: given directly, or taken from an injected fixed-point PID controller
-    (the lanes vectorise exactly that law, so its derivative mode must match the batch's)."""
-    gains = []
-    for lane, item in enumerate(controllers):
-        if isinstance(item, PidGains):
-            gains.append(item)
-        elif BatchTwin.accepts(item, prev_temp_mode):
-            gains.append(item.gains)
-        else:
-            raise TypeError(f"lane {lane}: a batch runs PidGains or PidFixed controllers with prev_temp_mode "
-                            f"{prev_temp_mode!r}, not {item!r}")
-    return gains
+@dataclass
+class _Group:
+    """Lanes that share a plant: their global lane numbers and their plant states (n_x, lanes)."""
+
+    plant: Any  # the plant API of twin/linear.py (a Plant: model, d, x, delay_ticks, linear, spec)
+    lanes: np.ndarray
+    x: np.ndarray
+    bins: tuple[int, int] | None = None  # radiating: the block bins the tables hold, first and last
+
+
+def _threads(threads: int | None) -> int:
+    if threads is not None:
+        return max(1, int(threads))
+    if THREADS_ENV in os.environ:
+        value = os.environ[THREADS_ENV]
+        if not value.isdigit() or int(value) < 1:
+            raise ValueError(f"{THREADS_ENV}={value!r}: must be a positive integer")
+        return int(value)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+@functools.lru_cache(maxsize=4)
+def _pool(workers: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="batch-lanes")
+
+
+def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str) -> tuple[int, PidLanes | ScalarLanes]:
+    """The lanes' controller family (a ``batch_kernel`` code) and its lanes; TypeError names a lane it cannot run."""
+    items: list[Any] = [PidFixed(c, prev_temp_mode) if isinstance(c, PidGains) else c for c in controllers]
+    for lane, item in enumerate(items):
+        if not BatchTwin.accepts(item):
+            raise TypeError(f"lane {lane}: a batch runs {', '.join(c.__name__ for c in CONTROLS)} controllers "
+                            f"(or PidGains), not {item!r}")
+        if type(item) is not type(items[0]):
+            raise TypeError(f"lane {lane}: one controller family per batch, {type(items[0]).__name__} in lane 0, "
+                            f"not {type(item).__name__}")
+    kind = CONTROLS[type(items[0])]
+    if kind == bk.PID:
+        return kind, PidLanes([p.gains for p in items], [p.prev_temp_mode for p in items])
+    own = [copy.deepcopy(item) for item in items]  # each lane its own state, reset as a Twin resets it
+    for item in own:
+        item.reset()
+    return kind, ScalarLanes(own)
+
+
+def _per_lane(value, n: int, name: str, dtype) -> np.ndarray:
+    array = np.asarray(value, dtype=dtype)
+    if array.ndim == 0:
+        return np.full(n, array, dtype=dtype)
+    if array.shape != (n,):
+        raise ValueError(f"{name}: one value, or one per lane ({n}), not {array.shape[0]}")
+    return array
 
 
 class BatchTwin:
-    """N hotends on one plant model; ``run_until`` then read ``t_s``, ``measured_c``, ``duty`` ...
+    """N hotends on one clock; ``run_until`` then read ``t_s``, ``measured_c``, ``duty`` ... or ``score_totals()``.
 
     Records one row per firmware reading: arrays of shape (rows, N) for the firmware's measured
     temperature, the true block and sensor temperatures and the duty (amount / 127).
     """
 
     @staticmethod
-    def accepts(controller: object, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE) -> bool:
-        """Whether a lane can run this controller: the fixed-point PID the lanes vectorise, in their mode."""
-        return isinstance(controller, PidFixed) and controller.prev_temp_mode == prev_temp_mode
+    def accepts(controller: object, prev_temp_mode: str | None = None) -> bool:
+        """Whether a lane can run this controller: one whose integer law the lanes carry (a PID in
+        ``prev_temp_mode``, when given)."""
+        if type(controller) not in CONTROLS:
+            return False
+        return prev_temp_mode is None or not isinstance(controller, PidFixed) or \
+            controller.prev_temp_mode == prev_temp_mode
 
-    def __init__(self, plant, gains: Sequence[PidGains | Tunable], *, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE,
-                 sensor: SensorChain | None = None, kernel: str | None = None):
-        if not plant.linear or plant.delay_ticks:
-            raise ValueError("batch twins need a linear plant without dead time")
+    @staticmethod
+    def needs_kernel(plant) -> bool:
+        """Whether a plant needs the loop of ``batch_kernel`` (dead time, radiating loss): the numpy
+        lanes run linear plants without dead time only."""
+        return bool(plant.delay_ticks) or not getattr(plant, "linear", True)
+
+    def __init__(self, plant, controllers: Sequence[PidGains | Tunable | object], *,
+                 prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE, sensor: SensorChain | None = None,
+                 noise_lsb: float | Sequence[float] | None = None, seed: int | Sequence[int] | None = None,
+                 kernel: str | None = None, record: bool = True, score: ScoreSpec | None = None,
+                 threads: int | None = None):
         self.kernel = bk.default_kernel() if kernel is None else kernel
         if self.kernel not in bk.KERNELS:
             raise ValueError(f"kernel={self.kernel!r}: must be one of {', '.join(bk.KERNELS)}")
-        self.plant = plant  # the template: model, conditions, disturbances
-        self.n_lanes = len(gains)
-        self.x = np.repeat(plant.x[:, None], self.n_lanes, axis=1)  # (n_x, N)
+        self.n_lanes = len(controllers)
+        if not self.n_lanes:
+            raise ValueError("a batch needs at least one lane")
+        self.control_kind, control = _control_lanes(controllers, prev_temp_mode)
+        self.lanes = HotendLanes(control)
+        self.groups = self._group(plant)
+        if self.kernel == "numpy" and any(self.needs_kernel(g.plant) for g in self.groups):
+            raise ValueError("kernel='numpy' runs linear plants without dead time; dead time and a radiating "
+                             "loss need kernel='numba'")
         self.sensor = sensor if sensor is not None else SensorChain()
-        self.lanes = HotendLanes(lane_gains(gains, prev_temp_mode), prev_temp_mode)
+        self._noise_setup(noise_lsb, seed)
+        self.record, self.score = record, score
+        self.threads = _threads(threads)
         self.tick = 0
         self._events = EventQueue()
         self._chunks: list[tuple] = []  # records: (t_s (R,), temp_q5, amount, block_c, sensor_c (N, R))
         self._targets: list[int] = []  # the target in force at each row
-        self._adc_hint = np.zeros(self.n_lanes, np.int64)  # the kernel's last ADC count: a search start
+        self._rows = 0  # readings so far
+        self._first_s: float | None = None  # the first scored reading's time
+        n = self.n_lanes
+        self._adc_hint = np.zeros(n, np.int64)  # the kernel's last ADC count: a search start
+        self._cparams = self._controller_params()
+        delay = max(g.plant.delay_ticks for g in self.groups)
+        self._delay = delay
+        self._ring = np.zeros((n, delay // SOFT_PWM_PERIOD_TICKS + 6 if delay else 1, 2), np.int64)
+        self._ring_state = np.zeros((n, 2), np.int64)  # head, length
+        self.score_i = np.zeros((n, bk.N_SCORE), np.int64)
+        self.score_f = np.zeros((n, bk.N_SCORE))
+        self.score_f[:, bk.MAX_BEYOND] = -np.inf
+
+    # -- construction --------------------------------------------------------------------------------
+    def _group(self, plant) -> list[_Group]:
+        plants = list(plant) if isinstance(plant, (list, tuple)) else [plant] * self.n_lanes
+        if len(plants) != self.n_lanes:
+            raise ValueError(f"plants: one, or one per lane ({self.n_lanes}), not {len(plants)}")
+        if len({p.delay_ticks for p in plants}) > 1:
+            raise ValueError("plants: every lane's plant needs the same dead time")
+        groups: dict[int, list[int]] = {}
+        for lane, p in enumerate(plants):
+            groups.setdefault(id(p), []).append(lane)
+        out = []
+        for lanes in groups.values():
+            p = plants[lanes[0]]
+            out.append(_Group(p, np.array(lanes, np.int64), np.repeat(p.x[:, None], len(lanes), axis=1)))
+        return out
+
+    def _noise_setup(self, noise_lsb, seed) -> None:
+        """Per lane: the noise (LSB) and the stream it scales; the streams' generators."""
+        n = self.n_lanes
+        self.noise_lsb = _per_lane(self.sensor.noise_lsb if noise_lsb is None else noise_lsb, n, "noise_lsb", float)
+        if not np.all(np.isfinite(self.noise_lsb) & (self.noise_lsb >= 0)):
+            raise ValueError("noise_lsb must be finite and >= 0")
+        if seed is None:
+            self.streams = np.zeros(n, np.int64)
+            self._generators = [self.sensor.rng]
+            return
+        seeds = _per_lane(seed, n, "seed", np.int64)
+        unique, self.streams = np.unique(seeds, return_inverse=True)
+        self._generators = [seeded_chains(1, int(s))[0].rng for s in unique]
+
+    def _controller_params(self) -> np.ndarray:
+        """The kernel's per-lane constants of the lanes' controller (``batch_kernel``'s columns)."""
+        cp = np.zeros((self.n_lanes, bk.N_CPARAMS), np.int64)
+        control = self.lanes.control
+        if isinstance(control, PidLanes):
+            for column, values in ((bk.KP, control.kp_q12), (bk.KI, control.ki_q24), (bk.KD, control.kd_q16),
+                                   (bk.I_MAX, control.i_max_q5), (bk.EVERY, control.every_sample)):
+                cp[:, column] = values
+            return cp
+        for lane, c in enumerate(control.controllers):
+            if isinstance(c, FuzzyPi):
+                cp[lane, :5] = c.n_sets, c.err_range_q5, c.derr_range_q5, c.du_range_q4, c.out_max
+            elif isinstance(c, FuzzyPid):
+                k = c.k
+                cp[lane, :7] = k.ke_q12, k.kec_ps_q12, k.span_q4, k.kp_q12, k.ki_q24, k.kd_q16, c.literal
+        return cp
+
+    # -- the outside world ---------------------------------------------------------------------------
+    @property
+    def plants(self) -> list:
+        """The distinct plants (one per group of lanes): a scenario's events act on each."""
+        return [g.plant for g in self.groups]
+
+    @property
+    def plant(self):
+        """The plant every lane runs (AttributeError when lanes run several)."""
+        if len(self.groups) > 1:
+            raise AttributeError("the lanes run several plants: see BatchTwin.plants")
+        return self.groups[0].plant
+
+    @property
+    def x(self) -> np.ndarray:
+        """The plant states (n_x, N) when every lane runs one plant."""
+        return self.groups[0].x if len(self.groups) == 1 else np.hstack([g.x for g in self.groups])
 
     def schedule(self, at_s: float, action: Callable[[BatchTwin], None]) -> None:
         """Run ``action(batch)`` at the first tick at or after ``at_s``."""
@@ -106,11 +273,26 @@ class BatchTwin:
         return self.result()
 
     def result(self, label: str = "batch") -> RunResult:
+        if not self.record:
+            raise ValueError("this batch keeps no trace (record=False): read score_totals()")
         n = len(self._targets)
         target = np.repeat(np.array(self._targets, dtype=float)[:, None], self.n_lanes, axis=1).reshape(n, -1)
         hotend = {"target_c": target, "measured_c": self.measured_c, "block_c": self.block_c,
                   "sensor_c": self.sensor_c, "duty": self.duty}
         return RunResult.from_columns(self.t_s, {"hotend": hotend}, label=f"{label}, {self.n_lanes} lanes")
+
+    def score_totals(self) -> ScoreTotals:
+        """The heater objective's inputs accumulated so far (ValueError without a ``score``, or before
+        the heat-up's end: the totals of a run cut short would not be the trace's)."""
+        if self.score is None:
+            raise ValueError("this batch scores nothing: give it score=ScoreSpec(...)")
+        if self._first_s is None or self.tick * TICK_S < self.score.heatup_end_s:
+            raise ValueError(f"the run has not reached the end of the heat-up ({self.score.heatup_end_s:g} s)")
+        si, sf = self.score_i, self.score_f
+        holding_s = (self._reading_tick(si[:, bk.FIRST_ROW])) * TICK_S
+        return ScoreTotals(self._first_s, holding_s, si[:, bk.REACHED].astype(bool), sf[:, bk.MAX_BEYOND].copy(),
+                           sf[:, bk.ABS_ERROR_SUM].copy(), si[:, bk.HOLD_ROWS].copy(),
+                           sf[:, bk.DUTY_STEP_SUM] / SOFT_PWM_MAX)
 
     def run_until(self, t_s: float) -> None:
         end = ticks_at(t_s)
@@ -123,111 +305,239 @@ class BatchTwin:
                 self._run_to(stop)
 
     def _run_to(self, stop: int) -> None:
-        edges = self._adc_edges()
-        if self.kernel == "numba" and edges is not None:
-            self._run_kernel(stop, edges)
+        if self.kernel == "numba" and self._kernel_sensor():
+            self._run_kernel(stop)
             return
+        if any(self.needs_kernel(g.plant) for g in self.groups):
+            raise ValueError("this sensor chain (faulted, on a gradient, or a Steinhart-Hart part) runs on the "
+                             "numpy lanes, which need a linear plant without dead time")
         while self.tick < stop:
-            self._period(min(stop - self.tick, self.lanes.adc.ticks_to_reading()), edges)
+            self._period(min(stop - self.tick, self.lanes.adc.ticks_to_reading()))
 
-    def _adc_edges(self) -> np.ndarray | None:
-        """The ADC's switching temperatures for a noiseless, healthy chain; None otherwise."""
-        if self.sensor.noise_lsb or self.sensor.fault is not None:
-            return None
-        return adc_table.adc_edges_c(self.sensor.divider)
+    def _kernel_sensor(self) -> bool:
+        """Whether the compiled loop can convert this chain's samples: a healthy beta part at the node."""
+        chain = self.sensor
+        return chain.fault is None and not chain.gradient_fraction and adc_table.adc_edges_c(chain.divider) is not None
+
+    # -- readings and their times ---------------------------------------------------------------------
+    def _reading_tick(self, rows: np.ndarray) -> np.ndarray:
+        """The tick of global reading rows (readings come every TICKS_PER_READING after the first)."""
+        return self._first_reading_tick + TICKS_PER_READING * np.asarray(rows, np.int64)
+
+    def _note_readings(self, reading_ticks: np.ndarray) -> np.ndarray:
+        """Global row numbers of this stretch's readings; remembers the first reading's tick."""
+        if self._rows == 0 and len(reading_ticks):
+            self._first_reading_tick = int(reading_ticks[0])
+        rows = self._rows + np.arange(len(reading_ticks))
+        if self.score is not None and self._first_s is None and len(reading_ticks):
+            skip = self.score.skip_rows
+            self._first_s = float(self._reading_tick(np.array([skip]))[0] * TICK_S)
+        return rows
+
+    def _flags(self, reading_ticks: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        if self.score is None:
+            return np.zeros(len(rows), np.int64)
+        return self.score.flags(reading_ticks * TICK_S, (reading_ticks + TICKS_PER_READING) * TICK_S, rows)
 
     # -- numpy lanes, one control period at a time ------------------------------------------
-    def _period(self, n: int, edges: np.ndarray | None) -> None:
+    def _period(self, n: int) -> None:
         """As ``Twin._fast_period``, on all lanes: PWM pulses summed through the step table.
 
         The float arithmetic is ``batch_kernel``'s, in the same order, so both give the same bits.
         """
-        lanes, model, d = self.lanes, self.plant.model, self.plant.d
-        offsets = lanes.adc.sample_offsets(n)[0]
-        px, pdd, fx, fdd = _period_maps(model, d, n, offsets.start)
-        steps, sensor_steps = _step_tables(model)
+        lanes = self.lanes
+        offsets = tuple(lanes.adc.sample_offsets(n)[0])
+        kinds = ((n, offsets),)
         pulses = lanes.pulses(n)
         s = np.array(offsets, dtype=np.int64)[:, None]
-        sensor_c = _dot(px, self.x) + pdd[:, None]
-        for alpha, beta in pulses:
-            sensor_c = sensor_c + (sensor_steps[np.maximum(s - alpha, 0)] - sensor_steps[np.maximum(s - beta, 0)])
-        if edges is not None:
-            samples = adc_table.convert(edges, sensor_c)
-        else:
-            samples = self.sensor.convert(sensor_c, self.tick + s)
+        noise = self._lane_noise(self._draw(len(offsets))) if self.noise_lsb.any() else None
+        samples = np.zeros((len(offsets), self.n_lanes), np.int64)
+        sensor_cs = []
+        for group in self.groups:
+            t = linear_tables(group.plant.model, group.plant.d, kinds, TICKS_PER_READING)
+            sensor_c = _dot(t.px[0, 0].T, group.x) + t.pdd[0, 0][:, None]
+            sstep = t.sensor_steps[0]
+            for alpha, beta in pulses:
+                beta = np.broadcast_to(beta, self.n_lanes)[group.lanes]
+                sensor_c = sensor_c + (sstep[np.maximum(s - alpha, 0)] - sstep[np.maximum(s - beta, 0)])
+            samples[:, group.lanes] = self._convert(sensor_c, s, None if noise is None else noise[:, group.lanes])
+            sensor_cs.append(t)
         lanes.skip(n, samples)
         pins_before = lanes.pins.copy()
         reading = lanes.adc.raw_ready
         lanes.task()
-        x = _dot(fx, self.x) + fdd[:, None]
-        for alpha, beta in pulses:
-            x = x + (steps[n - alpha] - steps[n - beta]).T
-        # the main loop may have written the pin for the last tick
-        self.x = x + model.g[:, None] * (lanes.pins.astype(float) - pins_before)
+        for group, t in zip(self.groups, sensor_cs):
+            x = _dot(t.fx[0, 0], group.x) + t.fdd[0, 0][:, None]
+            for alpha, beta in pulses:
+                beta = np.broadcast_to(beta, self.n_lanes)[group.lanes]
+                x = x + (t.steps[0][n - alpha] - t.steps[0][n - beta]).T
+            # the main loop may have written the pin for the last tick
+            diff = (lanes.pins.astype(float) - pins_before)[group.lanes]
+            group.x = x + t.io[0, 0, :-1][:, None] * diff
         self.tick += n
         if reading:
-            io = _plant_io(model, d)
+            self._numpy_reading(sensor_cs)
+
+    def _numpy_reading(self, tables: list[Tables]) -> None:
+        lanes = self.lanes
+        rows = self._note_readings(np.array([self.tick]))
+        if self.record:
+            block, sensor = np.zeros((self.n_lanes, 1)), np.zeros((self.n_lanes, 1))
+            for group, t in zip(self.groups, tables):
+                block[group.lanes, 0] = _output(t.io[0, 1], group.x)
+                sensor[group.lanes, 0] = _output(t.io[0, 2], group.x)
             self._targets.append(lanes.target_c)
             self._chunks.append((np.array([self.tick * TICK_S]), lanes.temp_q5[:, None].astype(np.int16),
-                                 lanes.amount[:, None].astype(np.int16), _output(io[1], self.x)[:, None],
-                                 _output(io[2], self.x)[:, None]))
+                                 lanes.amount[:, None].astype(np.int16), block, sensor))
+        flags = int(self._flags(np.array([self.tick]), rows)[0])
+        if flags & bk.SCORED:
+            _score_lanes(self.score_i, self.score_f, self._score_params(), int(rows[0]), flags,
+                         lanes.temp_q5 / TEMP_ONE, lanes.amount.astype(float))
+        self._rows += 1
+
+    def _convert(self, sensor_c: np.ndarray, s: np.ndarray, noise: np.ndarray | None) -> np.ndarray:
+        """The lanes' ADC counts (J, lanes) of sensor temperatures at sample offsets s."""
+        edges = adc_table.adc_edges_c(self.sensor.divider) if self._kernel_sensor() else None
+        if noise is None and edges is not None:
+            return adc_table.convert(edges, sensor_c)
+        return self.sensor.convert_with(sensor_c, self.tick + s, noise)
+
+    def _draw(self, n_samples: int) -> np.ndarray:
+        """The next n_samples normals of every stream, (streams, n_samples)."""
+        return np.array([g.standard_normal(n_samples) for g in self._generators]).reshape(-1, n_samples)
+
+    def _lane_noise(self, z: np.ndarray) -> np.ndarray:
+        """Each lane's noise in LSB at each sample, (J, N): its level times its stream."""
+        return (self.noise_lsb[:, None] * z[self.streams]).T
+
+    def _score_params(self) -> np.ndarray:
+        spec = self.score
+        assert spec is not None
+        return np.array([spec.target_c, spec.sign, spec.band_c])
 
     # -- the compiled kernel, a whole stretch at once ---------------------------------------
-    def _run_kernel(self, stop: int, edges: np.ndarray) -> None:
-        lanes, model, d = self.lanes, self.plant.model, self.plant.d
+    def _run_kernel(self, stop: int) -> None:
+        lanes = self.lanes
         adc = lanes.adc
         plan, kinds, end = _clock_plan(adc.phase, adc.temp_count, lanes.pwm_count, self.tick, stop)
-        tables = _kind_tables(model, d, kinds)
-        steps, sensor_steps = _step_tables(model)
-        reading = plan[:, 2] == 1
-        n_rows = int(reading.sum())
-        records = (np.zeros((self.n_lanes, n_rows), np.int16), np.zeros((self.n_lanes, n_rows), np.int16),
-                   np.zeros((self.n_lanes, n_rows)), np.zeros((self.n_lanes, n_rows)))
+        reading = plan[:, bk.READING] == 1
+        reading_ticks = (plan[:, bk.TICK] + plan[:, bk.N_TICKS])[reading]
+        rows = self._note_readings(reading_ticks)
+        n_rows = len(rows)
+        if self.score is not None:
+            plan = plan.copy()
+            plan[reading, bk.FLAGS] = self._flags(reading_ticks, rows)
+            plan.flags.writeable = False  # as the cached plans: one compiled signature
+        z = self._draw(int(plan[-1, bk.Z_FIRST] + _n_samples(plan[-1]))) if self.noise_lsb.any() else \
+            np.zeros((1, 1))
+        records = tuple(np.zeros((self.n_lanes, n_rows if self.record else 0), dtype)
+                        for dtype in (np.int16, np.int16, float, float))
         istate = self._pack()
-        bk.run_lanes(plan, *tables, sensor_steps, steps, _plant_io(model, d), edges, _raw_lut(lanes.table),
-                     _firmware_constants(lanes), _gains(lanes), istate, self.x, *records,
-                     np.zeros((2, bk.MAX_PULSES), np.int64), np.zeros((2, len(self.x))), np.zeros(tables[0].shape[2]))
+        fw = self._firmware_constants()
+        for group in self.groups:
+            self._run_group(group, plan, kinds, fw, istate, z, records)
         self._unpack(istate)
         adc.phase, adc.temp_count, lanes.pwm_count = end
         adc.raw_ready = False
         if n_rows:
             lanes.runaway_c = lanes.target_c
-            t_s = (self.tick + np.cumsum(plan[:, 0]))[reading] * TICK_S
-            self._chunks.append((t_s, *records))
-            self._targets.extend([lanes.target_c] * n_rows)
+            if self.record:
+                self._chunks.append((reading_ticks * TICK_S, *records))
+                self._targets.extend([lanes.target_c] * n_rows)
+        self._rows += n_rows
         lanes.ticks += stop - self.tick
         self.tick = stop
 
+    def _run_group(self, group: _Group, plan: np.ndarray, kinds: tuple, fw: np.ndarray, istate: np.ndarray,
+                   z: np.ndarray, records: tuple) -> None:
+        """Every lane of a group over the plan (a radiating plant's lanes in as many rounds as bins need)."""
+        def tables_for(g: _Group) -> Tables:
+            if g.plant.linear:
+                return linear_tables(g.plant.model, g.plant.d, kinds, TICKS_PER_READING)
+            assert g.bins is not None  # set by run_group
+            return bin_tables(g.plant, g.plant.d, kinds, TICKS_PER_READING, *g.bins)
+
+        def run_part(part: np.ndarray, q_start: np.ndarray, t: Tables, stop: np.ndarray, need: np.ndarray) -> None:
+            fw_part = fw.copy()
+            fw_part[bk.BIN_LO], fw_part[bk.RADIATING] = t.bin_lo, int(not group.plant.linear)
+            scratch = (np.zeros((2, 2, bk.MAX_PULSES), np.int64), np.zeros((2, group.x.shape[0])),
+                       np.zeros(MAX_SAMPLES), np.zeros(7, np.int64))
+            bk.run_lanes(part, group.lanes, q_start, plan, t.px, t.pdd, t.fx, t.fdd, t.sample_rows, t.steps, t.io,
+                         *self._adc_tables(), _raw_lut(self.lanes.table), fw_part, self._cparams, _RULES, istate,
+                         group.x, self.noise_lsb, self.streams, z, self._ring, self.score_i, self.score_f,
+                         self._score_array(), *records, *scratch, stop, need)
+
+        run_group(group, len(plan), self.lanes.target_c, tables_for, run_part, self.threads)
+
+    def _adc_tables(self) -> tuple:
+        """edges, slopes, bounds and the thermistor's constants for the kernel's ADC."""
+        divider = self.sensor.divider
+        edges = adc_table.adc_edges_c(divider)
+        interpolation = adc_table.noise_interpolation(divider)
+        assert edges is not None and interpolation is not None  # _kernel_sensor: a beta part
+        slopes, bounds = interpolation
+        part = divider.part
+        sensor_p = np.array([part.c1, part.c2, KELVIN_OFFSET, divider.pullup_ohm, float(ADC_COUNTS)])
+        return edges, slopes, bounds, sensor_p
+
+    def _score_array(self) -> np.ndarray:
+        return self._score_params() if self.score is not None else np.zeros(3)
+
     def _pack(self) -> np.ndarray:
         """The lanes' state as the kernel's (N, N_STATE) int64 matrix."""
-        lanes, pid = self.lanes, self.lanes.pid
+        lanes = self.lanes
         columns = {bk.AMOUNT: lanes.amount, bk.COUNT: lanes.count, bk.PINS: lanes.pins, bk.TEMP: lanes.temp_q5,
                    bk.HALTED: lanes.halted, bk.TRIP: lanes.trip_code, bk.R_STATE: lanes.runaway_state,
                    bk.R_TIMER: lanes.runaway_timer_ms, bk.W_TARGET: lanes.watch_target_c,
-                   bk.W_NEXT: lanes.watch_next_ms, bk.I_SUM: pid.i_sum_q5, bk.D_TERM: pid.d_term_q8,
-                   bk.PREV: pid.prev_q5, bk.RESET: pid.reset_pending, bk.ACC: lanes.adc.acc[0],
-                   bk.HINT: self._adc_hint}
+                   bk.W_NEXT: lanes.watch_next_ms, bk.ACC: lanes.adc.acc[0], bk.HINT: self._adc_hint,
+                   bk.R_PENDING: lanes.runaway_c != lanes.target_c, bk.RING_HEAD: self._ring_state[:, 0],
+                   bk.RING_LEN: self._ring_state[:, 1]}
         istate = np.zeros((self.n_lanes, bk.N_STATE), np.int64)
         for column, values in columns.items():
             istate[:, column] = np.asarray(values)
+        istate[:, bk.C0:bk.C3 + 1] = _controller_state(lanes.control)
         return istate
 
     def _unpack(self, istate: np.ndarray) -> None:
-        lanes, pid = self.lanes, self.lanes.pid
+        lanes = self.lanes
         col = istate.T.copy()
         lanes.amount, lanes.count, lanes.temp_q5 = col[bk.AMOUNT], col[bk.COUNT], col[bk.TEMP]
         lanes.pins, lanes.halted = col[bk.PINS].astype(bool), col[bk.HALTED].astype(bool)
         lanes.trip_code, lanes.runaway_state, lanes.runaway_timer_ms = col[bk.TRIP], col[bk.R_STATE], col[bk.R_TIMER]
         lanes.watch_target_c, lanes.watch_next_ms = col[bk.W_TARGET], col[bk.W_NEXT]
-        pid.i_sum_q5, pid.d_term_q8, pid.prev_q5 = col[bk.I_SUM], col[bk.D_TERM], col[bk.PREV]
-        pid.reset_pending = col[bk.RESET].astype(bool)
+        _set_controller_state(lanes.control, istate[:, bk.C0:bk.C3 + 1])
         lanes.adc.acc = [col[bk.ACC]]
         self._adc_hint = col[bk.HINT]
+        self._ring_state = np.column_stack([col[bk.RING_HEAD], col[bk.RING_LEN]])
+
+    def _firmware_constants(self) -> np.ndarray:
+        """The kernel's ``fw`` vector: this run's target and limits, the firmware's constants."""
+        lanes = self.lanes
+        fw = np.zeros(bk.N_FW, np.int64)
+        limits = lanes.temp_range
+        for index, value in {
+            bk.TARGET: lanes.target_c, bk.RAW_MAX: limits.raw_max, bk.RAW_MIN: limits.raw_min,
+            bk.MINTEMP_Q5: limits.mintemp_c << TEMP_FRAC_BITS, bk.MAXTEMP_Q5: limits.maxtemp_c << TEMP_FRAC_BITS,
+            bk.R_PERIOD_MS: lanes.runaway_period_ms, bk.R_HYST_C: lanes.runaway_hysteresis_c,
+            bk.W_INC_C: lanes.watch_increase_c, bk.W_HYST_C: lanes.watch_hysteresis_c,
+            bk.W_PERIOD_MS: lanes.watch_period_ms, bk.P_SHIFT: P_SHIFT, bk.I_SHIFT: I_SHIFT, bk.D_SHIFT: D_SHIFT,
+            bk.D_LIMIT_Q8: D_RAW_LIMIT_Q8, bk.RANGE_Q5: FUNCTIONAL_RANGE_Q5,
+            bk.OUT_MAX_Q8: OUT_MAX_Q8, bk.OUT_FRAC_BITS: OUT_FRAC_BITS, bk.TEMP_FRAC_BITS: TEMP_FRAC_BITS,
+            bk.PWM_PERIOD: SOFT_PWM_PERIOD_TICKS, bk.ADC_MAX: ADC_MAX, bk.SAMPLE_EVERY: MIN_ADC_ISR_LOOPS,
+            bk.CONTROL: self.control_kind, bk.BANG_MAX: BANG_MAX, bk.DELAY: self._delay, bk.RECORD: self.record,
+            bk.SCORE: self.score is not None, bk.SKIP_ROWS: 0 if self.score is None else self.score.skip_rows,
+            bk.ROW_BASE: self._rows, bk.FZ_BR_BITS: BR_BITS, bk.FZ_GRID_BITS: GRID_BITS,
+            bk.FZ_CENTROID_BITS: CENTROID_BITS, bk.FZ_DUTY_BITS: DUTY_BITS, bk.FP_POS_SHIFT: POS_SHIFT,
+            bk.FP_P_SHIFT: FP_P_SHIFT, bk.FP_I_SHIFT: FP_I_SHIFT, bk.FP_D_SHIFT: FP_D_SHIFT,
+        }.items():
+            fw[index] = value
+        return fw
 
     # -- records ------------------------------------------------------------------------------
     def bytes_per_lane(self) -> float:
-        """Memory held per lane: plant state, firmware state, gains and the records so far."""
-        arrays = [self.x, self._pack(), _gains(self.lanes)] + [a for chunk in self._chunks for a in chunk[1:]]
+        """Memory held per lane: plant state, firmware state, constants, dead-time ring, score and records."""
+        arrays = [*(g.x for g in self.groups), self._pack(), self._cparams, self._ring, self.score_i, self.score_f]
+        arrays += [a for chunk in self._chunks for a in chunk[1:]]
         return sum(a.nbytes for a in arrays) / self.n_lanes
 
     def _column(self, index: int) -> np.ndarray:
@@ -257,6 +567,97 @@ class BatchTwin:
         return self._column(2) / SOFT_PWM_MAX
 
 
+def run_group(group: _Group, n_ops: int, target_c: float, tables_for: Callable[[_Group], object],
+              run_part: Callable[..., None], threads: int) -> None:
+    """A kernel over every lane of a group, from each lane's start to the plan's end, over threads.
+
+    A radiating plant's lanes stop where they need a block bin the tables lack (the kernel's ``stop``
+    and ``need_bin``): the tables grow to cover it and those lanes go on from where they stopped. The
+    first tables reach from the lanes' blocks to ``TARGET_HEADROOM_C`` above the target."""
+    n_g = len(group.lanes)
+    q_start, stop, need = np.zeros(n_g, np.int64), np.zeros(n_g, np.int64), np.zeros(n_g, np.int64)
+    todo = np.arange(n_g)
+    if not group.plant.linear:
+        lti = group.plant.model.lti
+        blocks = lti.c[BLOCK] @ group.x + lti.f[BLOCK] @ group.plant.d
+        wanted = np.append([block_bin(float(b)) for b in blocks], block_bin(target_c + TARGET_HEADROOM_C))
+        group.bins = _bin_range(wanted, group.bins)
+    while todo.size:
+        tables = tables_for(group)
+        n_parts = max(1, min(threads, len(todo) // MIN_LANES_PER_THREAD))
+        parts = np.array_split(todo, n_parts)
+        calls = [functools.partial(run_part, part, q_start, tables, stop, need) for part in parts]
+        if n_parts == 1:
+            calls[0]()
+        else:
+            list(_pool(n_parts).map(lambda call: call(), calls))
+        stopped = todo[stop[todo] < n_ops]
+        if stopped.size:
+            group.bins = _bin_range(need[stopped], group.bins)
+            q_start[stopped] = stop[stopped]
+        todo = stopped
+
+
+def _bin_range(need: np.ndarray, current: tuple[int, int] | None) -> tuple[int, int]:
+    """Bins to build: the current ones and every needed one, with BIN_MARGIN more each way."""
+    lo, hi = int(np.min(need)) - BIN_MARGIN, int(np.max(need)) + BIN_MARGIN
+    return (lo, hi) if current is None else (min(lo, current[0]), max(hi, current[1]))
+
+
+_RULES = np.array(RULES, dtype=np.int64)
+_RULES.flags.writeable = False
+
+
+def _controller_state(control: PidLanes | ScalarLanes) -> np.ndarray:
+    """The controllers' state as the kernel's C0..C3 columns (N, 4)."""
+    if isinstance(control, PidLanes):
+        return np.column_stack([control.i_sum_q5, control.d_term_q8, control.prev_q5, control.reset_pending])
+    state = np.zeros((len(control.controllers), 4), np.int64)
+    for lane, c in enumerate(control.controllers):
+        if isinstance(c, FuzzyPi):
+            state[lane, :3] = c.duty_q16, c.err_prev_q5, c.have_prev
+        elif isinstance(c, FuzzyPid):
+            state[lane, :3] = c.i_q8, c.e_prev_q5, c.have_prev
+    return state
+
+
+def _set_controller_state(control: PidLanes | ScalarLanes, state: np.ndarray) -> None:
+    if isinstance(control, PidLanes):
+        control.i_sum_q5, control.d_term_q8, control.prev_q5 = (state[:, k].copy() for k in range(3))
+        control.reset_pending = state[:, 3].astype(bool)
+        return
+    for lane, c in enumerate(control.controllers):
+        if isinstance(c, FuzzyPi):
+            c.duty_q16, c.err_prev_q5, c.have_prev = (int(v) for v in state[lane, :3])
+        elif isinstance(c, FuzzyPid):
+            c.i_q8, c.e_prev_q5, c.have_prev = (int(v) for v in state[lane, :3])
+
+
+def _score_lanes(si: np.ndarray, sf: np.ndarray, sp: np.ndarray, row: int, flags: int, temp_c: np.ndarray,
+                 duty: np.ndarray) -> None:
+    """``batch_kernel.score_row`` on every lane at once (the numpy lanes' reading)."""
+    abs_error = np.abs(sp[bk.S_TARGET] - temp_c)
+    idle = si[:, bk.HOLDING] == 0
+    heat = bool(flags & bk.HEAT)
+    start = idle & ((heat & (abs_error <= sp[bk.S_BAND])) | bool(flags & bk.LAST_HEAT))
+    si[start, bk.REACHED] = heat & (abs_error[start] <= sp[bk.S_BAND])
+    si[start, bk.HOLDING], si[start, bk.FIRST_ROW] = 1, row
+    if heat:
+        sf[:, bk.MAX_BEYOND] = np.maximum(sf[:, bk.MAX_BEYOND], -sp[bk.S_SIGN] * (sp[bk.S_TARGET] - temp_c))
+    holding = si[:, bk.HOLDING] == 1
+    sf[holding, bk.ABS_ERROR_SUM] += abs_error[holding]
+    stepping = holding & (si[:, bk.HOLD_ROWS] > 0)
+    sf[stepping, bk.DUTY_STEP_SUM] += np.abs(duty - sf[:, bk.PREV_DUTY])[stepping]
+    si[holding, bk.HOLD_ROWS] += 1
+    sf[:, bk.PREV_DUTY] = duty
+
+
+def _n_samples(row: np.ndarray) -> int:
+    """ADC samples in one plan row's period."""
+    n, s0 = int(row[bk.N_TICKS]), int(row[bk.FIRST_SAMPLE])
+    return len(range(s0, n, MIN_ADC_ISR_LOOPS))
+
+
 def _dot(rows: np.ndarray, x: np.ndarray) -> np.ndarray:
     """rows (J, n_x) times x (n_x, N), summed over n_x in index order (as the kernel does)."""
     out = rows[:, 0, None] * x[0]
@@ -270,57 +671,35 @@ def _output(row: np.ndarray, x: np.ndarray) -> np.ndarray:
     return _dot(row[None, :-1], x)[0] + row[-1]
 
 
-def _period_maps(model: TickModel, d: np.ndarray, n: int, first_sample: int) -> tuple:
-    """A run of n ticks sampling the sensor from ``first_sample`` every ADC round: the sensor at
-    each sample (px (J, n_x), pdd (J,)) and the end state (fx, fdd) without the heater."""
-    px, _, pd, fx, _, fd = model.run_maps(n, tuple(range(first_sample, n, MIN_ADC_ISR_LOOPS)))
-    return px[:, SENSOR], pd[:, SENSOR] @ d, fx, fd @ d
-
-
-def _step_tables(model: TickModel) -> tuple[np.ndarray, np.ndarray]:
-    """The heater's step response over up to a period: state (k, n_x) and sensor (k,), k = 0..160."""
-    steps = model.u_steps(TICKS_PER_READING)
-    return steps, steps @ model.lti.c[SENSOR]
-
-
-def _plant_io(model: TickModel, d: np.ndarray) -> np.ndarray:
-    """(3, n_x + 1): the heater's one-tick response g, then the block and sensor rows with their constant."""
-    out_d = model.lti.f @ d
-    return np.array([[*model.g, 0.0], [*model.lti.c[BLOCK], out_d[BLOCK]], [*model.lti.c[SENSOR], out_d[SENSOR]]])
-
-
-def _kind_tables(model: TickModel, d: np.ndarray, kinds: tuple) -> tuple:
-    """``_period_maps`` of each kind of period, stacked (samples padded to the longest; px as (n_x, J))."""
-    maps = [_period_maps(model, d, n, first) for n, first in kinds]
-    n_x, j_max = model.phi.shape[0], max(1, *(len(m[0]) for m in maps))
-    px, pdd = np.zeros((len(maps), n_x, j_max)), np.zeros((len(maps), j_max))
-    for k, (p, q, _, _) in enumerate(maps):
-        px[k, :, : len(p)], pdd[k, : len(q)] = p.T, q
-    return px, pdd, np.array([m[2] for m in maps]), np.array([m[3] for m in maps])
-
-
 @functools.lru_cache(maxsize=64)
 def _clock_plan(phase: int, temp_count: int, pwm_count: int, tick: int, stop: int) -> tuple:
-    """The shared clock's periods from ``tick`` to ``stop``: (plan (P, 6), kinds, end state).
+    """The shared clock's periods from ``tick`` to ``stop``: (plan (P, PLAN_COLUMNS), kinds, end state).
 
     Each period runs to the next reading (or to ``stop``), as the numpy path's ``_period``;
-    a kind is one (length, first sample offset) pair. End state: ADC phase, temp_count, PWM count.
+    a kind is one (length, sample offsets) pair. End state: ADC phase, temp_count, PWM count.
     """
     adc = AdcSequencer(1, port=None)
     adc.phase, adc.temp_count = phase, temp_count
     rows: list[tuple[int, ...]] = []
-    kinds: dict[tuple[int, int], int] = {}
+    kinds: dict[tuple[int, tuple[int, ...]], int] = {}
+    n_read = z_first = 0
     while tick < stop:
         to_reading = adc.ticks_to_reading()
         n = min(stop - tick, to_reading)
         offsets = adc.sample_offsets(n)[0]
-        kind = kinds.setdefault((n, offsets.start), len(kinds))
+        kind = kinds.setdefault((n, tuple(offsets)), len(kinds))
         adc.skip(n, [[0] * len(offsets)])
         adc.raw_ready = False
+        reading = int(n == to_reading)
+        first_wrap = (SOFT_PWM_PERIOD_TICKS - pwm_count) % SOFT_PWM_PERIOD_TICKS
+        last = (pwm_count + n - 1) % SOFT_PWM_PERIOD_TICKS
+        rows.append((n, offsets.start, reading, pwm_count, ticks_to_ms(tick + n), kind, tick, n_read, 0, z_first,
+                     first_wrap, last))
+        n_read += reading
+        z_first += len(offsets)
         tick += n
-        rows.append((n, offsets.start, int(n == to_reading), pwm_count, ticks_to_ms(tick), kind))
-        pwm_count = (pwm_count + n - 1) % SOFT_PWM_PERIOD_TICKS + 1
-    plan = np.array(rows, np.int64).reshape(-1, PLAN_COLUMNS)
+        pwm_count = last + 1
+    plan = np.array(rows, np.int64).reshape(-1, bk.PLAN_COLUMNS)
     plan.flags.writeable = False
     return plan, tuple(kinds), (adc.phase, adc.temp_count, pwm_count)
 
@@ -329,28 +708,3 @@ def _clock_plan(phase: int, temp_count: int, pwm_count: int, tick: int, stop: in
 def _raw_lut(table: TempTable) -> np.ndarray:
     """``lookup_q5`` of every raw value the ADC can sum, for the kernel to index."""
     return lookup_q5(table, np.arange(MAX_RAW_THERMISTOR_VALUE + 1))
-
-
-def _firmware_constants(lanes: HotendLanes) -> np.ndarray:
-    """The kernel's ``fw`` vector: this run's target and limits, Marlin's constants."""
-    fw = np.zeros(bk.N_FW, np.int64)
-    limits = lanes.temp_range
-    for index, value in {
-        bk.TARGET: lanes.target_c, bk.RUNAWAY_RESET: lanes.runaway_c != lanes.target_c,
-        bk.RAW_MAX: limits.raw_max, bk.RAW_MIN: limits.raw_min,
-        bk.MINTEMP_Q5: limits.mintemp_c << TEMP_FRAC_BITS, bk.MAXTEMP_Q5: limits.maxtemp_c << TEMP_FRAC_BITS,
-        bk.R_PERIOD_MS: lanes.runaway_period_ms, bk.R_HYST_C: lanes.runaway_hysteresis_c,
-        bk.W_INC_C: lanes.watch_increase_c, bk.W_HYST_C: lanes.watch_hysteresis_c,
-        bk.W_PERIOD_MS: lanes.watch_period_ms, bk.EVERY_SAMPLE: lanes.pid.every_sample,
-        bk.P_SHIFT: P_SHIFT, bk.I_SHIFT: I_SHIFT, bk.D_SHIFT: D_SHIFT, bk.D_LIMIT_Q8: D_RAW_LIMIT_Q8,
-        bk.D_DIVISOR: D_FILTER_DIVISOR, bk.RANGE_Q5: FUNCTIONAL_RANGE_Q5, bk.OUT_MAX_Q8: OUT_MAX_Q8,
-        bk.OUT_FRAC_BITS: OUT_FRAC_BITS, bk.TEMP_FRAC_BITS: TEMP_FRAC_BITS, bk.PWM_PERIOD: SOFT_PWM_PERIOD_TICKS,
-        bk.ADC_MAX: ADC_MAX, bk.SAMPLE_EVERY: MIN_ADC_ISR_LOOPS,
-    }.items():
-        fw[index] = value
-    return fw
-
-
-def _gains(lanes: HotendLanes) -> np.ndarray:
-    pid = lanes.pid
-    return np.column_stack([pid.kp_q12, pid.ki_q24, pid.kd_q16, pid.i_max_q5]).astype(np.int64)

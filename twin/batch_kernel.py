@@ -4,24 +4,50 @@
 period costs some fifty numpy calls on N-element arrays, so the interpreter, not the
 arithmetic, sets the pace. Here the same period (soft-PWM pulses, the sensor samples through the
 plant's exact tick maps, the ADC sums, ``updateTemperaturesFromRawValues`` and
-``manage_hotends``: protection and the fixed-point PID) runs lane by lane over a whole stretch
-between scenario events, each lane's state in one cache line or two.
+``manage_hotends``: protection and the controller) runs lane by lane over a whole stretch
+between scenario events, each lane's state in one cache line or two. What a lane can run:
 
-Same results as the numpy lanes, bit for bit: the firmware is integer arithmetic (``//`` and
-``>>`` floor in numba as in numpy); the plant's float arithmetic is written in the same order
-of operations here as in ``BatchTwin``'s numpy period, without fused multiply-adds (numba does
-not contract without fastmath), and the ADC uses the same table of switching temperatures
-(``twin.adc_table``). tests/test_lanes.py runs both and compares every record and state.
+- controllers: Marlin's fixed-point PID (either prev-temperature mode), bang-bang, seed 004's
+  fuzzy-like PI and seed 001's fuzzy-PID, each the integer law of its scalar class
+  (firmware_port), one family per batch, parameters per lane;
+- the ADC: a noiseless chain through a table of switching temperatures (``twin.adc_table``), or a
+  noisy one: ``floor(analog + noise)`` with the noise drawn outside (one stream per seed, shared
+  by the lanes that name it) and the analog value taken from a straight line between the edges
+  unless the noisy value lies within the line's error bound of an integer, when it is computed
+  from the thermistor's formula (about 0.5 % of the samples at 210 C);
+- the plant: a linear model's exact tick maps; a dead time as a ring of the lane's past heater
+  pulses (exact on the tick grid: the plant sees the pulses ``delay`` ticks late); a radiating
+  model as the scalar engine runs it, relinearised at the block's 0.5 C bin before every period,
+  one table of maps per bin. A lane that reaches a bin outside the tables stops where it is
+  (``stop``, ``need_bin``) and resumes after ``BatchTwin`` has built it;
+- records per reading (optional) and, streaming, what the heater objective needs (``score_*``):
+  memory per lane independent of the horizon.
+
+Same results as the numpy lanes, bit for bit where those run (linear plants without dead time):
+the firmware is integer arithmetic (``//`` and ``>>`` floor in numba as in numpy); the plant's
+float arithmetic is written in the same order of operations here as in ``BatchTwin``'s numpy
+period, without fused multiply-adds (numba does not contract without fastmath), and the ADC uses
+the same table of switching temperatures. A noisy sample's analog value, when it must be
+computed, comes from libm's ``exp``, which may differ from numpy's (SIMD) ``exp`` in the last bit:
+that changes a count only when the noisy value lies within 1e-13 of an integer, never seen in the
+tests (tests/twin/test_batch_paths.py, tests/test_lanes.py).
 
 ``HEATER_TWIN_KERNEL`` picks the implementation: ``numba`` (default when numba is installed,
 ``pip install heater-twin[fast]``) or ``numpy``. Without numba, ``BatchTwin(kernel="numba")``
 still runs the loop below as plain Python: slow, but the tests check the same code that way.
+The loop releases the GIL, so ``BatchTwin`` spreads lanes over threads.
 """
 
 from __future__ import annotations
 
 import os
 
+import numpy as np
+
+from firmware_port.fuzzy_pid import FACTOR_BITS as FP_FACTOR_BITS, GRID as FP_GRID, GRID_MAX as FP_GRID_MAX, \
+    HALF as FP_HALF, N_SETS as FP_SETS, POS_BITS as FP_POS_BITS, SPAN_BITS as FP_SPAN_BITS
+from firmware_port.marlin.constants import TICKS_PER_READING
+from firmware_port.marlin.pid import D_FILTER_DIVISOR  # 20: frozen into the code, a constant divisor is a multiply
 from firmware_port.marlin.lanes import (
     FIRST_HEATING,
     INACTIVE,
@@ -41,18 +67,41 @@ except ImportError:  # the optional `fast` extra
 KERNELS = ("numba", "numpy")
 KERNEL_ENV = "HEATER_TWIN_KERNEL"
 
-# Per-lane integer state, the columns of ``istate`` (N, N_STATE).
-(AMOUNT, COUNT, PINS, TEMP, HALTED, TRIP, R_STATE, R_TIMER, W_TARGET, W_NEXT, I_SUM, D_TERM, PREV,
- RESET, ACC, HINT) = range(16)
-N_STATE = 16
-# Per-lane gains, the columns of ``gains`` (N, 4), as PidFixed scales them.
-KP, KI, KD, I_MAX = range(4)
+# Per-lane integer state, the columns of ``istate`` (N, N_STATE). C0..C3: the controller's state
+# (PID: i_sum_q5, d_term_q8, prev_q5, reset_pending; fuzzy PI: duty_q16, err_prev_q5, have_prev;
+# fuzzy-PID: i_q8, e_prev_q5, have_prev). R_PENDING: the target changed since the lane's last
+# reading (the runaway monitor restarts). RING_HEAD, RING_LEN: the dead-time ring of pulses.
+(AMOUNT, COUNT, PINS, TEMP, HALTED, TRIP, R_STATE, R_TIMER, W_TARGET, W_NEXT, C0, C1, C2, C3, ACC, HINT,
+ R_PENDING, RING_HEAD, RING_LEN) = range(19)
+N_STATE = 19
+# Controllers, ``fw[CONTROL]``, and their per-lane constants, the columns of ``cparams`` (N, N_CPARAMS).
+PID, BANG_BANG, FUZZY_PI, FUZZY_PID = range(4)
+KP, KI, KD, I_MAX, EVERY = range(5)  # PID: PidFixed's scales; EVERY: prev temperature on every sample
+N_SETS, ERR_RANGE, DERR_RANGE, DU_RANGE, OUT_MAX = range(5)  # fuzzy PI: FuzzyPi's fields
+KE, KEC, SPAN, FKP, FKI, FKD, LITERAL = range(7)  # fuzzy-PID: FixedConstants, reading literal
+N_CPARAMS = 8
 # Firmware constants, the entries of ``fw``: passed in, not frozen into the cached machine code.
-(TARGET, RUNAWAY_RESET, RAW_MAX, RAW_MIN, MINTEMP_Q5, MAXTEMP_Q5, R_PERIOD_MS, R_HYST_C, W_INC_C,
- W_HYST_C, W_PERIOD_MS, EVERY_SAMPLE, P_SHIFT, I_SHIFT, D_SHIFT, D_LIMIT_Q8, D_DIVISOR, RANGE_Q5,
- OUT_MAX_Q8, OUT_FRAC_BITS, TEMP_FRAC_BITS, PWM_PERIOD, ADC_MAX, SAMPLE_EVERY) = range(24)
-N_FW = 24
-MAX_PULSES = 3  # a run of <= 160 ticks holds the tail of a pulse and at most two 127-tick wraps
+(TARGET, RAW_MAX, RAW_MIN, MINTEMP_Q5, MAXTEMP_Q5, R_PERIOD_MS, R_HYST_C, W_INC_C, W_HYST_C, W_PERIOD_MS,
+ P_SHIFT, I_SHIFT, D_SHIFT, D_LIMIT_Q8, RANGE_Q5, OUT_MAX_Q8, OUT_FRAC_BITS, TEMP_FRAC_BITS,
+ PWM_PERIOD, ADC_MAX, SAMPLE_EVERY, CONTROL, BANG_MAX, DELAY, BIN_LO, RADIATING, RECORD, SCORE, SKIP_ROWS,
+ ROW_BASE, FZ_BR_BITS, FZ_GRID_BITS, FZ_CENTROID_BITS, FZ_DUTY_BITS, FP_POS_SHIFT, FP_P_SHIFT, FP_I_SHIFT,
+ FP_D_SHIFT) = range(38)
+N_FW = 38
+# The plan of a stretch, one row per period: its columns.
+(N_TICKS, FIRST_SAMPLE, READING, PWM_COUNT, MILLIS, KIND, TICK, ROW, FLAGS, Z_FIRST, FIRST_WRAP,
+ LAST_PHASE) = range(12)
+PLAN_COLUMNS = 12
+SCORED, HEAT, LAST_HEAT = 1, 2, 4  # FLAGS bits of a reading row: after the skipped rows, in the heat-up, its last
+# The heater objective's inputs per lane, streamed: floats ``score_f`` and integers ``score_i``.
+MAX_BEYOND, ABS_ERROR_SUM, DUTY_STEP_SUM, PREV_DUTY = range(4)
+HOLDING, REACHED, FIRST_ROW, HOLD_ROWS = range(4)
+N_SCORE = 4
+# ``score_p``: target_c, the heat-up's sign (+1 heating), the band (degC).
+S_TARGET, S_SIGN, S_BAND = range(3)
+# ``sensor_p``: the thermistor's beta model for a noisy sample's analog value.
+SP_C1, SP_C2, SP_KELVIN, SP_PULLUP, SP_COUNTS = range(5)
+MAX_PULSES = 4  # a run of <= 160 ticks holds the tail of a pulse and at most two 127-tick wraps (and a spare)
+ROW_OFFSET = TICKS_PER_READING  # ``rows``: row o + ROW_OFFSET is the sensor step at each sample, o = s0 - pulse edge
 
 
 def default_kernel() -> str:
@@ -63,6 +112,11 @@ def default_kernel() -> str:
     if kernel == "numba" and numba is None:
         raise ValueError(f"{KERNEL_ENV}=numba: numba is not installed (pip install 'heater-twin[fast]')")
     return kernel
+
+
+def compiled() -> bool:
+    """Whether the loop below runs as machine code (numba installed)."""
+    return numba is not None
 
 
 def describe() -> str:
@@ -77,63 +131,262 @@ def describe() -> str:
 NUMBA_OPTIONS = {"_nrt": False}
 
 
-def _jit(fn):
-    return numba.njit(cache=True, **NUMBA_OPTIONS)(fn) if numba is not None else fn
+def jit(fn):
+    """A kernel: compiled, cached, releasing the GIL (BatchTwin runs lanes on threads)."""
+    return numba.njit(cache=True, nogil=True, **NUMBA_OPTIONS)(fn) if numba is not None else fn
 
 
-def _inline(fn):
-    """A helper of ``run_lanes``, inlined into it."""
+def inline(fn):
+    """A helper of a kernel, inlined into it."""
     return numba.njit(inline="always", **NUMBA_OPTIONS)(fn) if numba is not None else fn
 
 
-@_inline
-def _shr_round(x, n):
+@inline
+def shr_round(x, n):
     return (x + (1 << (n - 1))) >> n
 
 
-@_inline
-def _div_round(a, b):
+@inline
+def div_round(a, b):
+    """fixed.div_round for b > 0: nearest, halves away from zero."""
     half = b // 2
     return (a + half) // b if a >= 0 else -((-a + half) // b)
 
 
-@_inline
+@inline
+def _clamp(x, lo, hi):
+    return lo if x < lo else hi if x > hi else x
+
+
+@inline
+def _wrap_s32(x):
+    return ((x + (1 << 31)) & 0xFFFFFFFF) - (1 << 31)
+
+
+@inline
 def _trip(st, code):
     """_temp_error: heater off, board halted (once)."""
     if st[HALTED] == 0:
         st[TRIP], st[HALTED], st[AMOUNT], st[COUNT], st[PINS] = code, 1, 0, 0, 0
 
 
-@_inline
-def _pid_band(st, temp, e, g, fw):
+# -- the controllers -----------------------------------------------------------------------------
+@inline
+def _pid_band(st, temp, e, cp, fw):
     """The PID law inside the functional range; state kept in ``st``."""
-    i_sum, d_term = (0, 0) if st[RESET] else (st[I_SUM], st[D_TERM])
-    i_sum = min(max(i_sum + e, 0), g[I_MAX])
-    p = _shr_round(g[KP] * e, fw[P_SHIFT])
-    i = _shr_round(g[KI] * i_sum, fw[I_SHIFT])
-    d_in = min(max(_shr_round(g[KD] * (st[PREV] - temp), fw[D_SHIFT]), -fw[D_LIMIT_Q8]), fw[D_LIMIT_Q8])
-    d_term = d_term + _div_round(d_in - d_term, fw[D_DIVISOR])
-    st[I_SUM], st[D_TERM], st[PREV], st[RESET] = i_sum, d_term, temp, 0
+    i_sum, d_term = (0, 0) if st[C3] else (st[C0], st[C1])
+    i_sum = min(max(i_sum + e, 0), cp[I_MAX])
+    p = shr_round(cp[KP] * e, fw[P_SHIFT])
+    i = shr_round(cp[KI] * i_sum, fw[I_SHIFT])
+    d_in = min(max(shr_round(cp[KD] * (st[C2] - temp), fw[D_SHIFT]), -fw[D_LIMIT_Q8]), fw[D_LIMIT_Q8])
+    d_term = d_term + div_round(d_in - d_term, D_FILTER_DIVISOR)
+    st[C0], st[C1], st[C2], st[C3] = i_sum, d_term, temp, 0
     return min(max(p + i + d_term, 0), fw[OUT_MAX_Q8])
 
 
-@_inline
-def _pid(st, temp, target, g, fw):
-    """``PidLanes.update_q8`` on one active lane: Q.8 output."""
+@inline
+def _pid(st, temp, target, cp, fw):
+    """``PidFixed.update_q8`` on one active lane: Q.8 output."""
     e = (target << fw[TEMP_FRAC_BITS]) - temp
     if -fw[RANGE_Q5] <= e <= fw[RANGE_Q5] and target != 0:
-        return _pid_band(st, temp, e, g, fw)
-    st[RESET] = 1
-    if fw[EVERY_SAMPLE]:
-        st[PREV] = temp
+        return _pid_band(st, temp, e, cp, fw)
+    st[C3] = 1
+    if cp[EVERY]:
+        st[C2] = temp
     return fw[OUT_MAX_Q8] if target != 0 and e > fw[RANGE_Q5] else 0
 
 
-@_inline
-def _runaway(st, temp, target, now, reset, fw):
-    """``RunawayMonitor.run``; ``reset``: the target changed since the last reading."""
-    if reset and st[HALTED] == 0:
+@inline
+def _membership(pos, k, n_sets, br):
+    """fuzzy_pi.membership: set k of n_sets at pos, in units of 1/br (outer sets trapezoids)."""
+    centre = (k + 1) * br
+    if (k == 0 and pos <= centre) or (k == n_sets - 1 and pos >= centre):
+        return br
+    return max(0, br - abs(pos - centre))
+
+
+@inline
+def _fuzzify(pos, n, fw):
+    """fuzzy_pi._fuzzify: (first set, its degree, second set, its degree); a degree 0 when absent."""
+    one = 1 << fw[FZ_BR_BITS]
+    left = min((pos >> fw[FZ_BR_BITS]) - 1, n - 1)
+    k0, mu0, k1, mu1 = -1, 0, -1, 0
+    for k in (left, left + 1):
+        if 0 <= k < n:
+            mu = _membership(pos, k, n, one)
+            if mu > 0:
+                if k0 < 0:
+                    k0, mu0 = k, mu
+                else:
+                    k1, mu1 = k, mu
+    if k1 < 0:
+        k1 = k0
+    return k0, mu0, k1, mu1
+
+
+@inline
+def _normalise(value, value_range, n, fw):
+    """FuzzyPi._normalise: eq. (1) on the integer axis, saturated."""
+    half = (n + 1) << (fw[FZ_BR_BITS] - 1)
+    value = _clamp(value, -value_range, value_range)
+    return half + div_round(_wrap_s32(value * half), value_range)
+
+
+@inline
+def _fuzzy_pi_change(err, derr, cp, fw):
+    """FuzzyPi.change_q16: min-max inference over the (at most four) fired rules, sampled centroid."""
+    n = cp[N_SETS]
+    ek0, emu0, ek1, emu1 = _fuzzify(_normalise(err, cp[ERR_RANGE], n, fw), n, fw)
+    dk0, dmu0, dk1, dmu1 = _fuzzify(_normalise(derr, cp[DERR_RANGE], n, fw), n, fw)
+    k_lo, k_hi = ek0 + dk0, ek1 + dk1
+    s0 = s1 = s2 = 0  # strengths of output sets k_lo, k_lo + 1, k_lo + 2
+    for a in range(2):
+        i, mu_e = (ek0, emu0) if a == 0 else (ek1, emu1)
+        if a == 1 and (emu1 == 0 or ek1 == ek0):
+            continue
+        for b in range(2):
+            j, mu_d = (dk0, dmu0) if b == 0 else (dk1, dmu1)
+            if b == 1 and (dmu1 == 0 or dk1 == dk0):
+                continue
+            w, slot = min(mu_e, mu_d), i + j - k_lo
+            if slot == 0:
+                s0 = max(s0, w)
+            elif slot == 1:
+                s1 = max(s1, w)
+            else:
+                s2 = max(s2, w)
+    grid_bits = fw[FZ_GRID_BITS]
+    grid = 1 << grid_bits
+    shift = fw[FZ_BR_BITS] - grid_bits
+    y_mid = (k_lo + k_hi + 2) << (grid_bits - 1)
+    num = den = 0
+    for y in range(k_lo << grid_bits, ((k_hi + 2) << grid_bits) + 1):
+        mu = 0
+        for k in range(k_lo, k_hi + 1):
+            strength = s0 if k == k_lo else s1 if k == k_lo + 1 else s2
+            mu = max(mu, min(strength, _membership(y, k, 2 * n - 1, grid) << shift))
+        num += (y - y_mid) * mu
+        den += mu
+    offset = ((y_mid - n * grid) << fw[FZ_CENTROID_BITS]) + div_round(_wrap_s32(num << fw[FZ_CENTROID_BITS]), den)
+    return div_round(_wrap_s32(offset * cp[DU_RANGE]), n)
+
+
+@inline
+def _fuzzy_pi(st, temp, target, cp, fw):
+    """FuzzyPi.update: the duty (0..out_max counts) after this sample's change."""
+    if target == 0:
+        st[C0], st[C2] = 0, 0
+        return 0
+    err = (target << fw[TEMP_FRAC_BITS]) - temp
+    derr = err - st[C1] if st[C2] else 0
+    st[C1], st[C2] = err, 1
+    change = _fuzzy_pi_change(err, derr, cp, fw)
+    st[C0] = _clamp(st[C0] + change, 0, cp[OUT_MAX] << fw[FZ_DUTY_BITS])
+    return shr_round(st[C0], fw[FZ_DUTY_BITS])
+
+
+# The fuzzy-PID's shape (7 sets on [-3, 3] in Q8, an output grid of 8 points a set step) is frozen
+# into the compiled code; its tuning constants come in ``fw`` and ``cparams``.
+FP_POS_ONE = 1 << FP_POS_BITS
+FP_POS_MAX = FP_HALF << FP_POS_BITS
+FP_GRID_SHIFT = FP_POS_BITS - 3  # a grid degree (0..8) to Q8
+FP_ZO_Q12 = 3 << (FP_FACTOR_BITS - 1)  # the output universe's middle, 1.5, in Q12
+FP_SPAN_DIVISOR = 3 << (FP_SPAN_BITS - 1)  # 1.5 in the span's Q4: span (c - 1.5) / 1.5
+
+
+@inline
+def _fuzzify_q8(x):
+    """fuzzy_pid._fuzzify_q8: (set, degree) twice; the second degree 0 when absent."""
+    left = min((x + FP_POS_MAX) >> FP_POS_BITS, FP_SETS - 1)
+    k0, mu0, k1, mu1 = -1, 0, -1, 0
+    for k in (left, left + 1):
+        if k < FP_SETS:
+            mu = FP_POS_ONE - abs(x - ((k - FP_HALF) << FP_POS_BITS))
+            if mu > 0:
+                if k0 < 0:
+                    k0, mu0 = k, mu
+                else:
+                    k1, mu1 = k, mu
+    return k0, mu0, k1, mu1
+
+
+@inline
+def _centroid_q12(strengths):
+    """fuzzy_pid.centroid_q12 over the support of the fired sets (elsewhere every degree is 0)."""
+    y_lo, y_hi = FP_GRID_MAX, 0
+    for j in range(FP_SETS):
+        if strengths[j]:
+            y_lo, y_hi = min(y_lo, max(0, (j - 1) * FP_GRID)), max(y_hi, min(FP_GRID_MAX, (j + 1) * FP_GRID))
+    num = den = 0
+    for y in range(y_lo, y_hi + 1):
+        mu = 0
+        for j in range(FP_SETS):
+            if strengths[j]:
+                mu = max(mu, min(strengths[j], max(0, FP_GRID - abs(y - j * FP_GRID)) << FP_GRID_SHIFT))
+        num += y * mu
+        den += mu
+    return div_round(num << FP_POS_BITS, den)
+
+
+@inline
+def _fuzzy_pid(st, temp, target, cp, fw, rules, strengths):
+    """FuzzyPid.update_q8: the fuzzy-corrected gains, then the PID with its clamped integral."""
+    if target == 0:
+        st[C0], st[C1], st[C2] = 0, 0, 0
+        return 0
+    e = _clamp((target << fw[TEMP_FRAC_BITS]) - temp, -32768, 32767)
+    derr = _clamp(e - st[C1], -32768, 32767) if st[C2] else 0
+    st[C1], st[C2] = e, 1
+    ek0, emu0, ek1, emu1 = _fuzzify_q8(_clamp(shr_round(e * cp[KE], fw[FP_POS_SHIFT]), -FP_POS_MAX, FP_POS_MAX))
+    dk0, dmu0, dk1, dmu1 = _fuzzify_q8(_clamp(shr_round(derr * cp[KEC], fw[FP_POS_SHIFT]), -FP_POS_MAX, FP_POS_MAX))
+    f_p = f_i = f_d = 0
+    for t in range(3):
+        for j in range(FP_SETS):
+            strengths[j] = 0
+        for a in range(2):
+            i, mu_e = (ek0, emu0) if a == 0 else (ek1, emu1)
+            if mu_e == 0:
+                continue
+            for b in range(2):
+                c, mu_d = (dk0, dmu0) if b == 0 else (dk1, dmu1)
+                if mu_d == 0:
+                    continue
+                k = rules[t, i, c]
+                strengths[k] = max(strengths[k], min(mu_e, mu_d))
+        c_q12 = _centroid_q12(strengths)
+        factor = c_q12 if cp[LITERAL] else (1 << FP_FACTOR_BITS) + div_round(cp[SPAN] * (c_q12 - FP_ZO_Q12), FP_SPAN_DIVISOR)
+        if t == 0:
+            f_p = factor
+        elif t == 1:
+            f_i = factor
+        else:
+            f_d = factor
+    p = shr_round(cp[FKP] * f_p * e, fw[FP_P_SHIFT])
+    st[C0] = _clamp(st[C0] + shr_round(cp[FKI] * f_i * e, fw[FP_I_SHIFT]), 0, fw[OUT_MAX_Q8])
+    d = _clamp(shr_round(cp[FKD] * f_d * derr, fw[FP_D_SHIFT]), -(1 << 31), (1 << 31) - 1)
+    return _clamp(p + st[C0] + d, 0, fw[OUT_MAX_Q8])
+
+
+@inline
+def _control(st, temp, target, cp, fw, rules, strengths):
+    """The lane's controller's ``update``: its output on the 0..255 scale."""
+    kind = fw[CONTROL]
+    if kind == PID:
+        return _pid(st, temp, target, cp, fw) >> fw[OUT_FRAC_BITS]
+    if kind == BANG_BANG:
+        return fw[BANG_MAX] if temp < target << fw[TEMP_FRAC_BITS] else 0
+    if kind == FUZZY_PI:
+        return _fuzzy_pi(st, temp, target, cp, fw)
+    return _fuzzy_pid(st, temp, target, cp, fw, rules, strengths) >> fw[OUT_FRAC_BITS]
+
+
+# -- protection and the main loop ---------------------------------------------------------------
+@inline
+def _runaway(st, temp, target, now, fw):
+    """``RunawayMonitor.run``; R_PENDING: the target changed since the lane's last reading."""
+    if st[R_PENDING] and st[HALTED] == 0:
         st[R_STATE] = FIRST_HEATING if target > 0 else INACTIVE
+    st[R_PENDING] = 0
     state = st[R_STATE]
     if state == FIRST_HEATING and temp >= target << fw[TEMP_FRAC_BITS]:
         state = STABLE
@@ -147,7 +400,7 @@ def _runaway(st, temp, target, now, reset, fw):
         _trip(st, RUNAWAY_TRIP)
 
 
-@_inline
+@inline
 def _watch(st, temp, target, now, fw):
     """``HeaterWatch.heating_failed``: re-arm from the current temperature if risen enough, else trip."""
     if st[W_NEXT] == 0 or now < st[W_NEXT]:
@@ -163,8 +416,8 @@ def _watch(st, temp, target, now, fw):
         st[W_NEXT] = 0
 
 
-@_inline
-def _task(st, raw, now, reset, lut, g, fw):
+@inline
+def _task(st, raw, now, lut, cp, fw, rules, strengths):
     """``HotendLanes.task`` on one lane with a fresh reading."""
     target = fw[TARGET]
     if st[HALTED] == 0:
@@ -176,17 +429,17 @@ def _task(st, raw, now, reset, lut, g, fw):
         _trip(st, MINTEMP_TRIP)
     if temp > fw[MAXTEMP_Q5]:
         _trip(st, MAXTEMP_TRIP)
-    _runaway(st, temp, target, now, reset, fw)
+    _runaway(st, temp, target, now, fw)
     in_range = st[HALTED] == 0 and fw[MINTEMP_Q5] < temp < fw[MAXTEMP_Q5]
-    out_q8 = _pid(st, temp, target, g, fw) if in_range else 0
-    st[AMOUNT] = (out_q8 >> fw[OUT_FRAC_BITS]) >> 1 if in_range else 0
+    st[AMOUNT] = _control(st, temp, target, cp, fw, rules, strengths) >> 1 if in_range else 0
     _watch(st, temp, target, now, fw)
 
 
-@_inline
-def _pulses(st, pwm, n, fw, alpha, beta):
-    """``HotendLanes.pulses``: the heater is on over ticks [alpha, beta); returns how many pulses."""
-    first_wrap = (fw[PWM_PERIOD] - pwm) % fw[PWM_PERIOD]
+# -- the soft PWM and the plant -------------------------------------------------------------------
+@inline
+def _pulses(st, pwm, first_wrap, n, fw, alpha, beta):
+    """``HotendLanes.pulses``: the heater is on over ticks [alpha, beta); returns how many pulses.
+    ``first_wrap``: the soft-PWM counter's first wrap in the run (the plan's, shared by the lanes)."""
     alpha[0] = 0
     beta[0] = min(max(st[COUNT] - pwm, 0), min(first_wrap, n)) if st[PINS] else 0
     k = 1
@@ -196,11 +449,10 @@ def _pulses(st, pwm, n, fw, alpha, beta):
     return k
 
 
-@_inline
-def _latch(st, pwm, n, fw):
-    """``HotendLanes.skip``'s soft PWM: counts latched at each wrap, the pin after the last tick."""
-    first_wrap = (fw[PWM_PERIOD] - pwm) % fw[PWM_PERIOD]
-    last = (pwm + n - 1) % fw[PWM_PERIOD]
+@inline
+def _latch(st, first_wrap, last, n):
+    """``HotendLanes.skip``'s soft PWM: counts latched at each wrap, the pin after the last tick (the
+    counter's phase ``last`` there)."""
     if first_wrap < n:
         st[COUNT] = st[AMOUNT]
         st[PINS] = 1 if last < st[AMOUNT] else 0
@@ -210,95 +462,229 @@ def _latch(st, pwm, n, fw):
         st[PINS] = 0
 
 
-@_inline
-def _sample_sum(st, x, px, pdd, kind, s0, n, n_pulses, alpha, beta, sstep, edges, fw, ys):
+@inline
+def _ring_push(st, ring, start, end):
+    """Append a pulse [start, end) (absolute ticks) to the lane's ring, merged with one it continues."""
+    if end <= start:
+        return
+    cap = ring.shape[0]
+    if st[RING_LEN]:
+        last = (st[RING_HEAD] + st[RING_LEN] - 1) % cap
+        if ring[last, 1] == start:
+            ring[last, 1] = end
+            return
+    slot = (st[RING_HEAD] + st[RING_LEN]) % cap
+    ring[slot, 0], ring[slot, 1] = start, end
+    st[RING_LEN] += 1
+
+
+@inline
+def _ring_delayed(st, ring, tick, n, delay, alpha, beta):
+    """The pulses the plant sees over ticks [tick, tick + n): the ring's, ``delay`` ticks late,
+    relative to ``tick`` and cut to the run; pulses that ended before the run leave the ring."""
+    cap = ring.shape[0]
+    while st[RING_LEN] and ring[st[RING_HEAD], 1] + delay <= tick:
+        st[RING_HEAD] = (st[RING_HEAD] + 1) % cap
+        st[RING_LEN] -= 1
+    k = 0
+    for i in range(st[RING_LEN]):
+        slot = (st[RING_HEAD] + i) % cap
+        start = ring[slot, 0] + delay - tick
+        if start >= n:
+            break
+        alpha[k], beta[k] = max(start, 0), min(ring[slot, 1] + delay - tick, n)
+        k += 1
+    return k
+
+
+@inline
+def _ring_cut_last(st, ring):
+    """The main loop switched the pin off for the period's last tick: the last pulse ends a tick early."""
+    cap = ring.shape[0]
+    last = (st[RING_HEAD] + st[RING_LEN] - 1) % cap
+    ring[last, 1] -= 1
+    if ring[last, 1] <= ring[last, 0]:
+        st[RING_LEN] -= 1
+
+
+@inline
+def _count(y, count, edges, adc_max):
+    """The ADC count of temperature y: how many edges lie above it, walked from a nearby count."""
+    while count < adc_max and y < edges[count + 1]:
+        count += 1
+    while y >= edges[count]:
+        count -= 1
+    return count
+
+
+@inline
+def _noisy_count(y, count, noise, edges, slopes, bounds, sensor_p, adc_max):
+    """floor(analog(y) + noise) clipped to the ADC's range, ``count`` being floor(analog(y))."""
+    v = count + (edges[count] - y) * slopes[count] + noise
+    m = np.floor(v)
+    if v - m <= bounds[count] or m + 1.0 - v <= bounds[count]:  # too near an integer for the line
+        r = np.exp((1.0 / (y + sensor_p[SP_KELVIN]) - sensor_p[SP_C1]) / sensor_p[SP_C2])
+        m = np.floor(sensor_p[SP_COUNTS] * r / (r + sensor_p[SP_PULLUP]) + noise)
+    return int(min(max(m, 0.0), adc_max))
+
+
+@inline
+def _sample_sum(st, xl, px, pdd, rows, m, kind, s0, n, n_pulses, alpha, beta, edges, fw, ys, noise_lsb, z, z0,
+                slopes, bounds, sensor_p):
     """The ADC counts of the sensor node at ticks s0, s0 + 10, ... < n, summed.
 
-    Loops over the samples innermost (vectorisable), each sample's sum in the numpy path's order.
+    Loops over the samples innermost (vectorisable), each sample's sum in the numpy path's order;
+    a pulse's sensor step at every sample is one row of ``rows``.
     """
     step = fw[SAMPLE_EVERY]
     n_samples = (n - s0 + step - 1) // step if n > s0 else 0
     for j in range(n_samples):
-        ys[j] = px[kind, 0, j] * x[0]
-    for i in range(1, x.shape[0]):
+        ys[j] = px[m, kind, 0, j] * xl[0]
+    for i in range(1, xl.shape[0]):
         for j in range(n_samples):
-            ys[j] = ys[j] + px[kind, i, j] * x[i]
+            ys[j] = ys[j] + px[m, kind, i, j] * xl[i]
     for j in range(n_samples):
-        ys[j] = ys[j] + pdd[kind, j]
+        ys[j] = ys[j] + pdd[m, kind, j]
     for p in range(n_pulses):
-        for j in range(n_samples):
-            s = s0 + step * j
-            ys[j] = ys[j] + (sstep[max(s - alpha[p], 0)] - sstep[max(s - beta[p], 0)])
-    total, count = 0, st[HINT]
+        if beta[p] > alpha[p]:
+            ra, rb = s0 - alpha[p] + ROW_OFFSET, s0 - beta[p] + ROW_OFFSET
+            for j in range(n_samples):
+                ys[j] = ys[j] + (rows[m, ra, j] - rows[m, rb, j])
+    if n_samples == 0:
+        return 0
+    count, adc_max = st[HINT], fw[ADC_MAX]
+    lo = hi = ys[0]
+    for j in range(1, n_samples):
+        lo, hi = min(lo, ys[j]), max(hi, ys[j])
+    same = hi < edges[count] and (count == adc_max or lo >= edges[count + 1])  # every sample reads ``count``
+    if same and noise_lsb == 0.0:
+        return count * n_samples
+    total = 0
     for j in range(n_samples):
-        while count < fw[ADC_MAX] and ys[j] < edges[count + 1]:
-            count += 1
-        while ys[j] >= edges[count]:
-            count -= 1
-        total += count
+        if not same:
+            count = _count(ys[j], count, edges, adc_max)
+        if noise_lsb != 0.0:
+            total += _noisy_count(ys[j], count, noise_lsb * z[z0 + j], edges, slopes, bounds, sensor_p, adc_max)
+        else:
+            total += count
     st[HINT] = count
     return total
 
 
-@_inline
-def _advance(x, out, fx, fdd, kind, n, n_pulses, alpha, beta, steps):
+@inline
+def _advance(xl, xn, fx, fdd, steps, m, kind, n, n_pulses, alpha, beta):
     """The state after n ticks: free response, ambient, then each pulse's step response."""
-    for i in range(x.shape[0]):
-        v = fx[kind, i, 0] * x[0]
-        for k in range(1, x.shape[0]):
-            v = v + fx[kind, i, k] * x[k]
-        v = v + fdd[kind, i]
+    for i in range(xl.shape[0]):
+        v = fx[m, kind, i, 0] * xl[0]
+        for k in range(1, xl.shape[0]):
+            v = v + fx[m, kind, i, k] * xl[k]
+        v = v + fdd[m, kind, i]
         for p in range(n_pulses):
-            v = v + (steps[n - alpha[p], i] - steps[n - beta[p], i])
-        out[i] = v
+            v = v + (steps[m, n - alpha[p], i] - steps[m, n - beta[p], i])
+        xn[i] = v
 
 
-@_jit
-def run_lanes(plan, kind_px, kind_pdd, kind_fx, kind_fdd, sstep, steps, plant_io, edges, lut, fw, gains,
-              istate, x, rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair, ys):
-    """Every period of ``plan`` on every lane; one record column per reading period.
-
-    plan (P, 6) int64: n ticks, first sample offset, reading 0/1, soft-PWM count at the start,
-    millis() at the end, kind. kind_* index the maps by kind. plant_io (3, n_x + 1): the heater
-    input's one-tick response g, then the block and sensor output rows with their constant.
-    Scratch: pulses (2, MAX_PULSES) int64, x_pair (2, n_x) and ys (samples per period) float64.
-    kind_px is (kinds, n_x, samples): contiguous along the samples.
-    """
-    n_x = x.shape[0]
-    alpha, beta, xl, xn = pulses[0], pulses[1], x_pair[0], x_pair[1]
-    for lane in range(x.shape[1]):
-        st, g = istate[lane], gains[lane]
-        for i in range(n_x):
-            xl[i] = x[i, lane]
-        r, reset = 0, fw[RUNAWAY_RESET]
-        for q in range(plan.shape[0]):
-            n, s0, reading, pwm, now, kind = plan[q, 0], plan[q, 1], plan[q, 2], plan[q, 3], plan[q, 4], plan[q, 5]
-            n_pulses = _pulses(st, pwm, n, fw, alpha, beta)
-            st[ACC] += _sample_sum(st, xl, kind_px, kind_pdd, kind, s0, n, n_pulses, alpha, beta, sstep,
-                                   edges, fw, ys)
-            _latch(st, pwm, n, fw)
-            pins_before = st[PINS]
-            if reading:
-                raw, st[ACC] = st[ACC], 0
-                _task(st, raw, now, reset, lut, g, fw)
-                reset = 0
-            _advance(xl, xn, kind_fx, kind_fdd, kind, n, n_pulses, alpha, beta, steps)
-            diff = float(st[PINS] - pins_before)
-            for i in range(n_x):
-                xl[i] = xn[i] + plant_io[0, i] * diff
-            if reading:
-                rec_temp[lane, r], rec_amount[lane, r] = st[TEMP], st[AMOUNT]
-                rec_block[lane, r] = _output(plant_io, 1, xl)
-                rec_sensor[lane, r] = _output(plant_io, 2, xl)
-                r += 1
-        for i in range(n_x):
-            x[i, lane] = xl[i]
-
-
-@_inline
+@inline
 def _output(io, row, x):
     """io[row, :n_x] . x + io[row, n_x], summed in index order."""
     y = io[row, 0] * x[0]
     for i in range(1, x.shape[0]):
         y = y + io[row, i] * x[i]
     return y + io[row, x.shape[0]]
+
+
+@inline
+def score_row(si, sf, sp, row, flags, temp_c, duty):
+    """One reading into the heater objective's accumulators (tools/tuning/objectives.py heater_terms)."""
+    error = sp[S_TARGET] - temp_c
+    abs_error = abs(error)
+    heat = flags & HEAT
+    if si[HOLDING] == 0:
+        if heat and abs_error <= sp[S_BAND]:
+            si[HOLDING], si[REACHED], si[FIRST_ROW] = 1, 1, row
+        elif flags & LAST_HEAT:
+            si[HOLDING], si[FIRST_ROW] = 1, row
+    if heat:
+        sf[MAX_BEYOND] = max(sf[MAX_BEYOND], -sp[S_SIGN] * error)
+    if si[HOLDING]:
+        sf[ABS_ERROR_SUM] += abs_error
+        if si[HOLD_ROWS]:
+            sf[DUTY_STEP_SUM] += abs(duty - sf[PREV_DUTY])
+        si[HOLD_ROWS] += 1
+    sf[PREV_DUTY] = duty
+
+
+@jit
+def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, steps, io, edges, slopes, bounds, sensor_p,
+              lut, fw, cparams, rules, istate, x, noise_lsb, streams, z, ring, score_i, score_f, score_p,
+              rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair, ys, strengths, stop, need_bin):
+    """Every period of ``plan`` from ``q_start[k]`` on each lane k of ``todo`` (its column of ``x``;
+    ``lane_ids[k]`` its row of the per-lane arrays); ``stop[k]``: where it stopped (len(plan) when done).
+
+    plan (P, PLAN_COLUMNS) int64 (see the columns above). Tables by model m (the radiating bin from
+    ``fw[BIN_LO]``; one model when linear) and period kind: px (M, kinds, n_x, samples) and pdd the
+    sensor's free response at each sample, fx and fdd the state's; rows (M, ROW_OFFSET + 10, samples)
+    the heater's sensor step at each sample; steps (M, 161, n_x) the state's; io (M, 3, n_x + 1):
+    the heater's one-tick response, then the block and sensor outputs with their constants. Noise:
+    lane's ``noise_lsb`` times ``z[streams[lane], Z_FIRST + j]``. ring (N, cap, 2): past pulses
+    (dead time ``fw[DELAY]`` ticks). Scratch: pulses (2, 2, MAX_PULSES) int64, x_pair (2, n_x) and ys
+    float64, strengths (7,) int64.
+    """
+    n_x = x.shape[0]
+    alpha, beta, d_alpha, d_beta = pulses[0, 0], pulses[0, 1], pulses[1, 0], pulses[1, 1]
+    xl, xn = x_pair[0], x_pair[1]
+    delay, radiating = fw[DELAY], fw[RADIATING]
+    n_bins = px.shape[0]
+    for k in todo:
+        lane = lane_ids[k]
+        st, cp, si, sf = istate[lane], cparams[lane], score_i[lane], score_f[lane]
+        lane_ring, zl, lane_noise = ring[lane], z[streams[lane]], noise_lsb[lane]
+        for i in range(n_x):
+            xl[i] = x[i, k]
+        q = q_start[k]
+        while q < plan.shape[0]:
+            n, s0, reading, pwm, now, kind = plan[q, 0], plan[q, 1], plan[q, 2], plan[q, 3], plan[q, 4], plan[q, 5]
+            m = 0
+            if radiating:
+                m = int(np.rint(_output(io[0], 1, xl) * 2.0)) - fw[BIN_LO]
+                if m < 0 or m >= n_bins:  # the block left the tables: BatchTwin builds more bins
+                    need_bin[k] = m + fw[BIN_LO]
+                    break
+            first_wrap, last = plan[q, FIRST_WRAP], plan[q, LAST_PHASE]
+            n_pulses = _pulses(st, pwm, first_wrap, n, fw, alpha, beta)
+            a, b, n_seen = alpha, beta, n_pulses
+            if delay:
+                for p in range(n_pulses):
+                    _ring_push(st, lane_ring, plan[q, TICK] + alpha[p], plan[q, TICK] + beta[p])
+                n_seen = _ring_delayed(st, lane_ring, plan[q, TICK], n, delay, d_alpha, d_beta)
+                a, b = d_alpha, d_beta
+            st[ACC] += _sample_sum(st, xl, px, pdd, rows, m, kind, s0, n, n_seen, a, b, edges, fw, ys, lane_noise,
+                                   zl, plan[q, Z_FIRST], slopes, bounds, sensor_p)
+            _latch(st, first_wrap, last, n)
+            pins_before = st[PINS]
+            if reading:
+                raw, st[ACC] = st[ACC], 0
+                _task(st, raw, now, lut, cp, fw, rules, strengths)
+            _advance(xl, xn, fx, fdd, steps, m, kind, n, n_seen, a, b)
+            if delay:
+                for i in range(n_x):
+                    xl[i] = xn[i]
+                if pins_before and not st[PINS]:
+                    _ring_cut_last(st, lane_ring)
+            else:  # the main loop may have written the pin for the last tick
+                diff = float(st[PINS] - pins_before)
+                for i in range(n_x):
+                    xl[i] = xn[i] + io[m, 0, i] * diff
+            if reading:
+                r = plan[q, ROW]
+                if fw[RECORD]:
+                    rec_temp[lane, r], rec_amount[lane, r] = st[TEMP], st[AMOUNT]
+                    rec_block[lane, r] = _output(io[m], 1, xl)
+                    rec_sensor[lane, r] = _output(io[m], 2, xl)
+                if fw[SCORE] and plan[q, FLAGS] & SCORED:
+                    score_row(si, sf, score_p, fw[ROW_BASE] + r, plan[q, FLAGS],
+                              st[TEMP] / (1 << fw[TEMP_FRAC_BITS]), float(st[AMOUNT]))
+            q += 1
+        stop[k] = q
+        for i in range(n_x):
+            x[i, k] = xl[i]

@@ -69,24 +69,39 @@ class SensorChain:
         age_s = (ticks - self._detached_tick) * TICK_S
         return self._ambient_c + (self._detached_c - self._ambient_c) * np.exp(-age_s / self.detached_tau_s)
 
+    def analog(self, sensor_c: np.ndarray, ticks: np.ndarray) -> np.ndarray:
+        """The unquantised reading ``1024 R / (R + Rp)`` of the bead (its placement, or a detached
+        bead's own temperature), the shape of ``sensor_c``; no noise, no fault but a detached bead."""
+        sensor_c = np.asarray(sensor_c, dtype=float)
+        if self.fault == DETACHED:
+            temps_c = np.broadcast_to(self._bead_c(ticks), sensor_c.shape)
+        else:
+            temps_c = sensor_c - self.gradient_fraction * (sensor_c - self._ambient_c)
+        r = self.divider.part.resistance_ohm(temps_c)
+        return ADC_COUNTS * r / (r + self.divider.pullup_ohm)
+
     def convert(self, sensor_c: np.ndarray, ticks: np.ndarray) -> np.ndarray:
         """ADC conversions (int array, the shape of ``sensor_c``) of the sensor node at the ticks.
 
         One noise draw per sample, in order; ``ticks`` broadcasts against ``sensor_c``.
         """
         sensor_c = np.asarray(sensor_c, dtype=float)
+        noise = None
+        if self.noise_lsb and self.fault not in (OPEN, SHORT):
+            noise = self.noise_lsb * self.rng.standard_normal(sensor_c.shape)
+        return self.convert_with(sensor_c, ticks, noise)
+
+    def convert_with(self, sensor_c: np.ndarray, ticks: np.ndarray, noise: np.ndarray | None) -> np.ndarray:
+        """``convert`` with the noise (in LSB, the shape of ``sensor_c``) given instead of drawn: a batch
+        of lanes draws one stream and scales it per lane."""
+        sensor_c = np.asarray(sensor_c, dtype=float)
         if self.fault == OPEN:
             return np.full(sensor_c.shape, ADC_MAX)
         if self.fault == SHORT:
             return np.zeros(sensor_c.shape, dtype=int)
-        if self.fault == DETACHED:
-            temps_c = np.broadcast_to(self._bead_c(ticks), sensor_c.shape)
-        else:
-            temps_c = sensor_c - self.gradient_fraction * (sensor_c - self._ambient_c)
-        r = self.divider.part.resistance_ohm(temps_c)
-        analog = ADC_COUNTS * r / (r + self.divider.pullup_ohm)
-        if self.noise_lsb:
-            analog = analog + self.noise_lsb * self.rng.standard_normal(sensor_c.shape)
+        analog = self.analog(sensor_c, ticks)
+        if noise is not None:
+            analog = analog + noise
         return np.clip(np.floor(analog), 0, ADC_MAX).astype(np.int64)
 
     def lsb_per_c(self, temp_c: float) -> float:
@@ -99,3 +114,10 @@ class SensorChain:
     def samples(self, sensor_c: np.ndarray, ticks: np.ndarray) -> list[int]:
         """``convert`` as a list of ints, for a scalar board."""
         return self.convert(sensor_c, ticks).tolist()
+
+
+def seeded_chains(count: int, seed: int, noise_lsb: float = 0.0) -> list[SensorChain]:
+    """One chain per heater, each drawing its noise from its own stream spawned from ``seed``: what a
+    ``Twin`` builds, so that a batch lane given the same seed sees the hotend chain's very numbers."""
+    return [SensorChain(noise_lsb=noise_lsb, rng=np.random.default_rng(stream))
+            for stream in np.random.SeedSequence(seed).spawn(count)]

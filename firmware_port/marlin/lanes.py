@@ -1,6 +1,7 @@
 """The integer hotend firmware vectorised over N lanes (numpy int64), for batch twins.
 
-Each lane is one board running ``PidFixed`` on a hotend with its own gains. All lanes share the
+Each lane is one board running a controller on a hotend: ``PidFixed`` with its own gains, vectorised
+(``PidLanes``), or any other controller as one scalar instance per lane (``ScalarLanes``). All lanes share the
 clock, so the ADC schedule and the soft-PWM counter are common (``AdcSequencer`` accumulates
 arrays as happily as ints); amounts, pins, controller and protection state are per lane. numpy's
 int64 shifts are arithmetic like avr-gcc's and every value fits the widths ``PidFixed``
@@ -11,6 +12,8 @@ firmware computes; tests/test_lanes.py keeps them equal. A lane that trips its p
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -65,11 +68,13 @@ def lookup_q5(table: TempTable, raw: np.ndarray) -> np.ndarray:
 
 
 class PidLanes:
-    """``PidFixed.update_q8`` on N lanes; gains scaled by the scalar class itself."""
+    """``PidFixed.update_q8`` on N lanes; gains scaled by the scalar class itself; the prev-temperature
+    mode one for all lanes or one per lane."""
 
-    def __init__(self, gains: list[PidGains], prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE):
-        scalar = [PidFixed(g, prev_temp_mode) for g in gains]
-        self.every_sample = prev_temp_mode == PREV_TEMP_EVERY_SAMPLE
+    def __init__(self, gains: list[PidGains], prev_temp_mode: str | Sequence[str] = PREV_TEMP_EVERY_SAMPLE):
+        modes = [prev_temp_mode] * len(gains) if isinstance(prev_temp_mode, str) else list(prev_temp_mode)
+        scalar = [PidFixed(g, mode) for g, mode in zip(gains, modes, strict=True)]
+        self.every_sample = np.array([mode == PREV_TEMP_EVERY_SAMPLE for mode in modes], dtype=bool)
         self.kp_q12 = np.array([p.kp_q12 for p in scalar], dtype=np.int64)
         self.ki_q24 = np.array([p.ki_q24 for p in scalar], dtype=np.int64)
         self.kd_q16 = np.array([p.kd_q16 for p in scalar], dtype=np.int64)
@@ -97,20 +102,44 @@ class PidLanes:
         d_term = d_term + div_round(d_in - d_term, D_FILTER_DIVISOR)
         self.i_sum_q5 = np.where(band, i_sum, self.i_sum_q5)
         self.d_term_q8 = np.where(band, d_term, self.d_term_q8)
-        self.prev_q5 = np.where(active if self.every_sample else band, temp_q5, self.prev_q5)
+        self.prev_q5 = np.where(np.where(self.every_sample, active, band), temp_q5, self.prev_q5)
         in_band = np.clip(p + i + d_term, 0, OUT_MAX_Q8)
         return np.where(full, OUT_MAX_Q8, np.where(band, in_band, 0))
 
+    def output(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray, now_ms: int) -> np.ndarray:
+        """``PidFixed.update`` on the active lanes: 0..255 (0 elsewhere)."""
+        return self.update_q8(temp_q5, target_c, active) >> OUT_FRAC_BITS
+
+
+class ScalarLanes:
+    """Any controller on N lanes, one instance per lane called in turn: the numpy lanes' way to run a law
+    that is not vectorised (the compiled batch kernel has its own copy of each law it runs)."""
+
+    def __init__(self, controllers: Sequence):
+        self.controllers = list(controllers)
+
+    def output(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray, now_ms: int) -> np.ndarray:
+        """Each active lane's ``update``: 0..255 (0 elsewhere, where its controller is not called)."""
+        out = np.zeros(len(self.controllers), np.int64)
+        for lane in np.flatnonzero(active):
+            out[lane] = self.controllers[lane].update(int(temp_q5[lane]), target_c, now_ms)
+        return out
+
 
 class HotendLanes:
-    """N hotend boards: shared ISR clock, per-lane soft PWM, PID and protection."""
+    """N hotend boards: shared ISR clock, per-lane soft PWM, controller and protection.
 
-    def __init__(self, gains: list[PidGains], prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE,
-                 table: TempTable = B3950_TABLE):
-        n = len(gains)
+    ``control``: PID gains (one set per lane, run as ``PidLanes`` in ``prev_temp_mode``), or a
+    ``PidLanes`` or ``ScalarLanes``."""
+
+    def __init__(self, control: list[PidGains] | PidLanes | ScalarLanes,
+                 prev_temp_mode: str | Sequence[str] = PREV_TEMP_EVERY_SAMPLE, table: TempTable = B3950_TABLE):
+        if isinstance(control, list):
+            control = PidLanes(control, prev_temp_mode)
+        self.control = control
+        n = len(control.every_sample) if isinstance(control, PidLanes) else len(control.controllers)
         self.n_lanes = n
         self.table = table
-        self.pid = PidLanes(gains, prev_temp_mode)
         self.adc = AdcSequencer(1, port=None)
         self.temp_range = TempRange.hotend(table)
         runaway, watch = RunawayMonitor.hotend(), HeaterWatch.hotend()
@@ -193,8 +222,7 @@ class HotendLanes:
         self._trip(~self.halted & self._runaway(temp, target, now), RUNAWAY_TRIP)
         live = ~self.halted
         in_range = live & (temp > limits.mintemp_c << TEMP_FRAC_BITS) & (temp < limits.maxtemp_c << TEMP_FRAC_BITS)
-        out_q8 = self.pid.update_q8(temp, target, in_range)
-        self.amount = np.where(in_range, (out_q8 >> OUT_FRAC_BITS) >> 1, 0)
+        self.amount = np.where(in_range, self.control.output(temp, target, in_range, now) >> 1, 0)
         self._trip(~self.halted & self._heating_failed(temp, target, now), WATCH_TRIP)
 
     def _trip(self, lanes: np.ndarray, code: int) -> None:

@@ -90,6 +90,47 @@ def _schedule(first_sample_s: float, verify: bool, after: tuple[float, int], unt
     return sorted(ops)
 
 
+@functools.lru_cache(maxsize=64)
+def _plan(first_sample_s: float, verify: bool, after: tuple[float, int], until: tuple[float, int], tick: int,
+          advance_to: int | None) -> tuple:
+    """The kernel's plan of the heater events after ``after`` up to ``until`` (``_schedule``) with the
+    plants at ``tick``: (plan, its times, the windows' tick offsets, the run kinds (the plants' runs
+    from one ADC window or scenario event to the next) and window kinds, the report times, the last
+    event's (time, priority), the plants' tick after)."""
+    ops = _schedule(first_sample_s, verify, after, until)
+    rows: list[tuple[int, ...]] = []
+    times: list[tuple[float, float]] = []
+    windows: dict[tuple[int, ...], int] = {}
+    runs: dict[int, int] = {}
+    for time_s, _, op, _ in ops:
+        start = run_kind = window = -1
+        last_s = math.nan
+        if op == kk.ADC:
+            start = tick_near(time_s)
+            read_time = time_s + SAMPLE_COUNT * SAMPLE_TIME
+            offs = tuple(tick_near(time_s + i * SAMPLE_TIME) - start for i in range(SAMPLE_COUNT))
+            offs += (tick_near(read_time) - start,)
+            window = windows.setdefault(offs, len(windows))
+            run_kind = runs.setdefault(start - tick, len(runs))
+            last_s = time_s + (SAMPLE_COUNT - 1) * SAMPLE_TIME
+            tick = start
+        rows.append((op, start, run_kind, window, 0, 0))
+        times.append((time_s, last_s))
+    if advance_to is not None and advance_to > tick:
+        rows.append((kk.ADVANCE, advance_to, runs.setdefault(advance_to - tick, len(runs)), -1, 0, 0))
+        times.append((math.nan, math.nan))
+        tick = advance_to
+    plan = np.array(rows, np.int64).reshape(-1, kk.PLAN_COLUMNS)
+    plan_t = np.array(times, float).reshape(-1, 2)
+    is_report = plan[:, kk.OP] == kk.REPORT
+    plan[is_report, kk.ROW] = np.arange(int(is_report.sum()))
+    for array in (plan, plan_t):
+        array.flags.writeable = False  # shared by the runs that replay it; the kernel reads it only
+    kinds = (tuple((n, ()) for n in runs), tuple((0, offs) for offs in windows))
+    done = ops[-1][:2] if ops else after
+    return plan, plan_t, list(windows), kinds, plan_t[is_report, 0], done, tick
+
+
 class KlipperBatch:
     """N single-heater Klipper printers on one clock; ``run_until``, then ``result()`` or ``score_totals()``."""
 
@@ -259,19 +300,17 @@ class KlipperBatch:
     def _run(self, until: tuple[float, int], advance_to: int | None = None) -> None:
         """Every heater event after the last one run up to ``until``, then (a scenario event's) the
         plants' run to ``advance_to``."""
-        ops = _schedule(self.first_sample_s, self.setup.verify is not None, self._done, until)
-        if ops:
-            self._done = ops[-1][:2]
-        plan, plan_t, offsets, kinds, report_t = self._plan(ops, advance_to)
+        plan, plan_t, offsets, kinds, report_t, self._done, self._plant_tick = _plan(
+            self.first_sample_s, self.setup.verify is not None, self._done, until, self._plant_tick, advance_to)
         if not len(plan):
             return
         rows = self._rows + np.arange(len(report_t))
         if self.score is not None and len(report_t) and self._first_s is None:
             self._first_s = float(self._report_times(np.array([self.score.skip_rows]))[0])
         if self.score is not None:
-            is_report = plan[:, kk.OP] == kk.REPORT
-            plan[is_report, kk.FLAGS] = self.score.flags(report_t, self._report_times(rows + 1), rows)
-        plan.flags.writeable = False
+            plan = plan.copy()
+            plan[plan[:, kk.OP] == kk.REPORT, kk.FLAGS] = self.score.flags(report_t, self._report_times(rows + 1), rows)
+            plan.flags.writeable = False
         records = tuple(np.zeros((self.n_lanes, len(report_t) if self.record else 0)) for _ in range(4))
         self.cfg[kk.C_ROW_BASE] = self._rows
         n_offsets = np.array([len(o) for o in offsets], np.int64)
@@ -286,41 +325,6 @@ class KlipperBatch:
             if self.record:
                 self._chunks.append(records)
         self._rows += len(report_t)
-
-    def _plan(self, ops: list, advance_to: int | None) -> tuple:
-        """The kernel's plan of the events, its times, the windows' tick offsets, the run kinds (the
-        plant's runs from one ADC window or scenario event to the next), the report times."""
-        rows: list[tuple[int, ...]] = []
-        times: list[tuple[float, float]] = []
-        windows: dict[tuple[int, ...], int] = {}
-        runs: dict[int, int] = {}
-        tick = self._plant_tick
-        for time_s, _, op, k in ops:
-            start = run_kind = window = -1
-            last_s = math.nan
-            if op == kk.ADC:
-                start = tick_near(time_s)
-                read_time = time_s + SAMPLE_COUNT * SAMPLE_TIME
-                offs = tuple(tick_near(time_s + i * SAMPLE_TIME) - start for i in range(SAMPLE_COUNT))
-                offs += (tick_near(read_time) - start,)
-                window = windows.setdefault(offs, len(windows))
-                run_kind = runs.setdefault(start - tick, len(runs))
-                last_s = time_s + (SAMPLE_COUNT - 1) * SAMPLE_TIME
-                tick = start
-            rows.append((op, start, run_kind, window, 0, 0))
-            times.append((time_s, last_s))
-        if advance_to is not None and advance_to > tick:
-            rows.append((kk.ADVANCE, advance_to, runs.setdefault(advance_to - tick, len(runs)), -1, 0, 0))
-            times.append((math.nan, math.nan))
-            tick = advance_to
-        self._plant_tick = tick
-        plan = np.array(rows, np.int64).reshape(-1, kk.PLAN_COLUMNS)
-        plan_t = np.array(times, float).reshape(-1, 2)
-        is_report = plan[:, kk.OP] == kk.REPORT
-        plan[is_report, kk.ROW] = np.arange(int(is_report.sum()))
-        plan_t.flags.writeable = False  # as every array the kernel only reads: one compiled signature
-        kinds = (tuple((n, ()) for n in runs), tuple((0, offs) for offs in windows))
-        return plan, plan_t, list(windows), kinds, plan_t[is_report, 0]
 
     def _run_group(self, group: _Group, plan: np.ndarray, plan_t: np.ndarray, offsets: np.ndarray,
                    n_offsets: np.ndarray, kinds: tuple, records: tuple) -> None:

@@ -5,9 +5,11 @@ controller family (firmware_port/params.py ``ParamSpace``: its parameters and a 
 default Marlin's fixed-point PID, whose parameters are Kp, Ki, Kd on the 0..255 scale):
 
 - ``marlin`` (default): the controller on Marlin's board (ADC, soft PWM, thermal protection) in
-  lockstep with the plant. Candidates the batch twin runs (twin/batch.py ``BatchTwin.accepts``:
-  the fixed-point PID) on a linear plant without dead time run as lanes, others one ``Twin`` each.
-- ``klipper``: Klipper's host PID (twin/klipper_twin.py), one twin per candidate (PID families only).
+  lockstep with the plant. Candidates the batch twin runs (twin/batch.py ``BatchTwin.accepts``: the
+  fixed-point PID, bang-bang, the fuzzy PI and the fuzzy-PID) run as lanes of one batch, on any plant
+  (dead time and a radiating loss need numba's compiled lanes), others one ``Twin`` each.
+- ``klipper``: Klipper's host PID (twin/klipper_twin.py) as lanes of a ``KlipperBatch`` (with numba;
+  else one ``KlipperTwin`` per candidate), PID families only.
 - ``ideal``: the papers' loop: a continuous PID, Kp + Ki/s + Kd s/(s/N + 1) with Simulink's
   default filter N = 100 1/s, on the plant's linear model, no saturation, no quantisation, the
   dead time exact; stepped with the plant's exact zero-order hold at ``IDEAL_DT_S`` (backward
@@ -20,6 +22,8 @@ seed 002 (OCALO-PID, Zhou et al. 2024) section 4.3 does with its 0.1 step at 520
 
 Candidates are split into chunks of ``CHUNK_LANES``; with a dask.distributed ``Client`` the
 chunks run on its workers, else in this process: the same chunks either way, so the same numbers.
+``simulate(..., record=False)`` asks a batch to keep no trace and to stream the heater objective's
+inputs instead (tools/tuning/objectives.py ``needs_trace``): what an optimiser's evaluations do.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import scipy.linalg
 import scipy.signal
 
 from firmware_port.klipper import CommandError
+from twin import batch_kernel
 from firmware_port.marlin.board import HOTEND_CHANNEL
 from firmware_port.firmwares import param_space
 from firmware_port.marlin.pid import pid_space
@@ -42,16 +47,18 @@ from firmware_port.params import ParamSpace
 from tools.ident.fit import CONTROL_DELAY_S
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of
-from tools.tuning.objectives import Run
+from tools.tuning.objectives import Run, needs_trace, score_spec
 from tools.tuning.optim import METHODS
 from tools.tuning.rules import RULES, tune
 from twin.batch import BatchTwin
 from twin.build import apply_event
 from twin.engine import Twin
+from twin.klipper_batch import KlipperBatch, gains_setups
 from twin.klipper_twin import KlipperTwin, extruder_setup, tick_near
 from twin.linear import SENSOR, Lti
 from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
 from twin.scenario import Event
+from twin.streaming import ScoreTotals
 
 LOOPS = ("marlin", "klipper", "ideal")
 CHUNK_LANES = 32  # candidates per batch: one dask task
@@ -110,11 +117,13 @@ class Problem:
 
     @property
     def batched(self) -> bool:
-        """Whether candidates run as lanes of one batch (else one twin each)."""
+        """Whether candidates run as lanes of one batch (else one twin each). Without numba, only the
+        numpy lanes' cases: the Marlin loop on a linear plant without dead time."""
         if self.loop == "ideal":
             return True
-        return (self.loop == "marlin" and self.spec.linear and not self.spec.delay_ticks
-                and BatchTwin.accepts(self.controller.make(self.controller.defaults)))
+        if not batch_kernel.compiled() and (self.loop == "klipper" or not self.spec.linear or self.spec.delay_ticks):
+            return False
+        return self.loop == "klipper" or BatchTwin.accepts(self.controller.make(self.controller.defaults))
 
     def plant_gains(self, params: np.ndarray) -> np.ndarray | None:
         """A PID family's gains (N, 3) on the 0..255 scale -> the plant's input units per degC (W/C for a
@@ -231,8 +240,9 @@ def _apply_to_plant(plant: Plant, event: Event) -> None:
     plant.set_inputs(inputs["fan"], inputs["flow"], inputs["ambient"])
 
 
-def _batch_event(batch: BatchTwin, event: Event) -> None:
-    _apply_to_plant(batch.plant, event)
+def _batch_event(batch: BatchTwin | KlipperBatch, event: Event) -> None:
+    for plant in batch.plants:
+        _apply_to_plant(plant, event)
 
 
 def _twin_load(twin: Twin, event: Event) -> None:
@@ -242,23 +252,41 @@ def _twin_load(twin: Twin, event: Event) -> None:
 # -- the loops -------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Traces:
-    """Raw arrays of one chunk: (rows,), (rows, n), (rows, n), (n,)."""
+    """Raw arrays of one chunk: (rows,), (rows, n), (rows, n), (n,); or, streamed, no rows and the totals."""
 
     t_s: np.ndarray
     temp_c: np.ndarray
     duty: np.ndarray
     tripped: np.ndarray
+    streamed: ScoreTotals | None = None
 
 
-def _run_batch(problem: Problem, params: np.ndarray) -> Traces:
+def _run_batch(problem: Problem, params: np.ndarray, record: bool = True) -> Traces:
+    """The candidates as lanes of one batch on the problem's loop; streaming the heater objective's
+    inputs unless ``record`` (Marlin's first reading, 15 samples, is left out of them as run_chunk
+    leaves it out of the trace)."""
     scenario = problem.scenario
-    batch = BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params])
-    batch.set_target(int(round(scenario.target_c)))
+    marlin = problem.loop == "marlin"
+    heatup_end_s = scenario.disturbances_s[0] if scenario.disturbances_s else scenario.duration_s + 1.0
+    score = None if record else score_spec(scenario.target_c, scenario.ambient_c, heatup_end_s, int(marlin))
+    batch: BatchTwin | KlipperBatch
+    if marlin:
+        batch = BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params],
+                          record=record, score=score)
+        batch.set_target(int(round(scenario.target_c)))
+    else:
+        setup = extruder_setup(make_problem_plant(problem), max_temp_c=KLIPPER_MAX_TEMP_C)
+        batch = KlipperBatch(gains_setups(setup, params), record=record, score=score)
+        batch.set_target(scenario.target_c)
     for event in scenario.events:
         batch.schedule(event.at_s, functools.partial(_batch_event, event=event))
     batch.run_until(scenario.duration_s)
+    halted = batch.lanes.halted.copy() if isinstance(batch, BatchTwin) else batch.halted
+    if not record:
+        empty = np.zeros((0, len(params)))
+        return Traces(np.zeros(0), empty, empty, halted, batch.score_totals())
     hotend = batch.result().hotend
-    return Traces(hotend.t_s, hotend.measured_c, hotend.duty, batch.lanes.halted.copy())
+    return Traces(hotend.t_s, hotend.measured_c, hotend.duty, halted)
 
 
 def _marlin_twin(problem: Problem, row: np.ndarray | None) -> Twin:
@@ -358,11 +386,17 @@ def _run_ideal(problem: Problem, gains: np.ndarray) -> Traces:
     return Traces(np.array(t_rows), np.array(temps), np.array(duties), np.zeros(len(gains), bool))
 
 
-def run_chunk(problem: Problem, params: np.ndarray) -> Traces:
-    """One chunk of candidates on the problem's loop (a picklable task for dask)."""
+def run_chunk(problem: Problem, params: np.ndarray, record: bool = True) -> Traces:
+    """One chunk of candidates on the problem's loop (a picklable task for dask); a batch streams the
+    heater objective's inputs instead of keeping a trace unless ``record``."""
     if problem.loop == "ideal":
         return _run_ideal(problem, params)
-    traces = _run_batch(problem, params) if problem.batched else run_scalars(problem, params)
+    if problem.batched:
+        traces = _run_batch(problem, params, record)
+        if traces.streamed is not None:
+            return traces
+    else:
+        traces = run_scalars(problem, params)
     if problem.loop == "marlin":  # Marlin's first reading after reset sums 15 oversamples, not 16: it reads high
         traces = Traces(traces.t_s[1:], traces.temp_c[1:], traces.duty[1:], traces.tripped)
     return traces
@@ -375,13 +409,16 @@ def _chunks(params: np.ndarray) -> Iterator[np.ndarray]:
 
 def _join(parts: list[Traces]) -> Traces:
     rows = min(p.t_s.size for p in parts)  # every chunk runs on the same clock; guard a ragged end
+    totals = [p.streamed for p in parts if p.streamed is not None]
+    streamed = ScoreTotals.join(totals) if len(totals) == len(parts) else None
     return Traces(parts[0].t_s[:rows], np.hstack([p.temp_c[:rows] for p in parts]),
-                  np.hstack([p.duty[:rows] for p in parts]), np.concatenate([p.tripped for p in parts]))
+                  np.hstack([p.duty[:rows] for p in parts]), np.concatenate([p.tripped for p in parts]), streamed)
 
 
-def simulate(problem: Problem, params, client=None) -> Run:
+def simulate(problem: Problem, params, client=None, record: bool = True) -> Run:
     """Run candidates (N, d): rows of the problem's controller parameters (a PID's Kp, Ki, Kd on the
-    0..255 scale); a dask.distributed client runs the chunks."""
+    0..255 scale); a dask.distributed client runs the chunks. ``record=False``: batches stream the
+    heater objective's inputs (``Run.streamed``) instead of keeping traces."""
     params = np.atleast_2d(np.asarray(params, float))
     space = problem.controller
     if params.ndim != 2 or params.shape[1] != space.dims:
@@ -389,13 +426,14 @@ def simulate(problem: Problem, params, client=None) -> Run:
                          f"got shape {params.shape}")
     chunks = list(_chunks(params))
     if client is None:
-        parts = [run_chunk(problem, chunk) for chunk in chunks]
+        parts = [run_chunk(problem, chunk, record) for chunk in chunks]
     else:
-        parts = client.gather(client.map(run_chunk, [problem] * len(chunks), chunks, pure=False))
+        parts = client.gather(client.map(run_chunk, [problem] * len(chunks), chunks, [record] * len(chunks),
+                                         pure=False))
     traces = _join(parts)
     return Run(traces.t_s, traces.temp_c, traces.duty, problem.scenario.target_c,
                problem.scenario.ambient_c, problem.scenario.disturbances_s, traces.tripped,
-               problem.plant_gains(params), problem.input_full_scale)
+               problem.plant_gains(params), problem.input_full_scale, traces.streamed)
 
 
 class Evaluator:
@@ -415,7 +453,7 @@ class Evaluator:
         valid = self.problem.controller.inside(params)
         costs = np.full(len(params), OUT_OF_RANGE_COST)
         if valid.any():
-            costs[valid] = self.cost(simulate(self.problem, params[valid], self.client))
+            costs[valid] = self.cost(simulate(self.problem, params[valid], self.client, needs_trace(self.cost)))
         self.evaluations += len(params)
         if self.on_batch is not None:
             self.on_batch(costs)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_port.marlin.constants import TEMP_HYSTERESIS_C
+from twin.streaming import ScoreSpec, ScoreTotals
 
 # heater objective (seconds of cost)
 BAND_C = 2.0  # "at temperature": twin/metrics.py's default band_c
@@ -56,7 +57,9 @@ class Run:
     starts from; disturbances_s: the times of the disturbances (the first ends the heat-up);
     tripped: (N,) a protection trip; gains: (N, 3) Kp, Ki, Kd in plant-input units per degC of a PID
     family's candidates, None for other controllers; input_full_scale: the plant input at duty 1
-    (W for a lumped heater).
+    (W for a lumped heater). ``streamed``: the heater objective's inputs accumulated during the run
+    (twin/streaming.py) by a batch that kept no trace (then the arrays have no rows and only
+    ``heater_cost`` can score the run).
     """
 
     t_s: np.ndarray
@@ -68,6 +71,7 @@ class Run:
     tripped: np.ndarray
     gains: np.ndarray | None
     input_full_scale: float = 1.0
+    streamed: ScoreTotals | None = None
 
     def __post_init__(self) -> None:
         temp, duty = np.asarray(self.temp_c, float), np.asarray(self.duty, float)
@@ -98,8 +102,9 @@ class Run:
     def lanes(self, index) -> Run:
         """The run of some lanes only."""
         gains = None if self.gains is None else self.gains[index]
+        streamed = None if self.streamed is None else self.streamed.lanes(index)
         return Run(self.t_s, self.temp_c[:, index], self.duty[:, index], self.target_c, self.start_c,
-                   self.disturbances_s, self.tripped[index], gains, self.input_full_scale)
+                   self.disturbances_s, self.tripped[index], gains, self.input_full_scale, streamed)
 
 
 def _trapezoid(t_s: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -256,7 +261,10 @@ class HeaterTerms:
 
 
 def heater_terms(run: Run) -> HeaterTerms:
-    """Reach the target fast, overshoot under a bound, hold it, no trip, no duty chatter."""
+    """Reach the target fast, overshoot under a bound, hold it, no trip, no duty chatter (from the
+    run's trace, or from what the batch streamed: the same rules, ``score_spec``)."""
+    if run.streamed is not None:
+        return _streamed_terms(run.streamed, run.tripped)
     t, e = run.t_s, run.error_c
     heat = t < run.heatup_end_s
     in_band = (np.abs(e) <= BAND_C) & heat[:, None]
@@ -273,6 +281,23 @@ def heater_terms(run: Run) -> HeaterTerms:
     step_hold = holding[1:] & holding[:-1]
     chatter = np.where(step_hold, steps, 0.0).sum(axis=0) / np.maximum(step_hold.sum(axis=0), 1)
     return HeaterTerms(reach_s, overshoot, hold_error, chatter, run.tripped.copy())
+
+
+def score_spec(target_c: float, start_c: float, heatup_end_s: float, skip_rows: int = 0) -> ScoreSpec:
+    """What a batch accumulates for ``heater_terms`` while it runs (no trace kept)."""
+    return ScoreSpec(target_c, start_c, heatup_end_s, BAND_C, skip_rows)
+
+
+def _streamed_terms(totals: ScoreTotals, tripped: np.ndarray) -> HeaterTerms:
+    reach_s = totals.holding_from_s - totals.first_s + np.where(totals.reached, 0.0, UNREACHED_S)
+    hold_error = totals.abs_error_sum_c / np.maximum(totals.hold_rows, 1)
+    chatter = totals.duty_step_sum / np.maximum(totals.hold_rows - 1, 1)
+    return HeaterTerms(reach_s, np.maximum(totals.max_beyond_c, 0.0), hold_error, chatter, tripped.copy())
+
+
+def needs_trace(cost: Callable[[Run], np.ndarray]) -> bool:
+    """Whether an objective needs the run's trace (all but ``heater_cost``, which a batch can stream)."""
+    return cost is not heater_cost
 
 
 def heater_cost(run: Run) -> np.ndarray:

@@ -119,7 +119,7 @@ def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str
                             f"not {type(item).__name__}")
     kind = CONTROLS[type(items[0])]
     if kind == bk.PID:
-        return kind, PidLanes([p.gains for p in items], [p.prev_temp_mode for p in items])
+        return kind, PidLanes(items)
     own = [copy.deepcopy(item) for item in items]  # each lane its own state, reset as a Twin resets it
     for item in own:
         item.reset()
@@ -462,7 +462,7 @@ class BatchTwin:
             fw_part[bk.BIN_LO], fw_part[bk.RADIATING] = t.bin_lo, int(not group.plant.linear)
             scratch = (np.zeros((2, 2, bk.MAX_PULSES), np.int64), np.zeros((2, group.x.shape[0])),
                        np.zeros(MAX_SAMPLES), np.zeros(7, np.int64))
-            bk.run_lanes(part, group.lanes, q_start, plan, t.px, t.pdd, t.fx, t.fdd, t.sample_rows, t.steps, t.io,
+            bk.run_lanes(part, group.lanes, q_start, plan, t.px, t.pdd, t.fx, t.fdd, t.sample_rows, *t.chords, t.steps, t.io,
                          *self._adc_tables(), _raw_lut(self.lanes.table), fw_part, self._cparams, _RULES, istate,
                          group.x, self.noise_lsb, self.streams, z, self._ring, self.score_i, self.score_f,
                          self._score_array(), *records, *scratch, stop, need)

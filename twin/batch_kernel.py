@@ -102,6 +102,7 @@ S_TARGET, S_SIGN, S_BAND = range(3)
 SP_C1, SP_C2, SP_KELVIN, SP_PULLUP, SP_COUNTS = range(5)
 MAX_PULSES = 4  # a run of <= 160 ticks holds the tail of a pulse and at most two 127-tick wraps (and a spare)
 ROW_OFFSET = TICKS_PER_READING  # ``rows``: row o + ROW_OFFSET is the sensor step at each sample, o = s0 - pulse edge
+CHORD_MARGIN_C = 1e-9  # the chord shortcut's band: beyond the float rounding of a sample (about 1e-12 C)
 
 
 def default_kernel() -> str:
@@ -529,15 +530,9 @@ def _noisy_count(y, count, noise, edges, slopes, bounds, sensor_p, adc_max):
 
 
 @inline
-def _sample_sum(st, xl, px, pdd, rows, m, kind, s0, n, n_pulses, alpha, beta, edges, fw, ys, noise_lsb, z, z0,
-                slopes, bounds, sensor_p):
-    """The ADC counts of the sensor node at ticks s0, s0 + 10, ... < n, summed.
-
-    Loops over the samples innermost (vectorisable), each sample's sum in the numpy path's order;
-    a pulse's sensor step at every sample is one row of ``rows``.
-    """
-    step = fw[SAMPLE_EVERY]
-    n_samples = (n - s0 + step - 1) // step if n > s0 else 0
+def _samples(xl, px, pdd, rows, m, kind, s0, n_samples, n_pulses, alpha, beta, ys):
+    """Every sample's sensor temperature into ys: loops over the samples innermost (vectorisable), each
+    sample's sum in the numpy path's order; a pulse's sensor step at every sample is one row of ``rows``."""
     for j in range(n_samples):
         ys[j] = px[m, kind, 0, j] * xl[0]
     for i in range(1, xl.shape[0]):
@@ -550,19 +545,53 @@ def _sample_sum(st, xl, px, pdd, rows, m, kind, s0, n, n_pulses, alpha, beta, ed
             ra, rb = s0 - alpha[p] + ROW_OFFSET, s0 - beta[p] + ROW_OFFSET
             for j in range(n_samples):
                 ys[j] = ys[j] + (rows[m, ra, j] - rows[m, rb, j])
+
+
+@inline
+def _chord_count(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n_pulses, alpha, beta, edges,
+                 adc_max, n_samples):
+    """The count every sample of a full period reads, when the chord through the first and last
+    samples, widened by how far the maps let a sample stray from it (``Tables.chords``), lies inside
+    one count; else -1 (the samples must be counted one by one)."""
+    last = n_samples - 1  # the two samples and the band in one loop: three independent sums (any order will do:
+    y0, y1 = pdd[m, kind, 0], pdd[m, kind, last]  # the band's margin covers the rounding)
+    band = CHORD_MARGIN_C + chord_d[m, kind]
+    for i in range(xl.shape[0]):
+        y0 += px[m, kind, i, 0] * xl[i]
+        y1 += px[m, kind, i, last] * xl[i]
+        band += chord_x[m, kind, i] * abs(xl[i])
+    for p in range(n_pulses):
+        if beta[p] > alpha[p]:
+            ra, rb = s0 - alpha[p] + ROW_OFFSET, s0 - beta[p] + ROW_OFFSET
+            y0 += rows[m, ra, 0] - rows[m, rb, 0]
+            y1 += rows[m, ra, last] - rows[m, rb, last]
+            band += chord_rows[m, ra] + chord_rows[m, rb]
+    count = _count(y0, st[HINT], edges, adc_max)
+    if max(y0, y1) + band < edges[count] and (count == adc_max or min(y0, y1) - band >= edges[count + 1]):
+        return count
+    return -1
+
+
+@inline
+def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n, n_pulses, alpha, beta, edges,
+                fw, ys, noise_lsb, z, z0, slopes, bounds, sensor_p):
+    """The ADC counts of the sensor node at ticks s0, s0 + 10, ... < n, summed (a noisy lane's each
+    with its noise)."""
+    step, adc_max = fw[SAMPLE_EVERY], fw[ADC_MAX]
+    n_samples = (n - s0 + step - 1) // step if n > s0 else 0
     if n_samples == 0:
         return 0
-    count, adc_max = st[HINT], fw[ADC_MAX]
-    lo = hi = ys[0]
-    for j in range(1, n_samples):
-        lo, hi = min(lo, ys[j]), max(hi, ys[j])
-    same = hi < edges[count] and (count == adc_max or lo >= edges[count + 1])  # every sample reads ``count``
-    if same and noise_lsb == 0.0:
-        return count * n_samples
+    if noise_lsb == 0.0 and n_samples == ys.shape[0]:
+        count = _chord_count(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n_pulses, alpha,
+                             beta, edges, adc_max, n_samples)
+        if count >= 0:
+            st[HINT] = count
+            return count * n_samples
+    _samples(xl, px, pdd, rows, m, kind, s0, n_samples, n_pulses, alpha, beta, ys)
+    count = st[HINT]
     total = 0
     for j in range(n_samples):
-        if not same:
-            count = _count(ys[j], count, edges, adc_max)
+        count = _count(ys[j], count, edges, adc_max)
         if noise_lsb != 0.0:
             total += _noisy_count(ys[j], count, noise_lsb * z[z0 + j], edges, slopes, bounds, sensor_p, adc_max)
         else:
@@ -614,77 +643,95 @@ def score_row(si, sf, sp, row, flags, temp_c, duty):
     sf[PREV_DUTY] = duty
 
 
+@inline
+def _plant_pulses(st, plan, q, fw, pulses, ring):
+    """The soft PWM's pulses this period into pulses[0]; the ones the plant sees into pulses[1] when it
+    has a dead time (the ring's, ``delay`` ticks late). Returns (the PWM's count, the plant's count)."""
+    n, pwm = plan[q, N_TICKS], plan[q, PWM_COUNT]
+    n_pulses = _pulses(st, pwm, plan[q, FIRST_WRAP], n, fw, pulses[0, 0], pulses[0, 1])
+    if not fw[DELAY]:
+        return n_pulses, n_pulses
+    for p in range(n_pulses):
+        _ring_push(st, ring, plan[q, TICK] + pulses[0, 0, p], plan[q, TICK] + pulses[0, 1, p])
+    return n_pulses, _ring_delayed(st, ring, plan[q, TICK], n, fw[DELAY], pulses[1, 0], pulses[1, 1])
+
+
+@inline
+def _plant_bin(xl, io, fw, n_bins):
+    """The model a radiating lane runs this period: its block's bin from BIN_LO (0 when linear);
+    n_bins when the tables lack it."""
+    if not fw[RADIATING]:
+        return 0
+    m = int(np.rint(_output(io[0], 1, xl) * 2.0)) - fw[BIN_LO]
+    return m if 0 <= m < n_bins else n_bins
+
+
+@inline
+def _reading(st, si, sf, score_p, fw, plan, q, io, m, xl, lane, rec_temp, rec_amount, rec_block, rec_sensor):
+    """A reading's record and its heater-objective accumulation."""
+    r = plan[q, ROW]
+    if fw[RECORD]:
+        rec_temp[lane, r], rec_amount[lane, r] = st[TEMP], st[AMOUNT]
+        rec_block[lane, r] = _output(io[m], 1, xl)
+        rec_sensor[lane, r] = _output(io[m], 2, xl)
+    if fw[SCORE] and plan[q, FLAGS] & SCORED:
+        score_row(si, sf, score_p, fw[ROW_BASE] + r, plan[q, FLAGS], st[TEMP] / (1 << fw[TEMP_FRAC_BITS]),
+                  float(st[AMOUNT]))
+
+
 @jit
-def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, steps, io, edges, slopes, bounds, sensor_p,
-              lut, fw, cparams, rules, istate, x, noise_lsb, streams, z, ring, score_i, score_f, score_p,
-              rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair, ys, strengths, stop, need_bin):
+def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, chord_d, chord_rows, steps, io, edges,
+              slopes, bounds, sensor_p, lut, fw, cparams, rules, istate, x, noise_lsb, streams, z, ring, score_i,
+              score_f, score_p, rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair, ys, strengths, stop,
+              need_bin):
     """Every period of ``plan`` from ``q_start[k]`` on each lane k of ``todo`` (its column of ``x``;
     ``lane_ids[k]`` its row of the per-lane arrays); ``stop[k]``: where it stopped (len(plan) when done).
 
     plan (P, PLAN_COLUMNS) int64 (see the columns above). Tables by model m (the radiating bin from
     ``fw[BIN_LO]``; one model when linear) and period kind: px (M, kinds, n_x, samples) and pdd the
     sensor's free response at each sample, fx and fdd the state's; rows (M, ROW_OFFSET + 10, samples)
-    the heater's sensor step at each sample; steps (M, 161, n_x) the state's; io (M, 3, n_x + 1):
-    the heater's one-tick response, then the block and sensor outputs with their constants. Noise:
-    lane's ``noise_lsb`` times ``z[streams[lane], Z_FIRST + j]``. ring (N, cap, 2): past pulses
-    (dead time ``fw[DELAY]`` ticks). Scratch: pulses (2, 2, MAX_PULSES) int64, x_pair (2, n_x) and ys
-    float64, strengths (7,) int64.
+    the heater's sensor step at each sample; chord_* how far samples stray from their chord
+    (``Tables.chords``); steps (M, 161, n_x) the state's step response; io (M, 3, n_x + 1): the
+    heater's one-tick response, then the block and sensor outputs with their constants. Noise: lane's
+    ``noise_lsb`` times ``z[streams[lane], Z_FIRST + j]``. ring (N, cap, 2): past pulses (dead time
+    ``fw[DELAY]`` ticks). Scratch: pulses (2, 2, MAX_PULSES) int64, x_pair (2, n_x) and ys float64,
+    strengths (7,) int64.
     """
-    n_x = x.shape[0]
-    alpha, beta, d_alpha, d_beta = pulses[0, 0], pulses[0, 1], pulses[1, 0], pulses[1, 1]
     xl, xn = x_pair[0], x_pair[1]
-    delay, radiating = fw[DELAY], fw[RADIATING]
     n_bins = px.shape[0]
+    seen = 1 if fw[DELAY] else 0  # which pulses the plant sees: the PWM's, or the ring's
     for k in todo:
         lane = lane_ids[k]
-        st, cp, si, sf = istate[lane], cparams[lane], score_i[lane], score_f[lane]
-        lane_ring, zl, lane_noise = ring[lane], z[streams[lane]], noise_lsb[lane]
-        for i in range(n_x):
+        st, cp = istate[lane], cparams[lane]
+        for i in range(xl.shape[0]):
             xl[i] = x[i, k]
         q = q_start[k]
         while q < plan.shape[0]:
-            n, s0, reading, pwm, now, kind = plan[q, 0], plan[q, 1], plan[q, 2], plan[q, 3], plan[q, 4], plan[q, 5]
-            m = 0
-            if radiating:
-                m = int(np.rint(_output(io[0], 1, xl) * 2.0)) - fw[BIN_LO]
-                if m < 0 or m >= n_bins:  # the block left the tables: BatchTwin builds more bins
-                    need_bin[k] = m + fw[BIN_LO]
-                    break
-            first_wrap, last = plan[q, FIRST_WRAP], plan[q, LAST_PHASE]
-            n_pulses = _pulses(st, pwm, first_wrap, n, fw, alpha, beta)
-            a, b, n_seen = alpha, beta, n_pulses
-            if delay:
-                for p in range(n_pulses):
-                    _ring_push(st, lane_ring, plan[q, TICK] + alpha[p], plan[q, TICK] + beta[p])
-                n_seen = _ring_delayed(st, lane_ring, plan[q, TICK], n, delay, d_alpha, d_beta)
-                a, b = d_alpha, d_beta
-            st[ACC] += _sample_sum(st, xl, px, pdd, rows, m, kind, s0, n, n_seen, a, b, edges, fw, ys, lane_noise,
-                                   zl, plan[q, Z_FIRST], slopes, bounds, sensor_p)
-            _latch(st, first_wrap, last, n)
+            m = _plant_bin(xl, io, fw, n_bins)
+            if m == n_bins:  # the block left the tables: BatchTwin builds more bins
+                need_bin[k] = int(np.rint(_output(io[0], 1, xl) * 2.0))
+                break
+            n, s0 = plan[q, N_TICKS], plan[q, FIRST_SAMPLE]
+            n_pulses, n_seen = _plant_pulses(st, plan, q, fw, pulses, ring[lane])
+            a, b = pulses[seen, 0], pulses[seen, 1]
+            st[ACC] += _sample_sum(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, plan[q, KIND], s0, n,
+                                   n_seen, a, b, edges, fw, ys, noise_lsb[lane], z[streams[lane]], plan[q, Z_FIRST],
+                                   slopes, bounds, sensor_p)
+            _latch(st, plan[q, FIRST_WRAP], plan[q, LAST_PHASE], n)
             pins_before = st[PINS]
-            if reading:
+            if plan[q, READING]:
                 raw, st[ACC] = st[ACC], 0
-                _task(st, raw, now, lut, cp, fw, rules, strengths)
-            _advance(xl, xn, fx, fdd, steps, m, kind, n, n_seen, a, b)
-            if delay:
-                for i in range(n_x):
-                    xl[i] = xn[i]
-                if pins_before and not st[PINS]:
-                    _ring_cut_last(st, lane_ring)
-            else:  # the main loop may have written the pin for the last tick
-                diff = float(st[PINS] - pins_before)
-                for i in range(n_x):
-                    xl[i] = xn[i] + io[m, 0, i] * diff
-            if reading:
-                r = plan[q, ROW]
-                if fw[RECORD]:
-                    rec_temp[lane, r], rec_amount[lane, r] = st[TEMP], st[AMOUNT]
-                    rec_block[lane, r] = _output(io[m], 1, xl)
-                    rec_sensor[lane, r] = _output(io[m], 2, xl)
-                if fw[SCORE] and plan[q, FLAGS] & SCORED:
-                    score_row(si, sf, score_p, fw[ROW_BASE] + r, plan[q, FLAGS],
-                              st[TEMP] / (1 << fw[TEMP_FRAC_BITS]), float(st[AMOUNT]))
+                _task(st, raw, plan[q, MILLIS], lut, cp, fw, rules, strengths)
+            _advance(xl, xn, fx, fdd, steps, m, plan[q, KIND], n, n_seen, a, b)
+            if fw[DELAY] and pins_before and not st[PINS]:
+                _ring_cut_last(st, ring[lane])  # the main loop switched the pin off for the last tick
+            diff = 0.0 if fw[DELAY] else float(st[PINS] - pins_before)  # (without dead time: now)
+            for i in range(xl.shape[0]):
+                xl[i] = xn[i] + io[m, 0, i] * diff
+            if plan[q, READING]:
+                _reading(st, score_i[lane], score_f[lane], score_p, fw, plan, q, io, m, xl, lane, rec_temp, rec_amount,
+                         rec_block, rec_sensor)
             q += 1
         stop[k] = q
-        for i in range(n_x):
+        for i in range(xl.shape[0]):
             x[i, k] = xl[i]

@@ -66,6 +66,26 @@ class Tables:
         return _frozen(self.sensor_steps[:, np.clip(o, 0, self.sensor_steps.shape[1] - 1)])  # S(0) = 0: before
 
 
+    @functools.cached_property
+    def chords(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """How far a Marlin period's samples can lie from the chord through its first and last:
+        (M, kinds, n_x) per state (times |x|), (M, kinds) for the disturbance, (M, rows) per pulse
+        edge's row of ``sample_rows``; the largest |value - chord| over the samples. Every sample's
+        sensor temperature is then within their sum of the chord (the maps are linear), so when that
+        band lies inside one ADC count the kernel needs no sample in between. Kinds with fewer than
+        MAX_SAMPLES samples (runs cut by an event) must not take it (the kernel checks)."""
+        t = np.arange(MAX_SAMPLES) / (MAX_SAMPLES - 1)
+
+        def off_chord(rows: np.ndarray) -> np.ndarray:
+            chord = (1.0 - t) * rows[..., :1] + t * rows[..., MAX_SAMPLES - 1:MAX_SAMPLES]
+            return np.max(np.abs(rows[..., :MAX_SAMPLES] - chord), axis=-1)
+
+        if self.px.shape[3] < MAX_SAMPLES:  # no full period among the kinds (the kernel checks each run's samples)
+            return _frozen(np.full(self.px.shape[:3], np.inf)), _frozen(np.full(self.pdd.shape[:2], np.inf)), \
+                _frozen(off_chord(self.sample_rows))
+        return _frozen(off_chord(self.px)), _frozen(off_chord(self.pdd)), _frozen(off_chord(self.sample_rows))
+
+
 def _key(*arrays: np.ndarray) -> tuple:
     return tuple((a.shape, a.tobytes()) for a in arrays)
 

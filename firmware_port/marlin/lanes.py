@@ -13,6 +13,7 @@ firmware computes; tests/test_lanes.py keeps them equal. A lane that trips its p
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -71,10 +72,11 @@ class PidLanes:
     """``PidFixed.update_q8`` on N lanes; gains scaled by the scalar class itself; the prev-temperature
     mode one for all lanes or one per lane."""
 
-    def __init__(self, gains: list[PidGains], prev_temp_mode: str | Sequence[str] = PREV_TEMP_EVERY_SAMPLE):
+    def __init__(self, gains: Sequence[PidGains | PidFixed], prev_temp_mode: str | Sequence[str] = PREV_TEMP_EVERY_SAMPLE):
+        """One lane per gain set (in ``prev_temp_mode``), or per ``PidFixed`` (its gains and mode)."""
         modes = [prev_temp_mode] * len(gains) if isinstance(prev_temp_mode, str) else list(prev_temp_mode)
-        scalar = [PidFixed(g, mode) for g, mode in zip(gains, modes, strict=True)]
-        self.every_sample = np.array([mode == PREV_TEMP_EVERY_SAMPLE for mode in modes], dtype=bool)
+        scalar = [g if isinstance(g, PidFixed) else PidFixed(g, mode) for g, mode in zip(gains, modes, strict=True)]
+        self.every_sample = np.array([p.prev_temp_mode == PREV_TEMP_EVERY_SAMPLE for p in scalar], dtype=bool)
         self.kp_q12 = np.array([p.kp_q12 for p in scalar], dtype=np.int64)
         self.ki_q24 = np.array([p.ki_q24 for p in scalar], dtype=np.int64)
         self.kd_q16 = np.array([p.kd_q16 for p in scalar], dtype=np.int64)
@@ -126,6 +128,12 @@ class ScalarLanes:
         return out
 
 
+@functools.lru_cache(maxsize=8)
+def _hotend_range(table: TempTable) -> TempRange:
+    """The hotend's limits on a table (the lanes only read them)."""
+    return TempRange.hotend(table)
+
+
 class HotendLanes:
     """N hotend boards: shared ISR clock, per-lane soft PWM, controller and protection.
 
@@ -141,7 +149,7 @@ class HotendLanes:
         self.n_lanes = n
         self.table = table
         self.adc = AdcSequencer(1, port=None)
-        self.temp_range = TempRange.hotend(table)
+        self.temp_range = _hotend_range(table)
         runaway, watch = RunawayMonitor.hotend(), HeaterWatch.hotend()
         self.runaway_period_ms, self.runaway_hysteresis_c = runaway.period_s * 1000, runaway.hysteresis_c
         self.watch_increase_c, self.watch_hysteresis_c = watch.increase_c, watch.hysteresis_c

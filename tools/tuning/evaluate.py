@@ -102,6 +102,8 @@ class Problem:
     scenario: TuneScenario
     loop: str = "marlin"
     controller: ParamSpace = field(default_factory=pid_space)
+    noise_lsb: float = 0.0  # the ADC's noise on the Marlin loop (Twin's noise_lsb)
+    seed: int = 0  # the noise's seed: every candidate sees this one draw (common random numbers)
 
     def __post_init__(self) -> None:
         if self.loop not in LOOPS:
@@ -272,7 +274,7 @@ def _run_batch(problem: Problem, params: np.ndarray, record: bool = True) -> Tra
     batch: BatchTwin | KlipperBatch
     if marlin:
         batch = BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params],
-                          record=record, score=score)
+                          noise_lsb=problem.noise_lsb, seed=problem.seed, record=record, score=score)
         batch.set_target(int(round(scenario.target_c)))
     else:
         setup = extruder_setup(make_problem_plant(problem), max_temp_c=KLIPPER_MAX_TEMP_C)
@@ -293,7 +295,8 @@ def _marlin_twin(problem: Problem, row: np.ndarray | None) -> Twin:
     """A scalar firmware twin on the problem's plant running the candidate ``row`` (the firmware's
     own PID when None), the scenario scheduled (target not yet set)."""
     plant = make_problem_plant(problem)
-    twin = Twin([plant], "pid", controllers=[None if row is None else problem.controller.make(row)])
+    twin = Twin([plant], "pid", controllers=[None if row is None else problem.controller.make(row)],
+                seed=problem.seed, noise_lsb=problem.noise_lsb)
     twin.set_ambient(problem.scenario.ambient_c)
     for event in problem.scenario.events:
         twin.schedule(event.at_s, functools.partial(_twin_load if event.kind == "load" else apply_event, event=event))

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from distributed import Client, LocalCluster
 
-from tools.tuning.evaluate import Evaluator, preset_problem, simulate
+from tools.tuning.evaluate import Evaluator, preset_problem, run_chunk, run_scalars, simulate
 from tools.tuning.objectives import heater_cost, heater_terms, itae, needs_trace
 from twin.plants import ONION_RADIATING_PARAMS
 
@@ -84,3 +84,22 @@ def test_dask_chunks_stream_the_in_process_numbers():
     local = simulate(problem, params, record=False)
     for field in FIELDS:
         np.testing.assert_array_equal(getattr(heater_terms(remote), field), getattr(heater_terms(local), field))
+
+
+@pytest.mark.parametrize("name", ["marlin noisy", "marlin fuzzy PI", "marlin dead time", "klipper"])
+def test_the_batch_path_is_the_scalar_path(name):
+    """Problem.batched chooses the lanes; one twin per candidate (run_scalars) gives the same readings
+    and duty, a noisy sensor included (each candidate sees the problem seed's draw), on the common clock
+    (run_scalars samples every run on its first run's clock, which a trip changes)."""
+    problem = {**PROBLEMS, "marlin noisy": lambda: dataclasses.replace(PROBLEMS["marlin pid"](), noise_lsb=1.0,
+                                                                       seed=4)}[name]()
+    problem = dataclasses.replace(problem, scenario=dataclasses.replace(problem.scenario, duration_s=300.0))
+    params = _candidates(problem, 3)
+    batch, scalar = run_chunk(problem, params), run_scalars(problem, params)
+    skip = int(problem.loop == "marlin")  # run_chunk leaves Marlin's first reading out
+    rows = min(batch.t_s.size, scalar.t_s.size - skip)
+    apart = np.abs(batch.t_s[:rows] - scalar.t_s[skip:rows + skip]) > 1e-9
+    rows = int(np.argmax(apart)) if apart.any() else rows
+    assert rows > 500  # over 80 s of readings in common
+    np.testing.assert_array_equal(batch.temp_c[:rows], scalar.temp_c[skip:rows + skip])
+    np.testing.assert_array_equal(batch.duty[:rows], scalar.duty[skip:rows + skip])

@@ -9,14 +9,23 @@
   scipy.signal.lsim on the same 1.024 ms grid, time ratio and largest difference.
 
 ``tune``: what a tuner pays for an evaluation, in one run:
-- a batch of 1000 hotend twins (the tuning plant) x 600 s, full ISR fidelity: the cost of one
+- a batch of 1000 hotend twins (the tuning plant) x 600 s, full ISR fidelity, run as a tuner runs
+  it (no trace kept: the heater objective's inputs streamed; lanes on every CPU): the cost of one
   600-s firmware-in-the-loop evaluation, against one evaluation of seed 000's idealised loop
   (its second-order plant closed with a PID by scipy.signal, step over 50 s, 1000 points), and
   their ratio; firmware control periods per second; memory per lane; the same batch on the
   numpy lanes for comparison;
 - the wall time of a differential-evolution tune of the three gains (population 45, 100
   generations, every population one batch) with twin-tune's heater objective on its default
-  scenario.
+  scenario;
+- twin-tune's default tune (rules, references, DE) of the tuning plant on the Marlin loop and on the
+  Klipper loop, and their ratio;
+- the same DE tune on a dead-time plant (seed001_fopdt), on the radiating fit of hotend_cartridge
+  and with 1 LSB of ADC noise: every one on the batch.
+
+``scaling``: cost per evaluation against lanes and horizon for each path of the batch (linear,
+noisy, dead time, radiating, the fuzzy PI, the Klipper loop), and against dask workers
+(docs/scaling.md).
 
 ``protocol``: twin-serial ``--speed max`` in its own process, pyserial on its pty, as a host:
 - M105 round trip, wall milliseconds, median and 99th percentile;
@@ -29,7 +38,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import functools
+import os
 import select
 import statistics
 import subprocess
@@ -47,13 +58,17 @@ from firmware_port.marlin.constants import SOFT_PWM_PERIOD_TICKS, TICKS_PER_READ
 from firmware_port.marlin.pid import PidGains
 from protocol.lines import with_checksum
 from protocol.printer import BUFSIZE
-from tools.tuning.evaluate import Evaluator, preset_problem
-from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
+from firmware_port.firmwares import param_space
+from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
+from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
+from tools.tuning.tuner import DEFAULT_BUDGET, tune
 from twin import batch_kernel
-from twin.batch import BatchTwin
+from twin.batch import THREADS_ENV, BatchTwin, lane_threads
+from twin.klipper_batch import KlipperBatch, gains_setups
+from twin.klipper_twin import extruder_setup
 from twin.build import build_twin
 from twin.linear import SENSOR, TICK_S
-from twin.plants import SPECS, TransferFunction, make_plant
+from twin.plants import ONION_RADIATING_PARAMS, SPECS, TransferFunction, make_plant
 from twin.scenario import PRESETS, with_overrides
 
 T = TypeVar("T")
@@ -127,7 +142,7 @@ def bench_open_loop(duration_s: float) -> list[str]:
 
 
 TUNE_TARGET_C = 210
-TUNE_PRESET = "hotend_cartridge"  # linear without dead time, fitted to a real printer (twin/plants.py)
+TUNE_PRESET = "hotend_cartridge"  # fitted to a real printer (twin/plants.py)
 TUNE_BOUNDS = [(1.0, 100.0), (0.01, 10.0), (1.0, 500.0)]  # Kp, Ki /s, Kd s on Marlin's 0..255 scale
 SEED000_HORIZON_S, SEED000_POINTS = 50.0, 1000
 # Seed 000's Nelder-Mead bounds for its PID on the 5 C/W second-order extruder.
@@ -141,8 +156,12 @@ def _timed_value(fn: Callable[[], T]) -> tuple[T, float, float]:
     return value, time.perf_counter() - start, time.process_time() - start_cpu
 
 
-def _heat_and_hold(plant, gains: list[PidGains], duration_s: float, kernel: str | None = None) -> BatchTwin:
-    batch = BatchTwin(plant, gains, kernel=kernel)
+def _heat_and_hold(plant, gains: list[PidGains], duration_s: float, kernel: str | None = None,
+                   streamed: bool = False) -> BatchTwin:
+    """A batch heating to the tuning target; ``streamed``: as a tuner runs it (no trace, the heater
+    objective's inputs accumulated)."""
+    score = score_spec(TUNE_TARGET_C, plant.ambient_c, duration_s / 2, 1) if streamed else None
+    batch = BatchTwin(plant, gains, kernel=kernel, record=not streamed, score=score)
     batch.schedule(0.0, lambda b: b.set_target(TUNE_TARGET_C))
     batch.run_until(duration_s)
     return batch
@@ -164,52 +183,96 @@ def _seed000_evaluation(kp: float, ki: float, kd: float, t: np.ndarray) -> np.nd
 
 
 def bench_evaluation_cost(plant, n_lanes: int, duration_s: float, seed: int, n_seed000: int) -> list[str]:
-    """One 600-s evaluation in the batch against one seed-000 evaluation, measured in this run."""
+    """One 600-s evaluation in the batch, as a tuner runs it, against one seed-000 evaluation, measured in this run."""
     rng = np.random.default_rng(seed)
     gains = [PidGains(*map(float, g)) for g in _random_gains(rng, TUNE_BOUNDS, n_lanes)]
-    _heat_and_hold(plant, gains[:2], 1.0)  # loads the compiled kernel from numba's cache (or compiles it)
-    batch, wall_s, cpu_s = _timed_value(lambda: _heat_and_hold(plant, gains, duration_s))
-    wall_numpy_s = _timed(lambda: _heat_and_hold(plant, gains, duration_s, kernel="numpy"))
+    _heat_and_hold(plant, gains[:8], 1.0, streamed=True)  # loads the compiled kernel from numba's cache (or compiles it)
+    batch, wall_s, cpu_s = _timed_value(lambda: _heat_and_hold(plant, gains, duration_s, streamed=True))
+    wall_numpy_s = _timed(lambda: _heat_and_hold(plant, gains, duration_s, kernel="numpy", streamed=True))
     t = np.linspace(0.0, SEED000_HORIZON_S, SEED000_POINTS)
     seed_gains = _random_gains(rng, SEED000_BOUNDS, n_seed000)
     wall_seed000_s = _timed(lambda: [_seed000_evaluation(kp, ki, kd, t) for kp, ki, kd in seed_gains])
     twin_ms, seed000_ms = wall_s / n_lanes * 1e3, wall_seed000_s / n_seed000 * 1e3
-    periods = n_lanes * len(batch.t_s)
+    periods = n_lanes * batch.lanes.ticks // TICKS_PER_READING
     return [
         f"evaluation cost, {n_lanes} lanes of {plant.preset} x {duration_s:g} s, full ISR fidelity, random gains "
-        f"(seed {seed}), kernel {batch.kernel} ({batch_kernel.describe()}):",
+        f"(seed {seed}), kernel {batch.kernel} ({batch_kernel.describe()}), {batch.threads} threads, no trace "
+        f"(the heater objective streamed):",
         f"  seed 000 comparison: {twin_ms:.3f} ms per {duration_s:g}-s firmware-in-the-loop evaluation in the batch, "
         f"{seed000_ms:.3f} ms per seed-000 evaluation (scipy.signal.step, {SEED000_HORIZON_S:g} s, "
-        f"{SEED000_POINTS} points, mean of {n_seed000}): ratio {seed000_ms / twin_ms:.1f} x (target >= 10)",
+        f"{SEED000_POINTS} points, mean of {n_seed000}): ratio {seed000_ms / twin_ms:.1f} x (target >= 20)",
         f"  {periods / wall_s:,.0f} firmware control periods per second ({wall_s:.3f} s wall, {cpu_s:.3f} s CPU "
-        f"for the batch; "
-        f"numpy lanes {wall_numpy_s:.3f} s, {wall_numpy_s / wall_s:.1f} x slower)",
-        f"  memory per lane: {batch.bytes_per_lane() / 1024:.1f} KiB ({len(batch.t_s)} readings recorded: "
-        f"temperature and duty as int16, block and sensor as float64, plus state)",
+        f"for the batch; numpy lanes {wall_numpy_s:.3f} s, {wall_numpy_s / wall_s:.1f} x slower)",
+        f"  memory per lane: {batch.bytes_per_lane() / 1024:.2f} KiB (plant and firmware state, constants and the "
+        f"objective's accumulators: no trace, whatever the horizon)",
     ]
+
+
+def _de(problem, seed: int, popsize: int = 15, generations: int = 100):
+    """scipy's differential evolution of a PID problem's three gains with the heater objective, one batch
+    per population: (result, evaluations, wall s, CPU s)."""
+    evaluate = Evaluator(problem, objective(DEFAULT_OBJECTIVE))
+    de, wall_s, cpu_s = _timed_value(lambda: scipy.optimize.differential_evolution(
+        lambda population: evaluate(population.T), TUNE_BOUNDS, popsize=popsize, maxiter=generations, tol=0.0,
+        polish=False, vectorized=True, updating="deferred", rng=np.random.default_rng(seed)))
+    return de, evaluate.evaluations, wall_s, cpu_s
 
 
 def bench_de_tune(preset: str, seed: int, popsize: int = 15, generations: int = 100) -> list[str]:
     """scipy's differential evolution on the firmware twin with twin-tune's heater objective on its
     default scenario (heat-up, hold, disturbances), one batch per population."""
     problem = preset_problem(preset, TUNE_TARGET_C)
-    evaluate = Evaluator(problem, objective(DEFAULT_OBJECTIVE))
-    de, wall_s, cpu_s = _timed_value(lambda: scipy.optimize.differential_evolution(
-        lambda population: evaluate(population.T), TUNE_BOUNDS, popsize=popsize, maxiter=generations, tol=0.0,
-        polish=False, vectorized=True, updating="deferred", rng=np.random.default_rng(seed)))
+    _de(problem, seed, popsize, 1)  # the kernels loaded, the scenario's tables built
+    de, evaluations, wall_s, cpu_s = _de(problem, seed, popsize, generations)
     kp, ki, kd = de.x
     return [
         f"DE tune of {preset} (3 gains, population {popsize * len(TUNE_BOUNDS)}, {de.nit} generations, "
-        f"{evaluate.evaluations} evaluations of {problem.scenario.duration_s:g} s, objective {DEFAULT_OBJECTIVE}, "
-        f"seed {seed}): {wall_s:.3f} s wall (target < 5 s), {cpu_s:.3f} s CPU",
+        f"{evaluations} evaluations of {problem.scenario.duration_s:g} s, objective {DEFAULT_OBJECTIVE}, "
+        f"seed {seed}): {wall_s:.3f} s wall (target < 3 s), {cpu_s:.3f} s CPU",
         f"  best Kp {kp:.3f} Ki {ki:.4f} Kd {kd:.2f}: cost {de.fun:.1f}",
     ]
 
 
+def bench_loop_tunes(preset: str, seed: int) -> list[str]:
+    """twin-tune's default tune (rules, the firmware's autotune and defaults, DE with the default budget)
+    on the Marlin loop and on the Klipper loop, same plant, same run."""
+    walls = {}
+    for loop in ("marlin", "klipper"):
+        problem = preset_problem(preset, TUNE_TARGET_C, loop=loop)
+        result, walls[loop], _ = _timed_value(lambda problem=problem: tune(problem, seed=seed))
+        walls[loop, "best"] = result.best
+    lines = [f"twin-tune's default tune of {preset} at {TUNE_TARGET_C} C (rules, references, DE budget {DEFAULT_BUDGET}, "
+             f"seed {seed}), both loops on the batch:"]
+    for loop in ("marlin", "klipper"):
+        best = walls[loop, "best"]
+        lines.append(f"  {loop:7s} loop: {walls[loop]:.3f} s wall, best {best.method} "
+                     f"Kp {best.params[0]:.2f} Ki {best.params[1]:.3f} Kd {best.params[2]:.1f}: cost {best.cost:.1f}")
+    lines.append(f"  klipper / marlin: {walls['klipper'] / walls['marlin']:.2f} x (target <= 3)")
+    return lines
+
+
+def bench_batch_tunes(seed: int) -> list[str]:
+    """The DE tune of ``bench_de_tune`` on the paths that ran one twin per candidate before the batch took them."""
+    cartridge = preset_problem(TUNE_PRESET, TUNE_TARGET_C)
+    problems = {
+        "dead time: seed001_fopdt": preset_problem("seed001_fopdt", TUNE_TARGET_C),
+        "radiating loss: hotend_cartridge's radiating fit": dataclasses.replace(
+            cartridge, spec=dataclasses.replace(cartridge.spec, **ONION_RADIATING_PARAMS)),
+        "noisy sensor: hotend_cartridge, 1 LSB, seed 1": dataclasses.replace(cartridge, noise_lsb=1.0, seed=1),
+    }
+    lines = [f"DE tunes on the batch (population 45, 100 generations, seed {seed}; the first generation's "
+             "tables and bins built before the clock starts):"]
+    for name, problem in problems.items():
+        _de(problem, seed, generations=1)
+        de, evaluations, wall_s, cpu_s = _de(problem, seed)
+        lines.append(f"  {name}: batched {problem.batched}, {evaluations} evaluations of "
+                     f"{problem.scenario.duration_s:g} s, {wall_s:.3f} s wall, {cpu_s:.3f} s CPU, best cost {de.fun:.1f}")
+    return lines
+
+
 def tune_plant():
-    """The tuning preset if it is linear without dead time (what a batch needs), else the default hotend."""
-    plant = make_plant(TUNE_PRESET)
-    return plant if plant.linear and not plant.delay_ticks else make_plant("hotend")
+    """The tuning preset's plant at ambient."""
+    return make_plant(TUNE_PRESET)
 
 
 SERIAL_CLI = [sys.executable, "-m", "tools.cli.serial", "--speed", "max"]
@@ -307,7 +370,6 @@ def bench_protocol(n_requests: int, n_lines: int) -> list[str]:
 # -- scaling: how cost grows with lanes, horizon and dask workers ---------------------------------
 SCALING_LANES = (1, 10, 100, 1000)
 SCALING_HORIZONS_S = (150.0, 300.0, 600.0)
-SCALING_HORIZON_LANES = 1000
 SCALING_DASK_LANES = 2048  # 64 chunks of evaluate.CHUNK_LANES: enough tasks for two workers
 SCALING_REPEATS = 3  # each figure is the best of 3 runs: a loaded machine inflates single runs
 
@@ -316,56 +378,111 @@ def _best_wall(fn) -> float:
     return min(_timed(fn) for _ in range(SCALING_REPEATS))
 
 
-def _scaling_lanes(plant, seed: int) -> list[str]:
-    """Wall time of a 600-s batch against its lane count, relative to one lane."""
-    rng = np.random.default_rng(seed)
-    gains = [PidGains(*map(float, g)) for g in _random_gains(rng, TUNE_BOUNDS, max(SCALING_LANES))]
-    _heat_and_hold(plant, gains[:2], 1.0)  # loads the compiled kernel first
-    walls = {n: _best_wall(lambda n=n: _heat_and_hold(plant, gains[:n], 600.0)) for n in SCALING_LANES}
-    lines = [f"lanes ({plant.preset}, 600 s, full ISR fidelity): wall, wall per lane, ratio of wall to 1 lane's"]
-    lines += [f"  {n:5d} lanes: {w:.3f} s, {w / n * 1e3:.2f} ms per lane, x{w / walls[1]:.1f}" for n, w in walls.items()]
-    return lines
+def _pid_lanes(gains: np.ndarray) -> list[PidGains]:
+    return [PidGains(*map(float, g)) for g in gains]
 
 
-def _scaling_horizon(plant, seed: int) -> list[str]:
-    """Wall time and memory per lane against the simulated horizon."""
-    rng = np.random.default_rng(seed)
-    gains = [PidGains(*map(float, g)) for g in _random_gains(rng, TUNE_BOUNDS, SCALING_HORIZON_LANES)]
-    walls = {h: _best_wall(lambda h=h: _heat_and_hold(plant, gains, h)) for h in SCALING_HORIZONS_S}
-    first = walls[SCALING_HORIZONS_S[0]]
-    lines = [f"horizon ({SCALING_HORIZON_LANES} lanes): wall, ratio to {SCALING_HORIZONS_S[0]:g} s, memory per lane"]
-    lines += [f"  {h:5g} s: {wall:.3f} s, x{wall / first:.2f}, "
-              f"{_heat_and_hold(plant, gains[:1], h).bytes_per_lane() / 1024:.1f} KiB per lane"
-              for h, wall in walls.items()]
-    return lines
+def _fuzzy_lanes(gains: np.ndarray) -> list:
+    """Fuzzy PI candidates, one per row of gains: each of its three ranges log-uniform within its bounds, at
+    the row's place in TUNE_BOUNDS (so the same rows give the same candidates)."""
+    space = param_space("fuzzy_pi")
+    low, high = space.to_search(space.bounds[:, 0]), space.to_search(space.bounds[:, 1])
+    bounds = np.array(TUNE_BOUNDS)
+    share = (gains - bounds[:, 0]) / (bounds[:, 1] - bounds[:, 0])
+    return [space.make(row) for row in space.from_search(low + share * (high - low))]
+
+
+def _klipper_batch(plant, gains: np.ndarray, score) -> KlipperBatch:
+    return KlipperBatch(gains_setups(extruder_setup(plant, max_temp_c=KLIPPER_MAX_TEMP_C), gains), record=False,
+                        score=score)
+
+
+# name -> (plant preset and parameters, options): each path of the batch as a tuner runs it
+SCALING_PATHS: dict[str, tuple[str, dict, dict]] = {
+    "Marlin PID, linear plant (hotend_cartridge)": (TUNE_PRESET, {}, {}),
+    "Marlin PID, 1 LSB of ADC noise": (TUNE_PRESET, {}, {"noise_lsb": 1.0, "seed": 1}),
+    "Marlin PID, dead time (seed001_fopdt)": ("seed001_fopdt", {}, {}),
+    "Marlin PID, radiating loss (hotend_cartridge's radiating fit)": (TUNE_PRESET, ONION_RADIATING_PARAMS, {}),
+    "Marlin fuzzy PI (seed 004)": (TUNE_PRESET, {}, {"fuzzy": True}),
+    "Klipper PID": (TUNE_PRESET, {}, {"klipper": True}),
+}
+
+
+def _path_run(path: str, gains: np.ndarray, horizon_s: float):
+    """One batch of a path's lanes heating to the tuning target for horizon_s, as a tuner runs it."""
+    preset, params, options = SCALING_PATHS[path]
+    options = dict(options)
+    plant = make_plant(preset, **params)
+    score = score_spec(TUNE_TARGET_C, plant.ambient_c, horizon_s / 2, 1)
+    if options.pop("klipper", False):
+        batch: BatchTwin | KlipperBatch = _klipper_batch(plant, gains, score)
+        batch.set_target(float(TUNE_TARGET_C))
+    else:
+        lanes = _fuzzy_lanes(gains) if options.pop("fuzzy", False) else _pid_lanes(gains)
+        batch = BatchTwin(plant, lanes, record=False, score=score, **options)
+        batch.set_target(TUNE_TARGET_C)
+    batch.run_until(horizon_s)
+    return batch
+
+
+def _scaling_path(path: str, seed: int) -> list[str]:
+    """Cost per evaluation of one path against the lanes (600 s) and the horizon (1000 lanes)."""
+    gains = _random_gains(np.random.default_rng(seed), TUNE_BOUNDS, max(SCALING_LANES))
+    _path_run(path, gains[:8], 600.0)  # kernels loaded, tables (and a radiating plant's bins) built
+    per_lane = {n: _best_wall(lambda n=n: _path_run(path, gains[:n], 600.0)) / n * 1e3 for n in SCALING_LANES}
+    per_horizon = {h: _best_wall(lambda h=h: _path_run(path, gains, h)) / len(gains) * 1e3
+                   for h in SCALING_HORIZONS_S}
+    memory = {h: _path_run(path, gains[:8], h).bytes_per_lane() / 1024 for h in (SCALING_HORIZONS_S[0], 600.0)}
+    return [
+        f"{path}:",
+        "  ms per 600-s evaluation by lanes: " + ", ".join(f"{n} {ms:.3f}" for n, ms in per_lane.items()),
+        f"  ms per evaluation of {len(gains)} lanes by horizon: "
+        + ", ".join(f"{h:g} s {ms:.3f}" for h, ms in per_horizon.items())
+        + f" ({per_horizon[600.0] / per_horizon[SCALING_HORIZONS_S[0]]:.2f} x from {SCALING_HORIZONS_S[0]:g} to 600 s)",
+        f"  memory per lane: {memory[SCALING_HORIZONS_S[0]]:.2f} KiB at {SCALING_HORIZONS_S[0]:g} s, "
+        f"{memory[600.0]:.2f} KiB at 600 s",
+    ]
 
 
 def _scaling_dask(seed: int) -> list[str]:
-    """evaluate.simulate in-process against a dask LocalCluster of 1 and of 2 worker processes."""
+    """evaluate.simulate in-process (lanes on every CPU) against a dask LocalCluster of 1 and of 2 worker
+    processes (one lane thread each), as a tuner runs it (no trace)."""
     from distributed import Client, LocalCluster
 
     from tools.tuning.evaluate import preset_problem, simulate
 
     problem = preset_problem(TUNE_PRESET, TUNE_TARGET_C)
     gains = _random_gains(np.random.default_rng(seed), TUNE_BOUNDS, SCALING_DASK_LANES)
-    simulate(problem, gains[:2])  # compiled kernel loaded in this process
-    walls = {"in-process": _best_wall(lambda: simulate(problem, gains))}
-    for workers in (1, 2):
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-                Client(cluster) as client:
-            simulate(problem, gains[: 2 * workers], client)  # workers import and load the kernel
-            walls[f"{workers} worker(s)"] = _best_wall(lambda client=client: simulate(problem, gains, client))
+    simulate(problem, gains[:2], record=False)  # compiled kernel loaded in this process
+    walls = {"in-process": _best_wall(lambda: simulate(problem, gains, record=False))}
+    saved = os.environ.get(THREADS_ENV)
+    os.environ[THREADS_ENV] = "1"  # the worker processes: one lane thread each, the cluster spreads the chunks
+    try:
+        for workers in (1, 2):
+            with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as \
+                    cluster, Client(cluster) as client:
+                simulate(problem, gains[: 2 * workers], client, record=False)  # workers import and load the kernel
+                walls[f"{workers} worker(s)"] = _best_wall(
+                    lambda client=client: simulate(problem, gains, client, record=False))
+    finally:
+        if saved is None:
+            os.environ.pop(THREADS_ENV)
+        else:
+            os.environ[THREADS_ENV] = saved
     base = walls["in-process"]
     lines = [f"dask ({SCALING_DASK_LANES} lanes of {problem.name}, {problem.scenario.duration_s:g} s scenario, "
-             f"chunks of 32, LocalCluster worker processes of 1 thread): wall, ratio to in-process"]
+             f"chunks of {CHUNK_LANES}, no trace; in-process on {lane_threads(None)} lane threads, LocalCluster worker "
+             "processes of 1 thread): wall, ratio to in-process"]
     lines += [f"  {name}: {wall:.3f} s, x{wall / base:.2f}" for name, wall in walls.items()]
     return lines
 
 
 def bench_scaling(seed: int) -> list[str]:
-    """docs/scaling.md's figures: lanes, horizon, dask workers, measured in one run."""
-    plant = tune_plant()
-    return _scaling_lanes(plant, seed) + _scaling_horizon(plant, seed) + _scaling_dask(seed)
+    """docs/scaling.md's figures: every path against lanes and horizon, then dask workers, measured in one run."""
+    lines = []
+    for path in SCALING_PATHS:
+        lines += _scaling_path(path, seed)
+    return lines + _scaling_dask(seed)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -384,6 +501,8 @@ def main(argv: list[str] | None = None) -> int:
         plant = tune_plant()
         lines = bench_evaluation_cost(plant, args.lanes, args.duration, args.seed, n_seed000=200)
         lines += bench_de_tune(plant.preset, args.seed)
+        lines += bench_loop_tunes(plant.preset, args.seed)
+        lines += bench_batch_tunes(args.seed)
     elif args.what == "scaling":
         lines = [f"python -m tools.bench scaling --seed {args.seed}"] + bench_scaling(args.seed)
     else:

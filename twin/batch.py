@@ -82,7 +82,7 @@ TARGET_HEADROOM_C = 20.0  # radiating plants: bins built up front to this far ab
 
 
 @dataclass
-class _Group:
+class LaneGroup:
     """Lanes that share a plant: their global lane numbers and their plant states (n_x, lanes)."""
 
     plant: Any  # the plant API of twin/linear.py (a Plant: model, d, x, delay_ticks, linear, spec)
@@ -91,7 +91,7 @@ class _Group:
     bins: tuple[int, int] | None = None  # radiating: the block bins the tables hold, first and last
 
 
-def _threads(threads: int | None) -> int:
+def lane_threads(threads: int | None) -> int:
     if threads is not None:
         return max(1, int(threads))
     if THREADS_ENV in os.environ:
@@ -177,7 +177,7 @@ class BatchTwin:
         self.sensor = sensor if sensor is not None else SensorChain()
         self._noise_setup(noise_lsb, seed)
         self.record, self.score = record, score
-        self.threads = _threads(threads)
+        self.threads = lane_threads(threads)
         self.tick = 0
         self._events = EventQueue()
         self._chunks: list[tuple] = []  # records: (t_s (R,), temp_q5, amount, block_c, sensor_c (N, R))
@@ -196,7 +196,7 @@ class BatchTwin:
         self.score_f[:, bk.MAX_BEYOND] = -np.inf
 
     # -- construction --------------------------------------------------------------------------------
-    def _group(self, plant) -> list[_Group]:
+    def _group(self, plant) -> list[LaneGroup]:
         plants = list(plant) if isinstance(plant, (list, tuple)) else [plant] * self.n_lanes
         if len(plants) != self.n_lanes:
             raise ValueError(f"plants: one, or one per lane ({self.n_lanes}), not {len(plants)}")
@@ -208,7 +208,7 @@ class BatchTwin:
         out = []
         for lanes in groups.values():
             p = plants[lanes[0]]
-            out.append(_Group(p, np.array(lanes, np.int64), np.repeat(p.x[:, None], len(lanes), axis=1)))
+            out.append(LaneGroup(p, np.array(lanes, np.int64), np.repeat(p.x[:, None], len(lanes), axis=1)))
         return out
 
     def _noise_setup(self, noise_lsb, seed) -> None:
@@ -448,10 +448,10 @@ class BatchTwin:
         lanes.ticks += stop - self.tick
         self.tick = stop
 
-    def _run_group(self, group: _Group, plan: np.ndarray, kinds: tuple, fw: np.ndarray, istate: np.ndarray,
+    def _run_group(self, group: LaneGroup, plan: np.ndarray, kinds: tuple, fw: np.ndarray, istate: np.ndarray,
                    z: np.ndarray, records: tuple) -> None:
         """Every lane of a group over the plan (a radiating plant's lanes in as many rounds as bins need)."""
-        def tables_for(g: _Group) -> Tables:
+        def tables_for(g: LaneGroup) -> Tables:
             if g.plant.linear:
                 return linear_tables(g.plant.model, g.plant.d, kinds, TICKS_PER_READING)
             assert g.bins is not None  # set by run_group
@@ -567,7 +567,7 @@ class BatchTwin:
         return self._column(2) / SOFT_PWM_MAX
 
 
-def run_group(group: _Group, n_ops: int, target_c: float, tables_for: Callable[[_Group], object],
+def run_group(group: LaneGroup, n_ops: int, target_c: float, tables_for: Callable[[LaneGroup], object],
               run_part: Callable[..., None], threads: int) -> None:
     """A kernel over every lane of a group, from each lane's start to the plan's end, over threads.
 

@@ -33,7 +33,7 @@ from firmware_port.klipper.heater import PWM_RESEND_2025_08, QUELL_STALE_TIME, R
     SAMPLE_TIME
 from firmware_port.klipper.verify_heater import CHECK_INTERVAL_S
 from twin import adc_table, batch_kernel as bk, klipper_kernel as kk
-from twin.batch import _Group, _threads, run_group
+from twin.batch import LaneGroup, lane_threads, run_group
 from twin.clock import TICK_S, EventQueue, tick_near
 from twin.klipper_twin import ADC_FIRST_SAMPLE_S, PRIO_ADC, PRIO_REPORT, PRIO_USER, PRIO_VERIFY, RANGE_CHECK_COUNT, \
     STM32F103, HeaterSetup, Mcu, calc_adc, calc_temp
@@ -142,7 +142,7 @@ class KlipperBatch:
         first = setups[0]
         self.setup, self.mcu, self.n_lanes = first, mcu, len(setups)
         self.record, self.score = record, score
-        self.threads = _threads(threads)
+        self.threads = lane_threads(threads)
         self.heaters = [KlipperHeater(s.config) for s in setups]
         self.groups = self._group([s.plant for s in setups])
         self.first_sample_s = ADC_FIRST_SAMPLE_S  # the heater's query slot: the first and only one
@@ -173,11 +173,11 @@ class KlipperBatch:
             if s.plant.delay_ticks != first.plant.delay_ticks:
                 raise ValueError("every lane's plant needs the same dead time")
 
-    def _group(self, plants: list) -> list[_Group]:
+    def _group(self, plants: list) -> list[LaneGroup]:
         groups: dict[int, list[int]] = {}
         for lane, p in enumerate(plants):
             groups.setdefault(id(p), []).append(lane)
-        return [_Group(plants[lanes[0]], np.array(lanes, np.int64), np.repeat(plants[lanes[0]].x[:, None], len(lanes),
+        return [LaneGroup(plants[lanes[0]], np.array(lanes, np.int64), np.repeat(plants[lanes[0]].x[:, None], len(lanes),
                                                                                axis=1)) for lanes in groups.values()]
 
     def _settings(self, setup: HeaterSetup) -> np.ndarray:
@@ -326,12 +326,12 @@ class KlipperBatch:
                 self._chunks.append(records)
         self._rows += len(report_t)
 
-    def _run_group(self, group: _Group, plan: np.ndarray, plan_t: np.ndarray, offsets: np.ndarray,
+    def _run_group(self, group: LaneGroup, plan: np.ndarray, plan_t: np.ndarray, offsets: np.ndarray,
                    n_offsets: np.ndarray, kinds: tuple, records: tuple) -> None:
         run_kinds, window_kinds = kinds
         n_max = max(max(n for n, _ in run_kinds), int(offsets.max())) + 1
 
-        def tables_for(g: _Group) -> tuple[Tables, Tables]:
+        def tables_for(g: LaneGroup) -> tuple[Tables, Tables]:
             if g.plant.linear:
                 return linear_tables(g.plant.model, g.plant.d, run_kinds, n_max), \
                     linear_tables(g.plant.model, g.plant.d, window_kinds or ((0, ()),), n_max)

@@ -312,6 +312,28 @@ def _record(ks, fs, seg, cfg, read_time, r, score_i, score_f, score_p, flags, re
         score_row(score_i, score_f, score_p, int(cfg[C_ROW_BASE]) + r, flags, fs[REC_TEMP], fs[REC_DUTY])
 
 
+@inline
+def _report_op(ks, fs, seg, cfg, g, plan, plan_t, q, temps, si, sf, score_p, rec_temp, rec_duty, rec_sensor,
+               rec_block, lane):
+    """A report: the MCU's pending shutdown first (it came at the window's last sample), then the host."""
+    if not ks[HALTED] and not np.isnan(fs[SHUTDOWN_AT]):
+        _cut(ks, fs, seg, fs[SHUTDOWN_AT], RANGE_TRIP)
+    if not ks[HALTED]:
+        _report(ks, fs, seg, cfg, g, plan_t[q, TIME], temps[ks[ADC_VALUE]])
+    _record(ks, fs, seg, cfg, plan_t[q, TIME], plan[q, ROW], si, sf, score_p, plan[q, FLAGS], rec_temp, rec_duty,
+            rec_sensor, rec_block, lane)
+
+
+@inline
+def _plant_bin(xl, io, cfg, n_bins):
+    """The model a radiating lane runs from here: its block's bin from C_BIN_LO (0 when linear); n_bins
+    when the tables lack it."""
+    if not cfg[C_RADIATING]:
+        return 0
+    m = int(np.rint(_output(io[0], 1, xl) * 2.0)) - int(cfg[C_BIN_LO])
+    return m if 0 <= m < n_bins else n_bins
+
+
 @jit
 def run_lanes(todo, lane_ids, q_start, plan, plan_t, offsets, n_offsets, fx, fdd, px, pdd, bx, bdd, steps,
               sensor_steps, block_steps, io, edges, temps, cfg, gains, kstate, fstate, segments, x, score_i,
@@ -338,22 +360,16 @@ def run_lanes(todo, lane_ids, q_start, plan, plan_t, offsets, n_offsets, fx, fdd
         while q < plan.shape[0]:
             op = plan[q, OP]
             if op == REPORT:
-                if not ks[HALTED] and not np.isnan(fs[SHUTDOWN_AT]):  # the MCU shut down at the last sample
-                    _cut(ks, fs, seg, fs[SHUTDOWN_AT], RANGE_TRIP)
-                if not ks[HALTED]:
-                    _report(ks, fs, seg, cfg, g, plan_t[q, TIME], temps[ks[ADC_VALUE]])
-                _record(ks, fs, seg, cfg, plan_t[q, TIME], plan[q, ROW], si, sf, score_p, plan[q, FLAGS], rec_temp,
-                        rec_duty, rec_sensor, rec_block, lane)
+                _report_op(ks, fs, seg, cfg, g, plan, plan_t, q, temps, si, sf, score_p, rec_temp, rec_duty,
+                           rec_sensor, rec_block, lane)
             elif op == VERIFY:
                 if not ks[HALTED]:
                     _verify(ks, fs, seg, cfg, plan_t[q, TIME])
             elif not ks[HALTED]:  # ADC or ADVANCE: the plant runs to the operation's tick first
-                m = 0
-                if cfg[C_RADIATING]:
-                    m = int(np.rint(_output(io[0], 1, xl) * 2.0)) - int(cfg[C_BIN_LO])
-                    if m < 0 or m >= n_bins:  # the block left the tables: KlipperBatch builds more bins
-                        need_bin[k] = m + int(cfg[C_BIN_LO])
-                        break
+                m = _plant_bin(xl, io, cfg, n_bins)
+                if m == n_bins:  # the block left the tables: KlipperBatch builds more bins
+                    need_bin[k] = int(np.rint(_output(io[0], 1, xl) * 2.0))
+                    break
                 _advance(ks, seg, cfg, xl, xn, fx, fdd, steps, m, plan[q, RUN_KIND], plan[q, TICK], iv)
                 if op == ADC:
                     w = plan[q, WINDOW_KIND]

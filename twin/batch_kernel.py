@@ -444,9 +444,11 @@ def _pulses(st, pwm, first_wrap, n, fw, alpha, beta):
     alpha[0] = 0
     beta[0] = min(max(st[COUNT] - pwm, 0), min(first_wrap, n)) if st[PINS] else 0
     k = 1
-    for wrap in range(first_wrap, n, fw[PWM_PERIOD]):
+    wrap = first_wrap
+    while wrap < n:  # not range(first_wrap, n, step): its length would cost a division every period
         alpha[k], beta[k] = wrap, min(wrap + st[AMOUNT], n)
         k += 1
+        wrap += fw[PWM_PERIOD]
     return k
 
 
@@ -548,11 +550,24 @@ def _samples(xl, px, pdd, rows, m, kind, s0, n_samples, n_pulses, alpha, beta, y
 
 
 @inline
-def _chord_count(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n_pulses, alpha, beta, edges,
-                 adc_max, n_samples):
-    """The count every sample of a full period reads, when the chord through the first and last
-    samples, widened by how far the maps let a sample stray from it (``Tables.chords``), lies inside
-    one count; else -1 (the samples must be counted one by one)."""
+def _sample(xl, px, pdd, rows, m, kind, s0, j, n_pulses, alpha, beta):
+    """Sample j's sensor temperature alone, in ``_samples``' order of operations (the same bits)."""
+    y = px[m, kind, 0, j] * xl[0]
+    for i in range(1, xl.shape[0]):
+        y = y + px[m, kind, i, j] * xl[i]
+    y = y + pdd[m, kind, j]
+    for p in range(n_pulses):
+        if beta[p] > alpha[p]:
+            y = y + (rows[m, s0 - alpha[p] + ROW_OFFSET, j] - rows[m, s0 - beta[p] + ROW_OFFSET, j])
+    return y
+
+
+@inline
+def _chord(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n_pulses, alpha, beta, edges, adc_max,
+           n_samples):
+    """(count, first sample, last sample, band): the count every sample of a full period reads when the
+    chord through the first and last samples, widened by the band the maps let a sample stray from it
+    (``Tables.chords``), lies inside one count; else count -1 (the samples must be counted one by one)."""
     last = n_samples - 1  # the two samples and the band in one loop: three independent sums (any order will do:
     y0, y1 = pdd[m, kind, 0], pdd[m, kind, last]  # the band's margin covers the rounding)
     band = CHORD_MARGIN_C + chord_d[m, kind]
@@ -568,8 +583,29 @@ def _chord_count(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s
             band += chord_rows[m, ra] + chord_rows[m, rb]
     count = _count(y0, st[HINT], edges, adc_max)
     if max(y0, y1) + band < edges[count] and (count == adc_max or min(y0, y1) - band >= edges[count + 1]):
-        return count
-    return -1
+        return count, y0, y1, band
+    return -1, y0, y1, band
+
+
+@inline
+def _noisy_chord_sum(count, y0, y1, band, n_samples, xl, px, pdd, rows, m, kind, s0, n_pulses, alpha, beta, edges,
+                     noise_lsb, z, z0, slopes, bounds, sensor_p, adc_max):
+    """The noisy counts of a full period whose samples all lie in count ``count``: each sample's analog
+    value from the line through the chord (within the line's bound plus the band's worth), its own
+    sample computed only when the noisy value lies that near an integer."""
+    width = bounds[count] + band * slopes[count]
+    step = (y1 - y0) / (n_samples - 1)
+    total = 0
+    for j in range(n_samples):
+        noise = noise_lsb * z[z0 + j]
+        v = count + (edges[count] - (y0 + step * j)) * slopes[count] + noise
+        whole = np.floor(v)
+        if v - whole > width and whole + 1.0 - v > width:
+            total += int(min(max(whole, 0.0), adc_max))
+        else:
+            y = _sample(xl, px, pdd, rows, m, kind, s0, j, n_pulses, alpha, beta)
+            total += _noisy_count(y, count, noise, edges, slopes, bounds, sensor_p, adc_max)
+    return total
 
 
 @inline
@@ -581,12 +617,15 @@ def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0
     n_samples = (n - s0 + step - 1) // step if n > s0 else 0
     if n_samples == 0:
         return 0
-    if noise_lsb == 0.0 and n_samples == ys.shape[0]:
-        count = _chord_count(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n_pulses, alpha,
-                             beta, edges, adc_max, n_samples)
+    if n_samples == ys.shape[0]:
+        count, y0, y1, band = _chord(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n_pulses,
+                                     alpha, beta, edges, adc_max, n_samples)
         if count >= 0:
             st[HINT] = count
-            return count * n_samples
+            if noise_lsb == 0.0:
+                return count * n_samples
+            return _noisy_chord_sum(count, y0, y1, band, n_samples, xl, px, pdd, rows, m, kind, s0, n_pulses, alpha,
+                                    beta, edges, noise_lsb, z, z0, slopes, bounds, sensor_p, adc_max)
     _samples(xl, px, pdd, rows, m, kind, s0, n_samples, n_pulses, alpha, beta, ys)
     count = st[HINT]
     total = 0

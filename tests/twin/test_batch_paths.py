@@ -177,3 +177,16 @@ def test_the_sensor_chain_converts_the_same_with_given_noise():
     drawn = chain.convert(temps, ticks)
     given = SensorChain().convert_with(temps, ticks, 1.0 * np.random.default_rng(2).standard_normal(50))
     np.testing.assert_array_equal(drawn, given)
+
+
+def test_noisy_lanes_take_the_shortcut_to_the_same_counts():
+    """Holding at the target, a noisy lane's samples mostly lie in one count: the compiled kernel then
+    reads each noisy count off the chord's line (computing a sample only near an integer); the numpy
+    lanes compute every sample. Same readings, bit for bit, over a long hold at several noise levels."""
+    rng = np.random.default_rng(9)
+    gains = [PidGains(*map(float, g)) for g in rng.uniform([10, 0.2, 50], [30, 1.5, 200], (9, 3))]
+    noise, seeds = [0.3, 1.0, 3.0] * 3, [1] * 3 + [2] * 3 + [3] * 3
+    runs = [_batch("hotend_cartridge", gains, 400.0, kernel=kernel, noise_lsb=noise, seed=seeds)
+            for kernel in KERNELS]
+    np.testing.assert_array_equal(runs[0].measured_c, runs[1].measured_c)
+    np.testing.assert_array_equal(runs[0].duty, runs[1].duty)

@@ -563,54 +563,66 @@ def _sample(xl, px, pdd, rows, m, kind, s0, j, n_pulses, alpha, beta):
 
 
 @inline
-def _chord(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n_pulses, alpha, beta, edges, adc_max,
-           n_samples):
-    """(count, first sample, last sample, band): the count every sample of a full period reads when the
-    chord through the first and last samples, widened by the band the maps let a sample stray from it
-    (``Tables.chords``), lies inside one count; else count -1 (the samples must be counted one by one)."""
-    last = n_samples - 1  # the two samples and the band in one loop: three independent sums (any order will do:
-    y0, y1 = pdd[m, kind, 0], pdd[m, kind, last]  # the band's margin covers the rounding)
-    band = CHORD_MARGIN_C + chord_d[m, kind]
+def _chord(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, kind, s0, n_pulses, alpha, beta, edges,
+           adc_max, n_samples):
+    """(the count at the band's hot end, at its cold end, the first sample, the last, the band): the chord
+    through a full period's first and last samples, widened by the band the maps let a sample stray
+    from it (``Tables.chords``), holds every sample."""
+    last = n_samples - 1  # the two samples and the band: independent sums (in any order: the band's margin
+    y0, y1 = pdd[m, kind, 0], pdd[m, kind, last]  # covers the rounding)
+    band = CHORD_MARGIN_C + chord_d[m, kind] + chord_sum[m, kind] * abs(xl[0])
     for i in range(xl.shape[0]):
         y0 += px[m, kind, i, 0] * xl[i]
         y1 += px[m, kind, i, last] * xl[i]
-        band += chord_x[m, kind, i] * abs(xl[i])
+        band += chord_x[m, kind, i] * abs(xl[i] - xl[0])
     for p in range(n_pulses):
         if beta[p] > alpha[p]:
             ra, rb = s0 - alpha[p] + ROW_OFFSET, s0 - beta[p] + ROW_OFFSET
             y0 += rows[m, ra, 0] - rows[m, rb, 0]
             y1 += rows[m, ra, last] - rows[m, rb, last]
             band += chord_rows[m, ra] + chord_rows[m, rb]
-    count = _count(y0, st[HINT], edges, adc_max)
-    if max(y0, y1) + band < edges[count] and (count == adc_max or min(y0, y1) - band >= edges[count + 1]):
-        return count, y0, y1, band
-    return -1, y0, y1, band
+    hot = _count(max(y0, y1) + band, st[HINT], edges, adc_max)
+    return hot, _count(min(y0, y1) - band, hot, edges, adc_max), y0, y1, band
 
 
 @inline
-def _noisy_chord_sum(count, y0, y1, band, n_samples, xl, px, pdd, rows, m, kind, s0, n_pulses, alpha, beta, edges,
-                     noise_lsb, z, z0, slopes, bounds, sensor_p, adc_max):
-    """The noisy counts of a full period whose samples all lie in count ``count``: each sample's analog
-    value from the line through the chord (within the line's bound plus the band's worth), its own
-    sample computed only when the noisy value lies that near an integer."""
-    width = bounds[count] + band * slopes[count]
+def _chord_sum(hot, cold, y0, y1, band, n_samples, xl, px, pdd, rows, m, kind, s0, n_pulses, alpha, beta, edges,
+               noise_lsb, z, z0, slopes, bounds, sensor_p, adc_max):
+    """The counts of a full period whose samples span at most one switching temperature (``cold`` is
+    ``hot`` or ``hot + 1``): each sample's count read off the chord, its noisy count off the line through
+    its count's edges (within the line's bound plus the band's worth); a sample is computed only when
+    the chord cannot tell (near the edge, or a noisy value that near an integer)."""
+    if cold == hot and noise_lsb == 0.0:
+        return hot * n_samples
+    edge = edges[cold]  # below it a sample reads ``cold`` (the same count when cold == hot)
     step = (y1 - y0) / (n_samples - 1)
     total = 0
     for j in range(n_samples):
+        yc = y0 + step * j
+        y = yc
+        count = cold if yc + band < edge else hot if yc - band >= edge else -1
+        if count < 0:  # the chord cannot tell: this sample itself
+            y = _sample(xl, px, pdd, rows, m, kind, s0, j, n_pulses, alpha, beta)
+            count = cold if y < edge else hot
+        if noise_lsb == 0.0:
+            total += count
+            continue
         noise = noise_lsb * z[z0 + j]
-        v = count + (edges[count] - (y0 + step * j)) * slopes[count] + noise
+        width = bounds[count] + (band if y == yc else 0.0) * slopes[count]
+        v = count + (edges[count] - y) * slopes[count] + noise
         whole = np.floor(v)
         if v - whole > width and whole + 1.0 - v > width:
             total += int(min(max(whole, 0.0), adc_max))
         else:
-            y = _sample(xl, px, pdd, rows, m, kind, s0, j, n_pulses, alpha, beta)
+            if y == yc:
+                y = _sample(xl, px, pdd, rows, m, kind, s0, j, n_pulses, alpha, beta)
             total += _noisy_count(y, count, noise, edges, slopes, bounds, sensor_p, adc_max)
     return total
 
 
 @inline
-def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n, n_pulses, alpha, beta, edges,
-                fw, ys, noise_lsb, z, z0, slopes, bounds, sensor_p):
+def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, kind, s0, n, n_pulses, alpha,
+                beta, edges, fw, ys, noise_lsb, z, z0, slopes, bounds, sensor_p):
     """The ADC counts of the sensor node at ticks s0, s0 + 10, ... < n, summed (a noisy lane's each
     with its noise)."""
     step, adc_max = fw[SAMPLE_EVERY], fw[ADC_MAX]
@@ -618,14 +630,12 @@ def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0
     if n_samples == 0:
         return 0
     if n_samples == ys.shape[0]:
-        count, y0, y1, band = _chord(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, kind, s0, n_pulses,
-                                     alpha, beta, edges, adc_max, n_samples)
-        if count >= 0:
-            st[HINT] = count
-            if noise_lsb == 0.0:
-                return count * n_samples
-            return _noisy_chord_sum(count, y0, y1, band, n_samples, xl, px, pdd, rows, m, kind, s0, n_pulses, alpha,
-                                    beta, edges, noise_lsb, z, z0, slopes, bounds, sensor_p, adc_max)
+        hot, cold, y0, y1, band = _chord(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, kind, s0,
+                                         n_pulses, alpha, beta, edges, adc_max, n_samples)
+        if cold - hot <= 1:
+            st[HINT] = hot
+            return _chord_sum(hot, cold, y0, y1, band, n_samples, xl, px, pdd, rows, m, kind, s0, n_pulses, alpha,
+                              beta, edges, noise_lsb, z, z0, slopes, bounds, sensor_p, adc_max)
     _samples(xl, px, pdd, rows, m, kind, s0, n_samples, n_pulses, alpha, beta, ys)
     count = st[HINT]
     total = 0
@@ -719,8 +729,8 @@ def _reading(st, si, sf, score_p, fw, plan, q, io, m, xl, lane, rec_temp, rec_am
 
 
 @jit
-def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, chord_d, chord_rows, steps, io, edges,
-              slopes, bounds, sensor_p, lut, fw, cparams, rules, istate, x, noise_lsb, streams, z, ring, score_i,
+def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, chord_sum, chord_d, chord_rows, steps, io,
+              edges, slopes, bounds, sensor_p, lut, fw, cparams, rules, istate, x, noise_lsb, streams, z, ring, score_i,
               score_f, score_p, rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair, ys, strengths, stop,
               need_bin):
     """Every period of ``plan`` from ``q_start[k]`` on each lane k of ``todo`` (its column of ``x``;
@@ -753,9 +763,9 @@ def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, ch
             n, s0 = plan[q, N_TICKS], plan[q, FIRST_SAMPLE]
             n_pulses, n_seen = _plant_pulses(st, plan, q, fw, pulses, ring[lane])
             a, b = pulses[seen, 0], pulses[seen, 1]
-            st[ACC] += _sample_sum(st, xl, px, pdd, rows, chord_x, chord_d, chord_rows, m, plan[q, KIND], s0, n,
-                                   n_seen, a, b, edges, fw, ys, noise_lsb[lane], z[streams[lane]], plan[q, Z_FIRST],
-                                   slopes, bounds, sensor_p)
+            st[ACC] += _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, plan[q, KIND],
+                                   s0, n, n_seen, a, b, edges, fw, ys, noise_lsb[lane], z[streams[lane]],
+                                   plan[q, Z_FIRST], slopes, bounds, sensor_p)
             _latch(st, plan[q, FIRST_WRAP], plan[q, LAST_PHASE], n)
             pins_before = st[PINS]
             if plan[q, READING]:

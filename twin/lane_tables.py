@@ -67,23 +67,27 @@ class Tables:
 
 
     @functools.cached_property
-    def chords(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """How far a Marlin period's samples can lie from the chord through its first and last:
-        (M, kinds, n_x) per state (times |x|), (M, kinds) for the disturbance, (M, rows) per pulse
-        edge's row of ``sample_rows``; the largest |value - chord| over the samples. Every sample's
-        sensor temperature is then within their sum of the chord (the maps are linear), so when that
-        band lies inside one ADC count the kernel needs no sample in between. Kinds with fewer than
-        MAX_SAMPLES samples (runs cut by an event) must not take it (the kernel checks)."""
+    def chords(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """How far a Marlin period's samples can lie from the chord through its first and last, as the
+        largest |value - chord| over the samples of: each state's free-response row (M, kinds, n_x),
+        their sum (M, kinds), the disturbance's (M, kinds), each pulse edge's row of ``sample_rows``
+        (M, rows). The maps are linear, so a sample strays from the chord by at most
+        sum_dev |x_0| + sum_i x_dev_i |x_i - x_0| + d_dev + the pulses' (writing x = x_0 + (x - x_0):
+        a plant's states sit near one another, and a state vector of equal temperatures moves
+        almost along the chord). When that band lies inside one ADC count the kernel needs no sample
+        in between. Only full periods (MAX_SAMPLES samples) may take the shortcut: the kernel checks."""
         t = np.arange(MAX_SAMPLES) / (MAX_SAMPLES - 1)
 
         def off_chord(rows: np.ndarray) -> np.ndarray:
             chord = (1.0 - t) * rows[..., :1] + t * rows[..., MAX_SAMPLES - 1:MAX_SAMPLES]
             return np.max(np.abs(rows[..., :MAX_SAMPLES] - chord), axis=-1)
 
-        if self.px.shape[3] < MAX_SAMPLES:  # no full period among the kinds (the kernel checks each run's samples)
-            return _frozen(np.full(self.px.shape[:3], np.inf)), _frozen(np.full(self.pdd.shape[:2], np.inf)), \
-                _frozen(off_chord(self.sample_rows))
-        return _frozen(off_chord(self.px)), _frozen(off_chord(self.pdd)), _frozen(off_chord(self.sample_rows))
+        rows_dev = _frozen(off_chord(self.sample_rows))
+        if self.px.shape[3] < MAX_SAMPLES:  # no full period among the kinds
+            return (_frozen(np.full(self.px.shape[:3], np.inf)), _frozen(np.full(self.pdd.shape[:2], np.inf)),
+                    _frozen(np.full(self.pdd.shape[:2], np.inf)), rows_dev)
+        return (_frozen(off_chord(self.px)), _frozen(off_chord(self.px.sum(axis=2))), _frozen(off_chord(self.pdd)),
+                rows_dev)
 
 
 def _key(*arrays: np.ndarray) -> tuple:

@@ -667,7 +667,7 @@ def _dot(rows: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def _output(row: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """row[:n_x] . x + row[n_x] on every lane, as the kernel's ``_output``."""
+    """row[:n_x] . x + row[n_x] on every lane, as the kernel's ``output``."""
     return _dot(row[None, :-1], x)[0] + row[-1]
 
 

@@ -511,7 +511,7 @@ def _ring_cut_last(st, ring):
 
 
 @inline
-def _count(y, count, edges, adc_max):
+def adc_count(y, count, edges, adc_max):
     """The ADC count of temperature y: how many edges lie above it, walked from a nearby count."""
     while count < adc_max and y < edges[count + 1]:
         count += 1
@@ -581,8 +581,8 @@ def _chord(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, ki
             y0 += rows[m, ra, 0] - rows[m, rb, 0]
             y1 += rows[m, ra, last] - rows[m, rb, last]
             band += chord_rows[m, ra] + chord_rows[m, rb]
-    hot = _count(max(y0, y1) + band, st[HINT], edges, adc_max)
-    return hot, _count(min(y0, y1) - band, hot, edges, adc_max), y0, y1, band
+    hot = adc_count(max(y0, y1) + band, st[HINT], edges, adc_max)
+    return hot, adc_count(min(y0, y1) - band, hot, edges, adc_max), y0, y1, band
 
 
 @inline
@@ -640,7 +640,7 @@ def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, 
     count = st[HINT]
     total = 0
     for j in range(n_samples):
-        count = _count(ys[j], count, edges, adc_max)
+        count = adc_count(ys[j], count, edges, adc_max)
         if noise_lsb != 0.0:
             total += _noisy_count(ys[j], count, noise_lsb * z[z0 + j], edges, slopes, bounds, sensor_p, adc_max)
         else:
@@ -663,7 +663,7 @@ def _advance(xl, xn, fx, fdd, steps, m, kind, n, n_pulses, alpha, beta):
 
 
 @inline
-def _output(io, row, x):
+def output(io, row, x):
     """io[row, :n_x] . x + io[row, n_x], summed in index order."""
     y = io[row, 0] * x[0]
     for i in range(1, x.shape[0]):
@@ -711,7 +711,7 @@ def _plant_bin(xl, io, fw, n_bins):
     n_bins when the tables lack it."""
     if not fw[RADIATING]:
         return 0
-    m = int(np.rint(_output(io[0], 1, xl) * 2.0)) - fw[BIN_LO]
+    m = int(np.rint(output(io[0], 1, xl) * 2.0)) - fw[BIN_LO]
     return m if 0 <= m < n_bins else n_bins
 
 
@@ -721,8 +721,8 @@ def _reading(st, si, sf, score_p, fw, plan, q, io, m, xl, lane, rec_temp, rec_am
     r = plan[q, ROW]
     if fw[RECORD]:
         rec_temp[lane, r], rec_amount[lane, r] = st[TEMP], st[AMOUNT]
-        rec_block[lane, r] = _output(io[m], 1, xl)
-        rec_sensor[lane, r] = _output(io[m], 2, xl)
+        rec_block[lane, r] = output(io[m], 1, xl)
+        rec_sensor[lane, r] = output(io[m], 2, xl)
     if fw[SCORE] and plan[q, FLAGS] & SCORED:
         score_row(si, sf, score_p, fw[ROW_BASE] + r, plan[q, FLAGS], st[TEMP] / (1 << fw[TEMP_FRAC_BITS]),
                   float(st[AMOUNT]))
@@ -758,7 +758,7 @@ def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, ch
         while q < plan.shape[0]:
             m = _plant_bin(xl, io, fw, n_bins)
             if m == n_bins:  # the block left the tables: BatchTwin builds more bins
-                need_bin[k] = int(np.rint(_output(io[0], 1, xl) * 2.0))
+                need_bin[k] = int(np.rint(output(io[0], 1, xl) * 2.0))
                 break
             n, s0 = plan[q, N_TICKS], plan[q, FIRST_SAMPLE]
             n_pulses, n_seen = _plant_pulses(st, plan, q, fw, pulses, ring[lane])

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from twin.batch_kernel import inline, jit, score_row
+from twin.batch_kernel import adc_count, inline, jit, output, score_row
 
 # Operations of the plan, column OP; columns: OP, TICK, RUN_KIND, WINDOW_KIND, ROW, FLAGS (int64) and
 # TIME, LAST_S (float64, ``plan_t``).
@@ -122,14 +122,6 @@ def _pulse_output(row_steps, s, a, b):
 
 
 @inline
-def _output(io, row, x):
-    y = io[row, 0] * x[0]
-    for i in range(1, x.shape[0]):
-        y = y + io[row, i] * x[i]
-    return y + io[row, x.shape[0]]
-
-
-@inline
 def _advance(ks, seg, cfg, xl, xn, fx, fdd, steps, m, kind, tick, iv):
     """Run the plant from the lane's tick to ``tick`` in one run (model m): free response plus the
     pin's on-intervals, ``C_DELAY`` ticks late."""
@@ -153,12 +145,15 @@ def _advance(ks, seg, cfg, xl, xn, fx, fdd, steps, m, kind, tick, iv):
 
 
 @inline
-def _count(y, count, edges, adc_max):
-    while count < adc_max and y < edges[count + 1]:
-        count += 1
-    while y >= edges[count]:
-        count -= 1
-    return count
+def _window_output(xl, maps, dd, row_steps, m, window, j, offset, n_iv, iv):
+    """An output (sensor or block: its maps and step responses) at a window's offset j."""
+    y = maps[m, window, 0, j] * xl[0]
+    for i in range(1, xl.shape[0]):
+        y = y + maps[m, window, i, j] * xl[i]
+    y = y + dd[m, window, j]
+    for p in range(n_iv):
+        y = y + _pulse_output(row_steps[m], offset, iv[p, 0], iv[p, 1])
+    return y
 
 
 @inline
@@ -169,25 +164,13 @@ def _adc(ks, fs, seg, cfg, xl, px, pdd, bx, bdd, sensor_steps, block_steps, m, w
     lo_s = (ks[PLANT_TICK] - delay) * tick_s
     n_iv = _intervals(ks, seg, cfg, lo_s, (ks[PLANT_TICK] + offsets[n_off - 1] - delay) * tick_s, iv)
     value, count, adc_max = 0, ks[HINT], int(cfg[C_ADC_MAX])
-    for j in range(n_off):
-        y = px[m, window, 0, j] * xl[0]
-        for i in range(1, xl.shape[0]):
-            y = y + px[m, window, i, j] * xl[i]
-        y = y + pdd[m, window, j]
-        for p in range(n_iv):
-            y = y + _pulse_output(sensor_steps[m], offsets[j], iv[p, 0], iv[p, 1])
-        if j < n_off - 1:
-            count = _count(y, count, edges, adc_max)
-            value += count
-        else:
-            fs[READ_SENSOR] = y
-            yb = bx[m, window, 0, j] * xl[0]
-            for i in range(1, xl.shape[0]):
-                yb = yb + bx[m, window, i, j] * xl[i]
-            yb = yb + bdd[m, window, j]
-            for p in range(n_iv):
-                yb = yb + _pulse_output(block_steps[m], offsets[j], iv[p, 0], iv[p, 1])
-            fs[READ_BLOCK] = yb
+    for j in range(n_off - 1):
+        count = adc_count(_window_output(xl, px, pdd, sensor_steps, m, window, j, offsets[j], n_iv, iv), count,
+                          edges, adc_max)
+        value += count
+    last = n_off - 1
+    fs[READ_SENSOR] = _window_output(xl, px, pdd, sensor_steps, m, window, last, offsets[last], n_iv, iv)
+    fs[READ_BLOCK] = _window_output(xl, bx, bdd, block_steps, m, window, last, offsets[last], n_iv, iv)
     ks[HINT] = count
     ks[ADC_VALUE] = value
     if cfg[C_MIN_SUM] <= value <= cfg[C_MAX_SUM]:
@@ -330,7 +313,7 @@ def _plant_bin(xl, io, cfg, n_bins):
     when the tables lack it."""
     if not cfg[C_RADIATING]:
         return 0
-    m = int(np.rint(_output(io[0], 1, xl) * 2.0)) - int(cfg[C_BIN_LO])
+    m = int(np.rint(output(io[0], 1, xl) * 2.0)) - int(cfg[C_BIN_LO])
     return m if 0 <= m < n_bins else n_bins
 
 
@@ -368,7 +351,7 @@ def run_lanes(todo, lane_ids, q_start, plan, plan_t, offsets, n_offsets, fx, fdd
             elif not ks[HALTED]:  # ADC or ADVANCE: the plant runs to the operation's tick first
                 m = _plant_bin(xl, io, cfg, n_bins)
                 if m == n_bins:  # the block left the tables: KlipperBatch builds more bins
-                    need_bin[k] = int(np.rint(_output(io[0], 1, xl) * 2.0))
+                    need_bin[k] = int(np.rint(output(io[0], 1, xl) * 2.0))
                     break
                 _advance(ks, seg, cfg, xl, xn, fx, fdd, steps, m, plan[q, RUN_KIND], plan[q, TICK], iv)
                 if op == ADC:

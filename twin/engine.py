@@ -30,7 +30,7 @@ from firmware_port.thermistor import TEMP_ONE
 from twin.clock import TICK_S, EventQueue, ticks_at
 from twin.linear import BLOCK, SENSOR
 from twin.result import RunResult
-from twin.sensor import SensorChain
+from twin.sensor import SensorChain, seeded_chains
 from twin.trace import Trace
 
 ENGINES = ("fast", "reference")
@@ -103,10 +103,7 @@ class Twin:
             raise ValueError(f"engine must be one of {ENGINES}, not {engine!r}")
         self.engine = engine
         self.plants = plants
-        if sensors is None:
-            streams = np.random.SeedSequence(seed).spawn(len(plants))
-            sensors = [SensorChain(noise_lsb=noise_lsb, rng=np.random.default_rng(s)) for s in streams]
-        self.sensors = sensors
+        self.sensors = seeded_chains(len(plants), seed, noise_lsb) if sensors is None else sensors
         self.firmware = firmware
         if len(controllers) > len(plants):
             raise ValueError(f"{len(controllers)} controllers for {len(plants)} heaters")

@@ -20,7 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar, NamedTuple
+from typing import ClassVar, NamedTuple, Protocol
 
 import numpy as np
 import scipy.signal
@@ -126,6 +126,8 @@ class Lumped:
     radiating_area_m2: float = 0.0
 
     delay_ticks: ClassVar[int] = 0
+    delay_s: ClassVar[float] = 0.0
+    world_inputs: ClassVar[bool] = True  # the part fan and the filament flow act on it
 
     def __post_init__(self):
         _check(self, positive=("block_heat_capacity_j_k", "sensor_responsiveness_per_s"),
@@ -139,6 +141,15 @@ class Lumped:
     @property
     def linear(self) -> bool:
         return not (self.emissivity and self.radiating_area_m2)
+
+    @property
+    def input_full_scale(self) -> float:
+        """The heater input at duty 1: power_w, in W."""
+        return self.power_w
+
+    def rest_lti(self, ambient_c: float) -> Lti:
+        """The model at rest: part fan off, no flow, linearised at ambient_c."""
+        return self.lti(self.conditions(0.0, 0.0, ambient_c, ambient_c))
 
     def conditions(self, fan: float, flow_mm_s: float, ambient_c: float, block_c: float) -> Conditions:
         """The cache key: fan and flow rounded; ambient and the block's 0.5 C bin if radiating."""
@@ -201,6 +212,7 @@ class TransferFunction:
     delay_s: float = 0.0
 
     linear: ClassVar[bool] = True
+    world_inputs: ClassVar[bool] = False  # no fan or flow terms: a disturbance is a load at the input
 
     def __post_init__(self):
         _check(self, positive=("input_full_scale", "damping"),
@@ -236,6 +248,10 @@ class TransferFunction:
         n = a.shape[0]
         return Lti(a, b[:, 0] * self.input_full_scale, np.zeros((n, 1)), np.vstack((c, c)), np.ones((2, 1)))
 
+    def rest_lti(self, ambient_c: float) -> Lti:
+        """The model (it has no operating point)."""
+        return self.lti()
+
     def initial_state(self, ambient_c: float, start_c: float) -> np.ndarray:
         """The equilibrium that holds start_c (the steady state under the input that would keep it there)."""
         lti = self.lti()
@@ -244,6 +260,34 @@ class TransferFunction:
 
 
 Spec = Lumped | TransferFunction
+
+
+class PlantSpec(Protocol):
+    """What the engines and the tuners ask of a plant spec; ``Lumped`` and ``TransferFunction`` follow it.
+    (Each also has ``conditions`` and ``lti``, whose operating-point key is its own.)"""
+
+    @property
+    def linear(self) -> bool:
+        """No radiating loss: one exact model per operating condition."""
+
+    @property
+    def delay_ticks(self) -> int:
+        """Dead time on the tick grid."""
+
+    @property
+    def delay_s(self) -> float: ...
+
+    @property
+    def world_inputs(self) -> bool:
+        """The part fan and filament flow act on it (else a disturbance is a load at its input)."""
+
+    @property
+    def input_full_scale(self) -> float:
+        """The plant input at duty 1 (W for a heater, the paper's unit for a transfer function)."""
+
+    def rest_lti(self, ambient_c: float) -> Lti: ...
+
+    def initial_state(self, ambient_c: float, start_c: float) -> np.ndarray: ...
 
 
 class Plant(LinearPlant):

@@ -99,3 +99,10 @@ class SensorChain:
     def samples(self, sensor_c: np.ndarray, ticks: np.ndarray) -> list[int]:
         """``convert`` as a list of ints, for a scalar board."""
         return self.convert(sensor_c, ticks).tolist()
+
+
+def seeded_chains(count: int, seed: int, noise_lsb: float = 0.0) -> list[SensorChain]:
+    """One chain per heater, each drawing its noise from its own stream spawned from ``seed``: what a
+    ``Twin`` builds, so that a batch lane given the same seed sees the hotend chain's very numbers."""
+    return [SensorChain(noise_lsb=noise_lsb, rng=np.random.default_rng(stream))
+            for stream in np.random.SeedSequence(seed).spawn(count)]

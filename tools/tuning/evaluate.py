@@ -40,6 +40,7 @@ from firmware_port.firmwares import param_space
 from firmware_port.marlin.pid import pid_space
 from firmware_port.params import ParamSpace
 from tools.ident.fit import CONTROL_DELAY_S
+from tools.tuning.ensemble import Ensemble
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of
 from tools.tuning.objectives import Run
@@ -50,8 +51,9 @@ from twin.build import apply_event
 from twin.engine import Twin
 from twin.klipper_twin import KlipperTwin, extruder_setup, tick_near
 from twin.linear import SENSOR, Lti
-from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
+from twin.plants import SPECS, Plant, Spec, TransferFunction
 from twin.scenario import Event
+from twin.sensor import seeded_chains
 
 LOOPS = ("marlin", "klipper", "ideal")
 CHUNK_LANES = 32  # candidates per batch: one dask task
@@ -95,6 +97,10 @@ class Problem:
     scenario: TuneScenario
     loop: str = "marlin"
     controller: ParamSpace = field(default_factory=pid_space)
+    ensemble: Ensemble | None = None  # None: this plant only, with the sensor below
+    noise_lsb: float = 0.0  # the ADC's noise (an ensemble's members set their own)
+    seed: int = 0  # the noise's seed
+    engine: str = "fast"  # the scalar twins' engine (twin/engine.py ENGINES): "reference" for a proof
 
     def __post_init__(self) -> None:
         if self.loop not in LOOPS:
@@ -106,13 +112,26 @@ class Problem:
     @property
     def input_full_scale(self) -> float:
         """The plant input at duty 1: W for a lumped heater, the paper's unit for a transfer function."""
-        return self.spec.power_w if isinstance(self.spec, Lumped) else self.spec.input_full_scale
+        return self.spec.input_full_scale
+
+    def members(self) -> list[Problem]:
+        """One problem per ensemble member (its plant, noise and seed); [self] without an ensemble."""
+        if self.ensemble is None:
+            return [self]
+        return [replace(self, spec=m.spec(self.spec), noise_lsb=m.noise_lsb, seed=m.seed, ensemble=None)
+                for m in self.ensemble.members]
+
+    def reduce(self, costs: np.ndarray) -> np.ndarray:
+        """Costs of every member's lanes (members x N, member-major) -> one cost per candidate (N,)."""
+        return np.ravel(costs) if self.ensemble is None else self.ensemble.reduce(costs)
 
     @property
     def batched(self) -> bool:
-        """Whether candidates run as lanes of one batch (else one twin each)."""
+        """Whether candidates run as lanes of one batch (else one twin each, as on the reference engine)."""
         if self.loop == "ideal":
             return True
+        if self.engine == "reference":
+            return False
         return (self.loop == "marlin" and self.spec.linear and not self.spec.delay_ticks
                 and BatchTwin.accepts(self.controller.make(self.controller.defaults)))
 
@@ -155,7 +174,7 @@ class _LoadedSpec(TransferFunction):
 
 def make_problem_plant(problem: Problem) -> Plant:
     """A fresh plant at the scenario's ambient, every node there."""
-    if isinstance(problem.spec, TransferFunction):
+    if isinstance(problem.spec, TransferFunction):  # no fan or flow: its disturbance is a load at the input
         return LoadedPlant(problem.name, problem.spec, problem.scenario.ambient_c)
     return Plant(problem.name, problem.spec, problem.scenario.ambient_c)
 
@@ -173,14 +192,13 @@ def full_power_time_s(spec: Spec, ambient_c: float, target_c: float) -> float:
     """The open-loop time from ambient to target_c at full power (dead time included).
 
     ValueError when full power cannot hold the target."""
-    lti = spec.lti() if isinstance(spec, TransferFunction) else spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))
+    lti = spec.rest_lti(ambient_c)
     t, rise = _sensor_step(lti)
     need = target_c - ambient_c
     if need <= 0 or rise[-1] <= need:
         raise ValueError(f"target {target_c:g} C is not reachable: full power holds {ambient_c + rise[-1]:.4g} C "
                          f"at ambient {ambient_c:g} C")
-    delay_s = getattr(spec, "delay_s", 0.0)
-    return float(t[np.argmax(rise >= need)]) + delay_s
+    return float(t[np.argmax(rise >= need)]) + spec.delay_s
 
 
 def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C) -> TuneScenario:
@@ -189,7 +207,7 @@ def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C) 
     heat_s = math.ceil(heat_s / PHASE_ROUND_S) * PHASE_ROUND_S
     phase_s = math.ceil(max(MIN_PHASE_S, heat_s / 2) / PHASE_ROUND_S) * PHASE_ROUND_S
     events: tuple[Event, ...]
-    if isinstance(spec, TransferFunction):
+    if not spec.world_inputs:
         events = (Event(heat_s, "load", None, -LOAD_FRACTION),)
     else:
         events = (Event(heat_s, "fan", None, FAN_KICK), Event(heat_s + phase_s, "flow", "hotend", FLOW_MM_S),
@@ -252,7 +270,8 @@ class Traces:
 
 def _run_batch(problem: Problem, params: np.ndarray) -> Traces:
     scenario = problem.scenario
-    batch = BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params])
+    batch = BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params],
+                      sensor=seeded_chains(1, problem.seed, problem.noise_lsb)[0])
     batch.set_target(int(round(scenario.target_c)))
     for event in scenario.events:
         batch.schedule(event.at_s, functools.partial(_batch_event, event=event))
@@ -265,7 +284,8 @@ def _marlin_twin(problem: Problem, row: np.ndarray | None) -> Twin:
     """A scalar firmware twin on the problem's plant running the candidate ``row`` (the firmware's
     own PID when None), the scenario scheduled (target not yet set)."""
     plant = make_problem_plant(problem)
-    twin = Twin([plant], "pid", controllers=[None if row is None else problem.controller.make(row)])
+    twin = Twin([plant], "pid", controllers=[None if row is None else problem.controller.make(row)],
+                seed=problem.seed, noise_lsb=problem.noise_lsb, engine=problem.engine)
     twin.set_ambient(problem.scenario.ambient_c)
     for event in problem.scenario.events:
         twin.schedule(event.at_s, functools.partial(_twin_load if event.kind == "load" else apply_event, event=event))
@@ -283,7 +303,8 @@ def _run_scalar_marlin(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, n
 def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     plant = make_problem_plant(problem)
     kp, ki, kd = (float(v) for v in row)
-    twin = KlipperTwin([extruder_setup(plant, pid_kp=kp, pid_ki=ki, pid_kd=kd, max_temp_c=KLIPPER_MAX_TEMP_C)])
+    setup = extruder_setup(plant, pid_kp=kp, pid_ki=ki, pid_kd=kd, max_temp_c=KLIPPER_MAX_TEMP_C)
+    twin = KlipperTwin([replace(setup, noise_lsb=problem.noise_lsb)], seed=problem.seed)
     for event in problem.scenario.events:
         twin.schedule(event.at_s, functools.partial(_klipper_event, event=event))
     twin.set_target("extruder", problem.scenario.target_c)
@@ -323,7 +344,7 @@ def _run_ideal(problem: Problem, gains: np.ndarray) -> Traces:
     plant = make_problem_plant(problem)
     kp, ki, kd = (np.asarray(gains, float) / COUNTS_PER_DUTY).T  # duty per degC
     n_steps = int(round(scenario.duration_s / dt))
-    delay = int(round(getattr(problem.spec, "delay_s", 0.0) / dt))
+    delay = int(round(problem.spec.delay_s / dt))
     pending = np.zeros((delay, len(gains)))
     x = np.repeat(plant.x[:, None], len(gains), axis=1)
     integral = np.zeros(len(gains))
@@ -381,21 +402,23 @@ def _join(parts: list[Traces]) -> Traces:
 
 def simulate(problem: Problem, params, client=None) -> Run:
     """Run candidates (N, d): rows of the problem's controller parameters (a PID's Kp, Ki, Kd on the
-    0..255 scale); a dask.distributed client runs the chunks."""
+    0..255 scale) on every member of its ensemble; the run's lanes are member-major (members x N).
+    A dask.distributed client runs the chunks."""
     params = np.atleast_2d(np.asarray(params, float))
     space = problem.controller
     if params.ndim != 2 or params.shape[1] != space.dims:
         raise ValueError(f"parameters must be an (N, {space.dims}) array of {', '.join(space.names)}, "
                          f"got shape {params.shape}")
-    chunks = list(_chunks(params))
+    tasks = [(member, chunk) for member in problem.members() for chunk in _chunks(params)]
     if client is None:
-        parts = [run_chunk(problem, chunk) for chunk in chunks]
+        parts = [run_chunk(member, chunk) for member, chunk in tasks]
     else:
-        parts = client.gather(client.map(run_chunk, [problem] * len(chunks), chunks, pure=False))
+        parts = client.gather(client.map(run_chunk, *zip(*tasks), pure=False))
     traces = _join(parts)
+    gains = problem.plant_gains(params)
     return Run(traces.t_s, traces.temp_c, traces.duty, problem.scenario.target_c,
                problem.scenario.ambient_c, problem.scenario.disturbances_s, traces.tripped,
-               problem.plant_gains(params), problem.input_full_scale)
+               None if gains is None else np.tile(gains, (len(problem.members()), 1)), problem.input_full_scale)
 
 
 class Evaluator:
@@ -415,7 +438,7 @@ class Evaluator:
         valid = self.problem.controller.inside(params)
         costs = np.full(len(params), OUT_OF_RANGE_COST)
         if valid.any():
-            costs[valid] = self.cost(simulate(self.problem, params[valid], self.client))
+            costs[valid] = self.problem.reduce(self.cost(simulate(self.problem, params[valid], self.client)))
         self.evaluations += len(params)
         if self.on_batch is not None:
             self.on_batch(costs)
@@ -463,9 +486,10 @@ class Candidate:
 
     method: str
     params: np.ndarray
-    cost: float
-    run: Run
+    cost: float  # the ensemble's statistic (the cost itself without an ensemble)
+    run: Run  # one lane per ensemble member, the nominal plant first
     history: np.ndarray | None = None  # an optimiser's best cost per iteration
+    member_costs: np.ndarray | None = None  # (members,)
 
     @property
     def gains(self) -> Gains:
@@ -507,7 +531,16 @@ def score(problem: Problem, cost: Callable[[Run], np.ndarray], candidates: dict[
     table = np.array([[c.kp, c.ki, c.kd] if isinstance(c, Gains) else np.ravel(c) for c in candidates.values()],
                      float)
     table = np.array([problem.controller.hold(row) for row in np.clip(table, bounds[:, 0], bounds[:, 1])])
+    return sorted(runs(problem, cost, table, names, client), key=lambda c: c.cost)
+
+
+def runs(problem: Problem, cost: Callable[[Run], np.ndarray], table: np.ndarray, names: list[str],
+         client=None, histories: list[np.ndarray | None] | None = None) -> list[Candidate]:
+    """Candidates (rows of ``table``, named) run on every member and scored, in the given order."""
     run = simulate(problem, table, client)
-    costs = cost(run)
-    scored = [Candidate(name, table[i], float(costs[i]), run.lanes([i])) for i, name in enumerate(names)]
-    return sorted(scored, key=lambda c: c.cost)
+    n = len(table)
+    member_costs = cost(run).reshape(-1, n)
+    reduced = problem.reduce(member_costs)
+    histories = histories or [None] * n
+    return [Candidate(name, table[i], float(reduced[i]), run.lanes(list(range(i, run.n, n))), histories[i],
+                      member_costs[:, i]) for i, name in enumerate(names)]

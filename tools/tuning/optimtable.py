@@ -62,7 +62,9 @@ class PlantResult:
 
 
 def _argv(label: str) -> list[str]:
-    argv = list(PLANTS[label])
+    """twin-tune's arguments for a plant, on its nominal model with a noiseless sensor: this table compares
+    optimisers, not robustness (docs/tuning.md's robust tuning section does that)."""
+    argv = list(PLANTS[label]) + ["--spread", "0", "--noise", "0"]
     if argv[0] == "--from-log":
         argv[1] = str(hardware_logs_dir() / argv[1])
     return argv

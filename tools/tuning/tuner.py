@@ -34,11 +34,13 @@ from tools.tuning.evaluate import (
     preset_problem,
     rule_gains,
     rule_names,
+    runs,
     score,
     simulate,
 )
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, Run, objective
 from tools.tuning.optim import METHODS
+from tools.tuning.proof import PROOF_SEEDS, ProofRow, prove
 
 __all__ = ["Candidate", "Param", "ParamSpace", "Problem", "TuneResult", "preset_problem", "simulate", "tune"]
 
@@ -47,6 +49,7 @@ DEFAULT_BUDGET = 900  # optimiser evaluations: 20 generations of DE's default po
 SEARCH_FACTOR = 4.0  # a PID family's search box: 0 .. 4 x the best rule's gains (within the declared bounds)
 MIN_BOUND = np.array([1.0, 0.05, 1.0])  # so a rule's zero Ki or Kd still leaves room to search
 DEFAULTS = "defaults"  # the reference candidate of the controller's own default parameters
+PROOF_TRIES = 3  # candidates proven, best first, before the tune gives up on an answer
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,36 @@ class TuneResult:
 
     def beats(self, reference: Candidate) -> bool:
         return self.best.cost < reference.cost
+
+    @property
+    def autotune(self) -> Candidate | None:
+        """The firmware's own autotune among the references, if it ran."""
+        return next((r for r in self.references if r.method != DEFAULTS), None)
+
+
+@dataclass(frozen=True)
+class Proven:
+    """The answer a proof allows (None: every candidate tried tripped) and the proof's rows."""
+
+    answer: Candidate | None
+    rows: list[ProofRow]
+
+
+def proven(result: TuneResult, seeds: int = PROOF_SEEDS, tries: int = PROOF_TRIES,
+           workers: int | None = None) -> Proven:
+    """Prove the best candidates in turn (tools/tuning/proof.py) until one passes, beside the firmware's
+    autotune; a candidate that trips in any run is never the answer."""
+    problem = result.problem
+    autotune = [result.autotune] if result.autotune is not None else []
+    first = prove(problem, result.candidates[:1] + autotune, seeds, workers)
+    rows, answer = first[:1], result.best if first[0].passed else None
+    for candidate in result.candidates[1:tries]:
+        if answer is not None:
+            break
+        row = prove(problem, [candidate], seeds, workers)[0]
+        rows.append(row)
+        answer = candidate if row.passed else None
+    return Proven(answer, rows + first[1:])
 
 
 def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
@@ -113,8 +146,7 @@ def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, b
         except ValueError as exc:  # e.g. a budget below two of the optimiser's generations
             raise ValueError(f"--method {method} --budget {budget}: {exc}") from None
     best = space.hold(np.clip(space.from_search(result.x), bounds[:, 0], bounds[:, 1]))
-    run = simulate(problem, best[None, :], client)
-    return Candidate(method, best, float(cost(run)[0]), run, np.asarray(result.history, float))
+    return runs(problem, cost, best[None, :], [method], client, [np.asarray(result.history, float)])[0]
 
 
 def references(problem: Problem, cost: Callable[[Run], np.ndarray], client=None) -> tuple[list[Candidate], list[str]]:

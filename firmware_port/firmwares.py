@@ -7,6 +7,7 @@ from collections.abc import Callable
 from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat
 from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
+from firmware_port.marlin.mpc import MpcController
 from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed
 from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.seed000 import adaptive_controller, fuzzy_controller, gaussian_controller
@@ -22,6 +23,11 @@ FIRMWARES: dict[str, tuple[Callable, Callable, str]] = {
         lambda: PidFloat(HOTEND_GAINS),
         lambda: PidFloat(BED_GAINS),
         "Marlin's PID law in float32, as Marlin itself computes it",
+    ),
+    "mpc": (
+        MpcController,
+        lambda: PidFixed(BED_GAINS),
+        "Marlin's MPC (MPCTEMP) on the hotend in float32 with Configuration.h's model (M306); the bed's PID as in pid",
     ),
     "bangbang": (
         BangBangHotend,

@@ -10,6 +10,8 @@ MIN/MAXTEMP checks, and runs each heater's controller and protection on fresh re
 
 from __future__ import annotations
 
+from typing import Protocol
+
 from firmware_port.controller import BoardInputs, Controller, ReadsBoard, is_tunable
 from firmware_port.marlin.adc import AdcPort, AdcSequencer
 from firmware_port.marlin.autotune import Autotune
@@ -33,6 +35,22 @@ from firmware_port.thermistor import B3950_TABLE, TEMP_ONE, TempTable
 
 HOTEND_CHANNEL = 0
 BED_CHANNEL = 1
+
+
+class BoardTune(Protocol):
+    """A blocking loop that takes over Marlin's main loop until ``done`` (M303, M306 T): one
+    pass per ``poll``; the board drives the tuned heater's soft PWM from ``amount``."""
+
+    amount: int  # the tuned heater's soft_pwm_amount, 0..127
+    done: bool
+    succeeded: bool
+    gains: tuple[float, float, float] | None  # PID gains M303 U1 applies (None: nothing to apply)
+
+    def poll(self, now_ms: int, temp_q5: int | None) -> None: ...
+
+    def next_deadline_ms(self) -> int: ...
+
+    def cancel(self) -> None: ...
 
 
 class Heater:
@@ -101,7 +119,7 @@ class MarlinBoard:
         self.halted = False
         self.fan_speed = 0  # part fan 0..255 (M106), driven by hardware PWM
         self.e_position_steps = 0  # stepper.position(E_AXIS), int32: the world moves it as filament feeds
-        self.autotune: Autotune | None = None  # M303 in progress
+        self.autotune: BoardTune | None = None  # M303 or M306 T in progress
         self.autotune_channel = HOTEND_CHANNEL
         self.autotune_apply = False  # M303 U1
 
@@ -141,7 +159,7 @@ class MarlinBoard:
     def task(self) -> None:
         """Temperature::task(): act on a fresh reading, if there is one.
 
-        While M303 runs, Marlin's main loop is its autotune loop instead: it polls every pass,
+        While M303 or M306 T runs, Marlin's main loop is its autotune loop instead: it polls every pass,
         converts fresh readings (with the raw MIN/MAXTEMP checks) and runs no other control.
         """
         if self.halted:
@@ -245,12 +263,16 @@ class MarlinBoard:
         if tune.done:  # refused before disable_all_heaters()
             return tune
         self.disable_all_heaters()
-        self.autotune, self.autotune_channel, self.autotune_apply = tune, channel, apply
-        self.pwm.set_amount(channel, tune.amount)
+        self.begin_tune(tune, channel, apply)
         return tune
 
+    def begin_tune(self, tune: BoardTune, channel: int, apply: bool = False) -> None:
+        """Hand the main loop to a started tune on ``channel`` until it is done (``apply``: M303 U1)."""
+        self.autotune, self.autotune_channel, self.autotune_apply = tune, channel, apply
+        self.pwm.set_amount(channel, tune.amount)
+
     def cancel_autotune(self) -> None:
-        """M108 during M303: the loop ends and the heaters go off."""
+        """M108 during M303 or M306 T: the loop ends and the heaters go off."""
         if self.autotune is not None:
             self.autotune.cancel()
             self._end_autotune()

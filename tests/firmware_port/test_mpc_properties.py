@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from firmware_port.controller import BoardInputs
 from firmware_port.fixed import INT32_MAX, INT32_MIN
 from firmware_port.marlin.mpc import MPC_DT_F32, MpcConstants, MpcController
-from firmware_port.thermistor import B3950_TABLE, TEMP_ONE, Divider
+from firmware_port.thermistor import B3950_TABLE, TEMP_ONE
 from twin.engine import Twin
 from twin.plants import make_plant
 
@@ -71,14 +71,7 @@ def test_the_ambient_estimate_moves_by_at_least_the_minimum_and_at_most_the_pull
 
 
 # -- steady state on the model it was given --------------------------------------------------------
-_DIVIDER = Divider()
 HOLD_START_S, HOLD_END_S = 50.0, 150.0
-
-
-def reading_count_c(target_c: int) -> float:
-    """One ADC count at the target, in degC: what a noiseless reading (16 equal samples) steps by."""
-    raw = 16 * int(_DIVIDER.adc_exact(float(target_c)))
-    return (B3950_TABLE.lookup_q5(raw) - B3950_TABLE.lookup_q5(raw + 16)) / TEMP_ONE
 
 
 @pytest.mark.slow
@@ -102,7 +95,7 @@ def test_on_the_plant_it_models_the_law_holds_the_target(constants, ambient_c, f
     run = twin.run(HOLD_END_S).hotend
     hold = run.t_s >= HOLD_START_S
     error_c = run.measured_c[hold] - target_c
-    count_c = reading_count_c(target_c)
+    count_c = B3950_TABLE.count_c(target_c)
     # The noiseless reading steps by one ADC count; the law dithers across the levels around the
     # target (the 50 % pull of a quantised reading): its time-mean lies within one count.
     assert abs(float(np.mean(error_c))) <= count_c

@@ -1,5 +1,5 @@
 """docs/firmware.md's generated MPC section (tools/tuning/mpc_report.py): the markers are there,
-the writer replaces only what lies between them, and the section's verdicts follow from its own
+the writer (benchfuncs.write_section) replaces only what lies between them, and the section's verdicts follow from its own
 numbers (the run itself is python -m tools.tuning.mpc_report --doc docs/firmware.md, ~40 s)."""
 
 from __future__ import annotations
@@ -7,7 +7,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from tools.tuning.mpc_report import BEGIN, COMMAND, END, HOLD_BAND_C, write_doc
+from tools.tuning.benchfuncs import write_section
+from tools.tuning.mpc_report import BEGIN, COMMAND, END, HOLD_BAND_C
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "firmware.md"
 ROW = re.compile(r"^\| (\d) \| (PID|MPC)[^|]* \| ([\d.]+) \| [^|]* \| ([^|]*) \| [^|]* \| (yes|no) \|$", re.M)
@@ -16,7 +17,7 @@ ROW = re.compile(r"^\| (\d) \| (PID|MPC)[^|]* \| ([\d.]+) \| [^|]* \| ([^|]*) \|
 def test_the_writer_keeps_the_markers_and_the_rest(tmp_path):
     path = tmp_path / "doc.md"
     path.write_text(f"intro\n{BEGIN} (x) -->\nold\n{END}\nafter\n")
-    write_doc(path, "new body\n")
+    write_section(path, "new body\n", BEGIN, END)
     assert path.read_text() == f"intro\n{BEGIN} (x) -->\nnew body\n{END}\nafter\n"
 
 

@@ -31,7 +31,7 @@ from firmware_port.thermistor import B3950_TABLE
 from protocol.mpc_commands import mpc_constants_from_text
 from protocol.printer import VirtualPrinter
 from tools.logs import hardware_logs_dir
-from tools.tuning.benchfuncs import replace_section
+from tools.tuning.benchfuncs import write_section
 from twin.build import build_twin
 from twin.plants import SPECS
 from twin.scenario import Scenario, parse_scenario, scenario_for, with_overrides
@@ -187,13 +187,6 @@ def markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_doc(path: Path, body: str) -> None:
-    new = replace_section(path.read_text(), body, BEGIN, END)
-    if new is None:
-        raise ValueError(f"{path} lacks the '{BEGIN} ... -->' / '{END}' markers")
-    path.write_text(new)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.tuning.mpc_report", description=__doc__.splitlines()[0])
     parser.add_argument("--doc", type=Path, help="rewrite the generated MPC section of this file (docs/firmware.md)")
@@ -201,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         body = markdown()
         if args.doc is not None:
-            write_doc(args.doc, body)
+            write_section(args.doc, body, BEGIN, END)
     except (ValueError, OSError) as exc:
         print(f"mpc_report: {exc}", file=sys.stderr)
         return 2

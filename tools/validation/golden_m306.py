@@ -10,10 +10,10 @@ Regenerate only on purpose, after a deliberate change of behaviour, and review t
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 from protocol.transport import build_printer
+from tools.validation.golden import golden_cli
 
 GOLDEN_M306_PATH = Path(__file__).resolve().parents[2] / "tests" / "golden" / "m306_autotune.txt"
 COMMAND = "M306 T"
@@ -30,16 +30,8 @@ def record_m306() -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.validation.golden_m306", description=__doc__.splitlines()[0])
-    parser.add_argument("--write", action="store_true", help=f"rewrite {GOLDEN_M306_PATH}")
-    args = parser.parse_args(argv)
-    text = "\n".join(record_m306()) + "\n"
-    if args.write:
-        GOLDEN_M306_PATH.write_text(text)
-        print(f"wrote {GOLDEN_M306_PATH} ({text.count(chr(10))} lines)")
-    else:
-        print(text, end="")
-    return 0
+    return golden_cli("python -m tools.validation.golden_m306", __doc__.splitlines()[0], GOLDEN_M306_PATH,
+                      record_m306, argv)
 
 
 if __name__ == "__main__":

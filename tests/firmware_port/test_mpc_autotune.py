@@ -106,7 +106,6 @@ def test_the_same_run_twice_prints_the_same_transcript():
     assert transcript() == transcript()
 
 
-@pytest.mark.slow
 def test_from_hot_it_waits_until_the_reading_stops_falling():
     twin = Twin.create("mpc", hotend="hotend")
     twin.plants[0].x[:] = 150.0  # a hotend just used

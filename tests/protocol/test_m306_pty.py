@@ -78,6 +78,7 @@ def mpc_port(tmp_path):
             proc.stdout.close()
 
 
+@pytest.mark.slow  # a process start and the tune: about 6 s on a loaded machine
 def test_m306_t_over_a_pty_matches_the_golden_transcript(mpc_port):
     read_until(mpc_port, r"^echo:  M306 E0 ", START_S)  # the banner's last line: the settings report
     start_s = time.monotonic()

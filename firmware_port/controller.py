@@ -4,8 +4,10 @@ The board calls a controller on each fresh reading (every 0.16384 s) with the te
 celsius_q5 (int16 Q10.5, 1/32 degC), the target in whole degC and millis(); the controller
 returns its output on Marlin's 0..255 scale (``PID_MAX``), which the board shifts into the 7-bit
 soft PWM. A controller with ``check_interval_ms`` runs only that often on the bed (Marlin's
-bang-bang bed gate). A ``Tunable`` controller also takes PID gains (M301/M304, M303 U1).
-A controller may publish its internals (the P, I and D terms of its last update) as ``signals``:
+bang-bang bed gate). A ``Tunable`` controller also takes PID gains (M301/M304, M303 U1). A
+``ReadsBoard`` controller also reads the rest of the firmware before each update, as Marlin's
+MPC does (``BoardInputs``: its heater's soft-PWM amount, the part fan, the E stepper). A
+controller may publish its internals (the P, I and D terms of its last update) as ``signals``:
 the engines record them beside the temperatures.
 """
 
@@ -70,6 +72,22 @@ class Observable(Protocol):
     """A controller that publishes internals of its last update: name -> value (e.g. PID terms in counts)."""
 
     def signals(self) -> dict[str, float]: ...
+
+
+@dataclass(frozen=True)
+class BoardInputs:
+    """What Marlin's MPC reads in get_pid_output_hotend() besides the heater's reading."""
+
+    amount: int  # the heater's soft_pwm_amount as it is now (the last output >> 1), 0..127
+    fan_speed: int  # fan_speed[0], the part fan (M106), 0..255
+    e_position_steps: int  # stepper.position(E_AXIS): int32 steps the E stepper has taken
+
+
+@runtime_checkable
+class ReadsBoard(Protocol):
+    """A controller the board gives ``BoardInputs`` right before each ``update``."""
+
+    def read_board(self, inputs: BoardInputs) -> None: ...
 
 
 # A controller instance, or a factory the board calls for a fresh one at each reset.

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat, fuzzy_pi_space
 from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat, fuzzy_pid_space
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
+from firmware_port.marlin.mpc import MpcController
 from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed, pid_space
 from firmware_port.marlin.pid_float import PidFloat, pid_float_space
 from firmware_port.params import ParamSpace
@@ -30,6 +31,11 @@ FIRMWARES: dict[str, tuple[Callable, Callable, str]] = {
         lambda: PidFloat(HOTEND_GAINS),
         lambda: PidFloat(BED_GAINS),
         "Marlin's PID law in float32, as Marlin itself computes it",
+    ),
+    "mpc": (
+        MpcController,
+        lambda: PidFixed(BED_GAINS),
+        "Marlin's MPC (MPCTEMP) on the hotend in float32 with Configuration.h's model (M306); the bed's PID as in pid",
     ),
     "bangbang": (
         BangBangHotend,

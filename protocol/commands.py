@@ -22,6 +22,7 @@ from firmware_port.marlin.constants import (
 from firmware_port.marlin.pid import PidGains
 from firmware_port.marlin.serial import format_float
 from protocol.gcode import Command, float_to_u32, unknown_command_text
+from protocol.mpc_commands import MPC_HANDLERS, load_constants, settings_report, stored_constants
 from protocol.settings import EEPROM_VERSION, Settings, crc16
 
 if TYPE_CHECKING:  # the printer imports these handlers
@@ -245,7 +246,8 @@ def _current_settings(p: VirtualPrinter) -> Settings:
     board = p.twin.board
     pids = [board.gains(c) if board.has_gains(c) else None for c in range(len(board.heaters))]
     defaults = Settings()
-    return Settings(pids[0] or defaults.hotend, (pids[1] if len(pids) > 1 else None) or defaults.bed)
+    return Settings(pids[0] or defaults.hotend, (pids[1] if len(pids) > 1 else None) or defaults.bed,
+                    stored_constants(board))
 
 
 def _apply_settings(p: VirtualPrinter, settings: Settings) -> None:
@@ -253,6 +255,7 @@ def _apply_settings(p: VirtualPrinter, settings: Settings) -> None:
     for channel, gains in ((HOTEND_CHANNEL, settings.hotend), (BED_CHANNEL, settings.bed)):
         if board.can_autotune(channel):
             board.set_gains(channel, gains)
+    load_constants(board, settings.hotend_mpc)
 
 
 def _load_settings(p: VirtualPrinter) -> str:
@@ -276,7 +279,7 @@ def _settings_report(p: VirtualPrinter) -> str:
     for channel, code, title in ((HOTEND_CHANNEL, "M301", "Hotend PID"), (BED_CHANNEL, "M304", "Bed PID")):
         if board.can_autotune(channel):
             text += f"echo:; {title}:\n" + _pid_line(code, board.gains(channel))
-    return text
+    return text + settings_report(board)
 
 
 def m500(p: VirtualPrinter, cmd: Command):
@@ -425,5 +428,6 @@ HANDLERS = {
     ("G", 90): _mode("absolute_xyz", True), ("G", 91): _mode("absolute_xyz", False),
     ("M", 82): _mode("absolute_e", True), ("M", 83): _mode("absolute_e", False),
 }
+HANDLERS.update(MPC_HANDLERS)  # M306 on MPC builds: protocol/mpc_commands.py
 HANDLERS.update({("G", code): accepted for code in (20, 21, 29)})
 HANDLERS.update({("M", code): accepted for code in (17, 18, 73, 84, 92, 111, 117, 201, 203, 204, 205, 220, 221, 302)})

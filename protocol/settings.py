@@ -1,4 +1,5 @@
-"""The printer's EEPROM: PID gains kept in a file the user names (M500/M501/M502/M503).
+"""The printer's EEPROM: PID gains (and MPC's model on an MPC build) kept in a file the user
+names (M500/M501/M502/M503).
 
 The file is JSON (readable, diffable); what Marlin prints about it (byte count, CRC16) is
 computed over the stored bytes as Marlin computes it over its EEPROM image.
@@ -10,6 +11,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from firmware_port.marlin.mpc import MpcConstants
 from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidGains
 
 EEPROM_VERSION = "V87"  # Marlin 2.1's settings version string
@@ -28,13 +30,16 @@ def crc16(data: bytes) -> int:
 
 @dataclass
 class Settings:
-    """What M500 stores: the hotend and bed PID gains in user units."""
+    """What M500 stores: the hotend and bed PID gains in user units, and MPC_t on an MPC build."""
 
     hotend: PidGains = HOTEND_GAINS
     bed: PidGains = BED_GAINS
+    hotend_mpc: MpcConstants | None = None  # None: no MPC stored, the build's own constants apply
 
     def to_bytes(self) -> bytes:
         data = {"version": EEPROM_VERSION, "hotend_pid": vars(self.hotend), "bed_pid": vars(self.bed)}
+        if self.hotend_mpc is not None:
+            data["hotend_mpc"] = vars(self.hotend_mpc)
         return json.dumps(data, indent=1, sort_keys=True).encode()
 
     @classmethod
@@ -44,7 +49,9 @@ class Settings:
             doc = json.loads(data.decode())
             if doc.get("version") != EEPROM_VERSION:
                 raise ValueError(f"version {doc.get('version')!r}, expected {EEPROM_VERSION}")
-            return cls(PidGains(**doc["hotend_pid"]), PidGains(**doc["bed_pid"]))
+            mpc = doc.get("hotend_mpc")
+            return cls(PidGains(**doc["hotend_pid"]), PidGains(**doc["bed_pid"]),
+                       None if mpc is None else MpcConstants(**mpc))
         except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"unreadable settings: {exc}") from exc
 

@@ -8,11 +8,14 @@ and a plot into ./twin-out/.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import sys
 
 from firmware_port.firmwares import FIRMWARES
+from firmware_port.marlin.mpc import MpcConstants, MpcController
+from protocol.mpc_commands import hotend_mpc, mpc_constants_from_text
 from twin.build import build_twin
 from twin.engine import ENGINES
 from twin.plants import PRESETS as PLANT_PRESETS
@@ -48,6 +51,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--bed-set", action="append", default=[], metavar="KEY=VALUE", help="bed plant parameter")
     parser.add_argument("--gains", metavar="KP,KI,KD", help="hotend PID gains at 0 s, M301 units (PID firmwares)")
     parser.add_argument("--bed-gains", metavar="KP,KI,KD", help="bed PID gains at 0 s, M304 units")
+    parser.add_argument("--mpc-from", metavar="FILE|LINE",
+                        help="MPC's model for --firmware mpc: an M306 line (as twin-fit, M306 or M503 print it) "
+                             "or a file holding one; letters it leaves out keep Configuration.h's values")
     parser.add_argument("--seed", type=int, help="seed of every random source (default: the scenario's, else 0)")
     parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default 0)")
     parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default) or the tick-by-tick reference")
@@ -88,6 +94,30 @@ def parse_gains(text: str | None, option: str) -> dict[str, float] | None:
     if len(values) != 3:
         raise ValueError(f"{option} {text!r}: expected three numbers KP,KI,KD")
     return dict(zip(("kp", "ki", "kd"), values, strict=True))
+
+
+def read_mpc_constants(source: str) -> MpcConstants:
+    """--mpc-from: the constants of the first M306 line of a file, or of the argument itself."""
+    text = source
+    if os.path.isfile(source):
+        try:
+            with open(source, encoding="utf-8", errors="replace") as handle:
+                text = handle.read()
+        except OSError as exc:
+            raise ValueError(f"--mpc-from {source!r}: {exc.strerror or exc}") from None
+    try:
+        return mpc_constants_from_text(text)
+    except ValueError as exc:
+        raise ValueError(f"--mpc-from {source!r}: {exc}") from None
+
+
+def hotend_controllers(args: argparse.Namespace) -> list:
+    """--mpc-from: the hotend's MPC with those constants, as a factory (a board reset rebuilds it)."""
+    if args.mpc_from is None:
+        return []
+    if args.firmware != "mpc":
+        raise ValueError(f"--mpc-from sets MPC's model: it needs --firmware mpc, not {args.firmware}")
+    return [functools.partial(MpcController, read_mpc_constants(args.mpc_from))]
 
 
 def check_outputs(paths: list[str | None], plot_path: str | None) -> None:
@@ -154,12 +184,16 @@ def run(args: argparse.Namespace) -> int:
     stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
     plot_path = None if args.no_plot else (args.plot or os.path.join(args.out, stem + ".png"))
     csv_path = args.csv or os.path.join(args.out, stem + ".csv")
+    controllers = hotend_controllers(args)
     check_outputs([csv_path, args.klipper_log, plot_path], plot_path)
-    twin = build_twin(scenario, args.firmware, with_bed=not args.no_bed, engine=args.engine, noise_lsb=args.noise)
+    twin = build_twin(scenario, args.firmware, controllers=controllers, with_bed=not args.no_bed, engine=args.engine,
+                      noise_lsb=args.noise)
     twin.record_every_s = args.record_every
     twin.run_until(0.0)  # the scenario's 0 s events: targets and gains in force
     print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
     print(gains_line(twin))
+    if (mpc := hotend_mpc(twin.board)) is not None:
+        print(f"mpc: {mpc.constants.m306()}")
     for note in clamp_notes(twin, scenario):
         print(note)
     _run_with_progress(twin, scenario.duration_s)

@@ -305,6 +305,14 @@ def replace_section(text: str, body: str, begin: str, end: str) -> str | None:
     return head + body.rstrip("\n") + "\n" + text[stop:]
 
 
+def write_section(path: Path, body: str, begin: str, end: str) -> None:
+    """Rewrite the file's generated section between the markers; ValueError if they are missing."""
+    new = replace_section(path.read_text(), body, begin, end)
+    if new is None:
+        raise ValueError(f"{path} lacks the '{begin} ... -->' / '{end}' markers")
+    path.write_text(new)
+
+
 def _write_doc(path: Path, report: str, command: str) -> str | None:
     """Rewrite the section between the benchfuncs markers, stating the command that wrote it."""
     try:

@@ -105,12 +105,9 @@ def markdown(results: list[PlantResult], budget: int, seed: int) -> str:
 
 
 def write_doc(path: Path, body: str, command: str) -> None:
-    from tools.tuning.benchfuncs import replace_section
+    from tools.tuning.benchfuncs import write_section
 
-    new = replace_section(path.read_text(), f"Written by `{command}`.\n\n{body}", BEGIN, END)
-    if new is None:
-        raise ValueError(f"{path} lacks the '{BEGIN} ... -->' / '{END}' markers")
-    path.write_text(new)
+    write_section(path, f"Written by `{command}`.\n\n{body}", BEGIN, END)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,5 @@
-"""F1-F23: known minima, the seed-002 checks of printed values, and the report command."""
+"""F1-F23: known minima, the seed-002 checks of printed values, and the report command
+(python -m tools.cli.benchfuncs)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.optimize import minimize
 
+from tools.cli import benchfuncs
 from tools.seeds import seed002
-from tools.tuning import benchfuncs
 from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME
 from tools.tuning.optim.benchmark import run_all
 
@@ -84,7 +85,7 @@ def test_quick_command_writes_the_report(tmp_path, capsys) -> None:
     out = tmp_path / "table.md"
     assert benchfuncs.main(["--quick", "--workers", "1", "--functions", "F1,F9,F16", "--out", str(out)]) == 0
     report = out.read_text()
-    assert re.search(r"OCALO beats ALO on \d of 3 \(mean over 2 runs\)", report)
+    assert re.search(r"OCALO beats ALO on \d of 3 \(mean over 2 runs, plain form\)", report)
     rows = [line for line in report.splitlines() if re.match(r"\| F(1|9|16) ", line)]
     assert len(rows) == 6  # one row per function in each table
     assert "F9 OCALO mean -2.83E-12 < known minimum 0" in report
@@ -94,7 +95,7 @@ def test_quick_command_writes_the_report(tmp_path, capsys) -> None:
 @pytest.mark.parametrize(
     ("flags", "message"),
     [(["--runs", "0"], "--runs"), (["--methods", "nm,sa"], "--methods"), (["--functions", "F24"], "--functions"),
-     (["--iterations", "2"], "--iterations"), (["--shift", "1.5"], "--shift")],
+     (["--iterations", "2"], "--iterations"), (["--forms", "plain,tilted"], "--forms")],
 )  # fmt: skip
 def test_bad_flags_get_a_one_line_error(flags, message, capsys) -> None:
     assert benchfuncs.main(flags) == 2
@@ -102,12 +103,11 @@ def test_bad_flags_get_a_one_line_error(flags, message, capsys) -> None:
     assert err.count("\n") == 1 and message in err
 
 
-def test_ocalo_is_pulled_to_the_origin_and_shift_exposes_it() -> None:
+def test_ocalo_is_pulled_to_the_origin_and_the_shifted_form_exposes_it() -> None:
     # Seed 002's cosine factors end at 0.01 R_A (ocalo.py): ants land near x = 0. On F1 with a
-    # tiny budget OCALO reaches ~1e-8 at the origin; with the minimiser moved to x_i = 30 it stays
-    # ~1e4 away, as far as ALO. Margins of 4+ orders of magnitude, not a tolerance on a float.
+    # tiny budget OCALO reaches ~1e-8 at the origin; with the minimiser moved (shifted form) it
+    # stays ~1e4 away, as far as ALO. Margins of 4+ orders of magnitude, not a tolerance on a float.
     settings = {"seed": 0, "population": 10, "iterations": 10, "workers": 1}
-    at_origin = run_all(["F1"], ["alo", "ocalo"], 2, **settings)
-    shifted = run_all(["F1"], ["alo", "ocalo"], 2, shift=0.3, **settings)
-    assert at_origin["F1", "ocalo"].max() < 1e-3 < 1e3 < at_origin["F1", "alo"].min()
-    assert shifted["F1", "ocalo"].min() > 1e3
+    results = run_all(["F1"], ["alo", "ocalo"], 2, forms=("plain", "shifted"), **settings)
+    assert results["F1", "ocalo", "plain"].max() < 1e-3 < 1e3 < results["F1", "alo", "plain"].min()
+    assert results["F1", "ocalo", "shifted"].min() > 1e3

@@ -1,9 +1,9 @@
 """Seed 002 (Zhou, Jiang, Du, Lu: "High-speed 3D printing temperature control with optimized PID
 parameters based on improved ALO algorithm", preprint 2024): its printed numbers and our rerun.
 
-Two experiments: the F1-F23 benchmark of its tables 2-4 (rerun by ``python -m
-tools.tuning.benchfuncs``, which prints these tables beside ours), and the PID tuning of its
-section 4 on the identified hotend model, reproduced by ``reproduce()`` below.
+Two experiments: the F1-F23 benchmark of its tables 2-4 (rerun by ``python -m tools.cli.benchfuncs``,
+which prints ``benchmark_report``: these tables beside ours), and the PID tuning of its section 4
+on the identified hotend model, reproduced by ``reproduce()`` below.
 
 The PID experiment (seed 002, section 4), rebuilt as the paper describes it:
 - plant: eq. 15, G(s) = 1.014 e^{-20 s} / (s^2 + 0.05 s + 0.001), simulated exactly between
@@ -33,8 +33,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import cont2discrete
 
+from tools.tuning.benchfuncs import BENCHMARKS, PLAIN
 from tools.tuning.gains import COUNTS_PER_DUTY
 from tools.tuning.optim import METHODS
+from tools.tuning.optim.benchmark import Results, fmt_g, forms_of, wins
 from tools.tuning.optim.result import OptimResult
 from twin.metrics import recovery_time_s, step_metrics
 
@@ -153,6 +155,91 @@ def ordering_errors() -> list[str]:
             if values[0] > values[1] + slack or values[1] > values[2] + slack or values[0] > values[2] + slack:
                 errors.append(f"{function} {algorithm}: best {best}, mean {mean}, worst {worst}")
     return errors
+
+
+def _printed(text: str, minimum: float) -> str:
+    return f"{text} (!)" if below_minimum(text, minimum) else text
+
+
+def benchmark_table(results: Results) -> tuple[list[str], int, int, int]:
+    """ALO and OCALO on the plain functions, ours (mean, best) beside tables 2 and 3; returns the
+    markdown lines, on how many functions our OCALO mean beats our ALO mean, of how many, and the
+    same count in table 2."""
+    lines = [
+        "| F | ALO mean (ours) | OCALO mean (ours) | ALO best (ours) | OCALO best (ours) "
+        "| ALO mean (seed) | OCALO mean (seed) | ALO best (seed) | OCALO best (seed) |",
+        "|" + "---|" * 9,
+    ]
+    for bench in BENCHMARKS:
+        if (bench.name, "alo", PLAIN) not in results or (bench.name, "ocalo", PLAIN) not in results:
+            continue
+        alo, ocalo = results[bench.name, "alo", PLAIN], results[bench.name, "ocalo", PLAIN]
+        mean, best = PRINTED_MEAN[bench.name], PRINTED_BEST[bench.name]
+        printed = [_printed(t[a], bench.minimum) for t in (mean, best) for a in ("ALO", "OCALO")]
+        ours = [fmt_g(alo.mean()), fmt_g(ocalo.mean()), fmt_g(alo.min()), fmt_g(ocalo.min())]
+        lines.append(f"| {bench.name} | " + " | ".join(ours + printed) + " |")
+    won, total = wins(results, "ocalo", "alo", PLAIN)
+    return lines, won, total, printed_wins()
+
+
+def printed_wins() -> int:
+    """On how many functions table 2 prints OCALO's mean below ALO's."""
+    return sum(float(row["OCALO"]) < float(row["ALO"]) for row in PRINTED_MEAN.values())
+
+
+def impossible_printed() -> list[str]:
+    """Every printed value of tables 2-4 below its function's known global minimum."""
+    found = []
+    tables = (("mean", PRINTED_MEAN), ("best", PRINTED_BEST), ("worst", PRINTED_WORST))
+    for bench in BENCHMARKS:
+        for label, table in tables:
+            for algorithm, text in table[bench.name].items():
+                if below_minimum(text, bench.minimum):
+                    found.append(f"{bench.name} {algorithm} {label} {text} < known minimum {bench.minimum:.10g}")
+    return found
+
+
+def ordering_differences(results: Results, form: str = PLAIN) -> list[str]:
+    """Functions where our ALO/OCALO ordering (by mean) differs from table 2's."""
+    lines = []
+    for bench in BENCHMARKS:
+        if (bench.name, "alo", form) not in results or (bench.name, "ocalo", form) not in results:
+            continue
+        ours = results[bench.name, "ocalo", form].mean() < results[bench.name, "alo", form].mean()
+        printed = PRINTED_MEAN[bench.name]
+        seed = float(printed["OCALO"]) < float(printed["ALO"])
+        if ours != seed:
+            winner = {True: "OCALO", False: "ALO"}
+            lines.append(f"{bench.name}: ours {winner[ours]} better, seed 002 {winner[seed]} better")
+    return lines
+
+
+def benchmark_report(results: Results, runs: int) -> str:
+    """Markdown: our ALO/OCALO beside tables 2 and 3, the printed values no algorithm can reach,
+    the printed triples out of order, and where our ordering differs from the paper's."""
+    lines, won, total, seed_won = benchmark_table(results)
+    out = [
+        f"ALO and OCALO, ours (mean and best over {runs} runs, plain form) beside seed 002's tables 2 and 3; "
+        "(!) marks a printed value below the function's known global minimum.",
+        "",
+        *lines,
+        "",
+        f"OCALO beats ALO on {won} of {total} (mean over {runs} runs, plain form); "
+        f"in seed 002's table 2, OCALO beats ALO on {seed_won} of {len(PRINTED_MEAN)}.",
+    ]
+    for form in forms_of(results):
+        if form != PLAIN and wins(results, "ocalo", "alo", form)[1]:
+            f_won, f_total = wins(results, "ocalo", "alo", form)
+            out[-1] += f" {form.capitalize()}: OCALO beats ALO on {f_won} of {f_total}."
+    out += ["", "Printed values of seed 002's tables 2-4 below the known global minimum (impossible, allowing for "
+            "rounding):", "", *[f"- {line}" for line in impossible_printed()], "",
+            "Printed best/mean/worst triples out of order (best <= mean <= worst must hold):", "",
+            *[f"- {line}" for line in ordering_errors()]]
+    differences = ordering_differences(results)
+    if differences:
+        out += ["", "Where our ALO/OCALO ordering (mean, plain form) differs from seed 002's table 2:", "",
+                *[f"- {line}" for line in differences]]
+    return "\n".join(out) + "\n"
 
 
 # -- the PID experiment (section 4) -------------------------------------------------------------

@@ -101,7 +101,7 @@ def markdown(results: list[PlantResult], budget: int, seed: int) -> str:
 
 
 def write_doc(path: Path, body: str, command: str) -> None:
-    from tools.tuning.benchfuncs import replace_section
+    from tools.validation.doc_compare import replace_section
 
     new = replace_section(path.read_text(), f"Written by `{command}`.\n\n{body}", BEGIN, END)
     if new is None:

@@ -58,3 +58,13 @@ def compare_docs(new: str, old: str, rel_tol: float = REL_TOL, units: float = UN
             if not _close(x, y, rel_tol, units):
                 out.append(Mismatch(no, f"{x} against {y}"))
     return out
+
+
+def replace_section(text: str, body: str, begin: str, end: str) -> str | None:
+    """``text`` with the lines between the markers ``begin...``/``end`` replaced, or None if absent
+    (a generated section of a hand-written page: docs/tuning.md's tables)."""
+    start, stop = text.find(begin), text.find(end)
+    if start < 0 or stop < start:
+        return None
+    head = text[: text.index("\n", start) + 1]
+    return head + body.rstrip("\n") + "\n" + text[stop:]

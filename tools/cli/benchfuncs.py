@@ -1,6 +1,6 @@
 """python -m tools.cli.benchfuncs: every optimiser on F1-F23 (tools/tuning/benchfuncs.py) in the forms
 asked for, as a markdown report (tools/tuning/optim/benchmark.py) with seed 002's printed ALO/OCALO
-tables beside ours (tools/seeds/seed002.py); ``--doc docs/tuning.md`` rewrites that page's
+tables beside ours (tools/seeds/seed002_benchmark.py); ``--doc docs/tuning.md`` rewrites that page's
 generated section. A progress bar on stderr counts the runs.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from tools.seeds import seed002
+from tools.seeds import seed002_benchmark
 from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME, FORMS, PLAIN
 from tools.tuning.optim import METHODS
 from tools.tuning.optim.benchmark import SEED_ITERATIONS, SEED_POPULATION, format_report, run_all, tasks_for
@@ -94,7 +94,7 @@ def report(args: argparse.Namespace) -> str:
     text = format_report(results, methods, runs=args.runs, population=args.population, iterations=args.iterations,
                          wall_s=time.perf_counter() - start_s, workers=args.workers)
     if {"alo", "ocalo"} <= set(methods):
-        text += "\n" + seed002.benchmark_report(results, args.runs)
+        text += "\n" + seed002_benchmark.benchmark_report(results, args.runs)
     return text
 
 

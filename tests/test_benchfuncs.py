@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from scipy.optimize import minimize
 
 from tools.cli import benchfuncs
-from tools.seeds import seed002
+from tools.seeds import seed002_benchmark as bench002
 from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME
 from tools.tuning.optim.benchmark import run_all
 
@@ -57,17 +57,17 @@ def test_no_point_of_the_box_beats_the_known_minimum(bench, seed) -> None:
 
 
 def test_printed_values_below_the_minimum_are_flagged_allowing_for_rounding() -> None:
-    assert seed002.printed_half_unit("3.02E-04") == pytest.approx(0.005e-4)
-    assert seed002.printed_half_unit("-3.8662") == pytest.approx(0.00005)
-    assert seed002.below_minimum(seed002.PRINTED_MEAN["F9"]["OCALO"], 0.0)  # -2.83E-12 for Rastrigin
-    assert seed002.below_minimum(seed002.PRINTED_MEAN["F19"]["IALO"], BY_NAME["F19"].minimum)  # -3.8662
-    assert seed002.below_minimum(seed002.PRINTED_BEST["F15"]["OCALO"], BY_NAME["F15"].minimum)  # 3.02E-04
-    assert not seed002.below_minimum("-1.0316", BY_NAME["F16"].minimum)  # -1.03163 rounds to it
-    assert not seed002.below_minimum("0.998", BY_NAME["F14"].minimum)
+    assert bench002.printed_half_unit("3.02E-04") == pytest.approx(0.005e-4)
+    assert bench002.printed_half_unit("-3.8662") == pytest.approx(0.00005)
+    assert bench002.below_minimum(bench002.PRINTED_MEAN["F9"]["OCALO"], 0.0)  # -2.83E-12 for Rastrigin
+    assert bench002.below_minimum(bench002.PRINTED_MEAN["F19"]["IALO"], BY_NAME["F19"].minimum)  # -3.8662
+    assert bench002.below_minimum(bench002.PRINTED_BEST["F15"]["OCALO"], BY_NAME["F15"].minimum)  # 3.02E-04
+    assert not bench002.below_minimum("-1.0316", BY_NAME["F16"].minimum)  # -1.03163 rounds to it
+    assert not bench002.below_minimum("0.998", BY_NAME["F14"].minimum)
 
 
 def test_printed_best_worse_than_worst_is_an_ordering_error() -> None:
-    errors = seed002.ordering_errors()
+    errors = bench002.ordering_errors()
     assert "F19 OCALO: best -3.8615, mean -3.8625, worst -3.8627" in errors
     assert not any(line.startswith("F1 ") for line in errors)
 

@@ -4,13 +4,13 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Callable
 from typing import Any
 
 from tqdm import tqdm
 
+from tools.cli.args import OneLineParser
 from tools.seeds.report import SMALL_BUDGET, Budget, Progress, SeedReport, parse_budget, text
 
 BUDGET_HELP = ("small (default: each seed's preset, under a minute), paper (the paper's own population and "
@@ -32,7 +32,7 @@ def run_seed(seed: str, report: ReportFunction, steps: int, budget: Budget) -> i
 
 def main_for(seed: str, report: ReportFunction, steps: Callable[[Budget], int], argv: list[str] | None = None) -> int:
     """``python -m tools.seeds.seedNNN [--budget ...]``: the same as ``python -m tools.seeds NNN``."""
-    parser = argparse.ArgumentParser(prog=f"python -m tools.seeds.seed{seed}",
+    parser = OneLineParser(prog=f"python -m tools.seeds.seed{seed}",
                                      description=f"Re-run seed {seed}'s experiments and print them beside the paper's.")
     parser.add_argument("--budget", type=parse_budget, default=SMALL_BUDGET, help=BUDGET_HELP)
     args = parser.parse_args(argv)

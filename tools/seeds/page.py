@@ -59,8 +59,9 @@ def in_words(report: SeedReport) -> list[str]:
     }
     lines = [f"{words[v]}: {_listed(rows)}." for v, rows in groups.items() if rows]
     contradicted = [r for r in report.verdicts if r.claim and r.verdict in (DIFFERS, IMPOSSIBLE)]
-    lines += [f"The paper's claim '{r.quantity}' ({r.experiment}: {r.printed}) is contradicted by ours: {r.ours}; "
-              f"{r.why}." for r in contradicted]
+    lines += [f"The paper's claim '{r.quantity}' ({r.experiment}: {r.printed}) "
+              + ("cannot be right" if r.ours == "-" else f"is contradicted by ours, {r.ours}") + f": {r.why}."
+              for r in contradicted]
     return lines
 
 

@@ -630,7 +630,20 @@ def verdicts(result: Seed000Result) -> list[Verdict]:
                          f"map near the setpoint has spectral radius {num(radius)} (> 1: it cannot hold the setpoint)")
             rows.append(Verdict(rep.name, metric, f"{printed:.2f}", num(rep.ours.get(metric)),
                                 REPRODUCED if agrees else DIFFERS, f"{how}; {_tolerance(rep, metric)}{extra}"))
-    return rows
+    return rows + [_settles_claim(rep) for rep in result.reproductions if rep.evidence]
+
+
+def _settles_claim(rep: Reproduction) -> Verdict:
+    """The tuned loop 'settles' at the setpoint with the printed steady-state error: where its own loop heads."""
+    final_c = rep.evidence["seed_final_value_c"]
+    holds = abs(final_c - SETPOINT_C) <= OPTIMISER_TOL["steady_state_error"]
+    return Verdict(rep.name, "the tuned loop holds the setpoint", f"steady-state error "
+                   f"{rep.printed['steady_state_error']:.2f} C", f"heads to {num(final_c, 1)} C",
+                   REPRODUCED if holds else DIFFERS,
+                   "the printed error is the last sample of 50 s; the seed's loop CG/(C+G) has the DC gain "
+                   f"{num(rep.evidence['seed_dc_gain'], 1)}: at 50 s the response is passing the setpoint (slope "
+                   f"{num(rep.evidence['seed_slope_at_end_c_s'], 3)} C/s) on its way to {num(final_c, 1)} C; the same "
+                   "gains in a correct loop are in the notes", claim=True)
 
 
 def _twin_why(rep: Reproduction) -> str:

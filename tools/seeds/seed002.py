@@ -431,18 +431,21 @@ def _section4_rows(res: Seed002Result) -> list[Verdict]:
                                   if not agrees else "; +-5 %")
             if value is None:
                 why = f"{budget_words}: our loop never reaches the band; Q {num(ours.q, 1)}"
-            rows.append(Verdict(f"table 9, {name}", label, f"{printed:g}", num(value, decimals),
+            rows.append(Verdict(f"table 9, {name}", label, f"{printed}", num(value, decimals),
                                 REPRODUCED if agrees else DIFFERS, why))
         max_c, recovery_s = PRINTED_TABLE10[name]
-        rows.append(Verdict(f"table 10, {name}", "max after the disturbance C", f"{max_c:g}",
+        rows.append(Verdict(f"table 10, {name}", "max after the disturbance C", f"{max_c}",
                             num(ours.max_after_disturbance_c), REPRODUCED if within(ours.max_after_disturbance_c,
                                                                                     max_c, 0.05 * max_c) else DIFFERS,
                             budget_words))
+        settled = ours.settling_time_s is not None
+        recovered = ours.recovery_time_s is not None
+        agrees = settled and (recovery_s is None) == (not recovered) and (
+            recovery_s is None or within(ours.recovery_time_s, recovery_s, 0.05 * recovery_s))
         rows.append(Verdict(f"table 10, {name}", "recovery s", "-" if recovery_s is None else f"{recovery_s:g}",
-                            num(ours.recovery_time_s, 1),
-                            REPRODUCED if (recovery_s is None) == (ours.recovery_time_s is None) and (
-                                recovery_s is None or within(ours.recovery_time_s, recovery_s, 0.05 * recovery_s))
-                            else DIFFERS, budget_words))
+                            num(ours.recovery_time_s, 1), REPRODUCED if agrees else DIFFERS,
+                            budget_words + ("" if settled else ": our loop never reached the band before the "
+                                                                 "disturbance")))
     for name, n in pid.printed_gains_on_model.items():
         overshoot, peak_s, stable_s = PRINTED_TABLE11[name][:3]
         rows.append(Verdict(f"table 11, {name}", "overshoot % (platform) / on eq. 15", f"{overshoot:g}",
@@ -453,7 +456,7 @@ def _section4_rows(res: Seed002Result) -> list[Verdict]:
     claims = printed_claims()
     if claims:
         rows.append(Verdict("section 4.4", "OCALO-PID has the smallest peak after the disturbance",
-                            f"OCALO {PRINTED_TABLE10['OCALO'][0]:g} C", "-", IMPOSSIBLE,
+                            f"OCALO {PRINTED_TABLE10['OCALO'][0]} C", "-", IMPOSSIBLE,
                             claims[0].replace("section 4.4 says OCALO-PID has the smallest maximum peak after the "
                                               "disturbance, but ", ""), claim=True))
     rows += [Verdict("table 8 / eq. 15", "the identified model", "table 8", "eq. 15", DIFFERS, line)

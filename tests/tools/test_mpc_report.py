@@ -7,7 +7,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from tools.tuning.benchfuncs import write_section
+from tools.validation.doc_compare import write_section
 from tools.tuning.mpc_report import BEGIN, COMMAND, END, HOLD_BAND_C
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "firmware.md"

@@ -31,7 +31,7 @@ from firmware_port.thermistor import B3950_TABLE
 from protocol.mpc_commands import mpc_constants_from_text
 from protocol.printer import VirtualPrinter
 from tools.logs import hardware_logs_dir
-from tools.tuning.benchfuncs import write_section
+from tools.validation.doc_compare import write_section
 from twin.build import build_twin
 from twin.plants import SPECS
 from twin.scenario import Scenario, parse_scenario, scenario_for, with_overrides

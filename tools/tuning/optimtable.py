@@ -105,7 +105,7 @@ def markdown(results: list[PlantResult], budget: int, seed: int) -> str:
 
 
 def write_doc(path: Path, body: str, command: str) -> None:
-    from tools.tuning.benchfuncs import write_section
+    from tools.validation.doc_compare import write_section
 
     write_section(path, f"Written by `{command}`.\n\n{body}", BEGIN, END)
 

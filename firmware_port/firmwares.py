@@ -7,7 +7,7 @@ from collections.abc import Callable
 from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat, fuzzy_pi_space
 from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat, fuzzy_pid_space
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
-from firmware_port.marlin.mpc import MpcController
+from firmware_port.marlin.mpc import MpcController, mpc_space
 from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed, pid_space
 from firmware_port.marlin.pid_float import PidFloat, pid_float_space
 from firmware_port.params import ParamSpace
@@ -104,7 +104,12 @@ PARAM_SPACES: dict[str, tuple[Callable[[], ParamSpace], Callable[[], ParamSpace]
     "seed000_fuzzy": (fuzzy_space, fuzzy_space),
     "seed000_gauss": (gaussian_space, gaussian_space),
     "seed000_adaptive": (adaptive_space, adaptive_space),
+    "mpc": (mpc_space, lambda: _hotend_only("mpc")),
 }
+
+
+def _hotend_only(name: str) -> ParamSpace:
+    raise ValueError(f"{name} is a hotend controller (Marlin's MPCTEMP): the bed runs PID or bang-bang")
 
 
 def param_space(name: str, heater: str = "hotend") -> ParamSpace:

@@ -404,7 +404,7 @@ def fuzzy_pid_space(default: PidGains = HOTEND_GAINS, integer: bool = True) -> P
         gains = PidGains(kp, ki, kd)
         return FuzzyPid(gains) if integer else FuzzyPidFloat.board(gains)
 
-    return ParamSpace("fuzzy_pid" if integer else "fuzzy_pid_float", params, factory)
+    return ParamSpace("fuzzy_pid" if integer else "fuzzy_pid_float", params, factory, autotune="M303")
 
 
 # RAM and flash on the AVR, as C structs lay them out (uint8 1, int16 2, int32 4).

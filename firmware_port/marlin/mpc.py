@@ -35,6 +35,7 @@ from firmware_port.marlin.constants import (
     TEMP_TIMER_FREQUENCY,
 )
 from firmware_port.marlin.serial import format_float
+from firmware_port.params import Param, ParamSpace
 from firmware_port.thermistor import TEMP_ONE
 
 F32 = np.float32
@@ -231,3 +232,26 @@ def mpc_controller(heater_power_w: float = MPC_HEATER_POWER_W,
     parameter vector a tuner varies (tuning MPC is identifying its model)."""
     return MpcController(MpcConstants.from_m306(heater_power_w, block_heat_capacity_j_k, sensor_responsiveness_per_s,
                                                 ambient_xfer_w_k, fan_ambient_xfer_w_k, filament_heat_capacity_j_k_mm))
+
+
+MPC_SEARCH_FACTOR = 10.0  # tuning bounds: each identified constant from 1/10 to 10 x its default
+
+
+def mpc_space(defaults: MpcConstants = DEFAULT_CONSTANTS) -> ParamSpace:
+    """MPC as a tunable family: its model constants C, R, A, F (M306's letters), searched on log scales
+    within 1/10..10 x ``defaults``; P and H stay (the heater's rating, the filament's capacity). Tuning
+    MPC is identifying its model: the firmware's own way is M306 T (``autotune``)."""
+    def factory(c: float, r: float, a: float, f: float) -> MpcController:
+        return MpcController(MpcConstants.from_m306(defaults.heater_power_w, c, r, a, f,
+                                                    defaults.filament_heat_capacity_j_k_mm))
+
+    def held(c: float, r: float, a: float, f: float) -> tuple[float, float, float, float]:
+        return f32(c), f32(r), f32(a), f32(f)  # MPC_t holds float32
+
+    values = (("block_heat_capacity_j_k", "J/K", defaults.block_heat_capacity_j_k),
+              ("sensor_responsiveness_per_s", "1/s", defaults.sensor_responsiveness_per_s),
+              ("ambient_xfer_w_k", "W/K", defaults.ambient_xfer_w_k),
+              ("fan_ambient_xfer_w_k", "W/K", defaults.fan_ambient_xfer_w_k))
+    params = tuple(Param(name, unit, value / MPC_SEARCH_FACTOR, value * MPC_SEARCH_FACTOR, value, log=True)
+                   for name, unit, value in values)
+    return ParamSpace("mpc", params, factory, held=held, autotune="M306 T")

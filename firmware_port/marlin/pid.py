@@ -157,7 +157,8 @@ class PidFixed:
 def pid_space(default: PidGains = HOTEND_GAINS, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE) -> ParamSpace:
     """Marlin's fixed-point PID as a tunable family: Kp, Ki, Kd in M301 units."""
     return ParamSpace("pid", pid_params(default),
-                      lambda kp, ki, kd: PidFixed(PidGains(kp, ki, kd), prev_temp_mode), pid=True)
+                      lambda kp, ki, kd: PidFixed(PidGains(kp, ki, kd), prev_temp_mode), pid=True,
+                      autotune="M303")
 
 
 def float_error_bound_counts(gains: PidGains, max_dtemp_c: float) -> float:

@@ -94,4 +94,5 @@ class PidFloat:
 
 def pid_float_space(default: PidGains = HOTEND_GAINS) -> ParamSpace:
     """Marlin's float32 PID as a tunable family: Kp, Ki, Kd in M301 units."""
-    return ParamSpace("pid_float", pid_params(default), lambda kp, ki, kd: PidFloat(PidGains(kp, ki, kd)), pid=True)
+    return ParamSpace("pid_float", pid_params(default), lambda kp, ki, kd: PidFloat(PidGains(kp, ki, kd)), pid=True,
+                      autotune="M303")

@@ -43,6 +43,7 @@ EPILOG = """examples:
   twin-tune --plant hotend_cartridge --method ocalo --budget 900 --seed 1
   twin-tune --controller fuzzy_pi --plant bed --target 60    # seed 004's fuzzy PI: its three ranges
   twin-tune --controller my_module:SPACE --plant hotend      # your own controller (a ParamSpace)
+  twin-tune --controller pid,mpc --plant hotend_cartridge --budget 100   # PID against Marlin's MPC
   twin-tune --from-log klippy.log --heater extruder --loop klipper
 """
 
@@ -67,8 +68,10 @@ def plant_from_log(args: argparse.Namespace) -> tuple[str, Spec, bool]:
     return name, result.spec(), heater == BED
 
 
-def make_problem(args: argparse.Namespace, loop: str | None = None) -> tuple[Problem, bool]:
-    """The problem the arguments describe (on ``loop``, default --loop), and whether its heater is a bed."""
+def make_problem(args: argparse.Namespace, loop: str | None = None, controller_name: str | None = None
+                 ) -> tuple[Problem, bool]:
+    """The problem the arguments describe (on ``loop``, default --loop, with ``controller_name``, default
+    --controller), and whether its heater is a bed."""
     loop = loop or args.loop
     if args.from_log:
         name, spec, is_bed = plant_from_log(args)
@@ -83,7 +86,7 @@ def make_problem(args: argparse.Namespace, loop: str | None = None) -> tuple[Pro
         scenario = default_scenario(spec, target_c)
     except ValueError as exc:
         raise ValueError(f"--target {target_c:g}: {exc}") from None
-    controller = resolve_controller(args.controller, "bed" if is_bed else "hotend")
+    controller = resolve_controller(controller_name or args.controller, "bed" if is_bed else "hotend")
     ensemble = None
     if loop != "ideal":  # the papers' loop is noiseless arithmetic on the nominal model
         ensemble = corner_ensemble(preset_spread(spec, args.spread) if args.spread else (), args.noise, args.statistic)
@@ -150,10 +153,12 @@ def report(result: TuneResult, proof: Proven | None, seeds: int, is_bed: bool) -
     if problem.ensemble is not None:
         print(f"ensemble: {problem.ensemble.describe()}")
     versus = "; ".join(f"{'beats' if result.beats(r) else 'does not beat'} {r.method}: {describe(problem, r)}  "
-                       f"cost {r.cost:.4g}" for r in result.references)
+                       f"cost {r.cost:.4g}" for r in result.references if r is not best)
+    if best in result.references:
+        versus = f"no search beat this reference; {versus}" if versus else "no search beat this reference"
     print(f"best: {best.method}  {describe(problem, best)}  cost {best.cost:.4g}  ({versus})")
     by_rule = [c for c in result.candidates if c.history is None]
-    if by_rule and by_rule[0] is not best:
+    if by_rule and by_rule[0] is not best and problem.controller.pid:
         print(f"best rule: {by_rule[0].method}  {describe(problem, by_rule[0])}  cost {by_rule[0].cost:.4g}")
     answer: Candidate | None = best
     if proof is not None:
@@ -233,9 +238,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     source.add_argument("--from-log", metavar="LOG", help="fit a plant to this log (as twin-fit), then tune it")
     parser.add_argument("--target", type=finite_float, help=f"setpoint in C (default {HOTEND_TARGET_C:g}, a bed "
                         f"{BED_TARGET_C:g})")
-    parser.add_argument("--controller", default="pid", metavar="NAME",
+    parser.add_argument("--controller", default="pid", metavar="NAME[,NAME]",
                         help=f"a firmware build with parameters ({', '.join(controller_names())}) or a "
-                             "module:attribute naming your ParamSpace (default: pid)")
+                             "module:attribute naming your ParamSpace; several, comma-separated, are tuned on the "
+                             "same plant and compared, e.g. pid,mpc (default: pid)")
     parser.add_argument("--loop", default="marlin", choices=LOOPS + (BOTH,),
                         help="the loop the candidates run in: Marlin's board, Klipper's host PID, the papers' "
                              "idealised continuous loop, or both firmware loops, each with its own answer "
@@ -293,20 +299,22 @@ def check_args(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     check_args(args)
     loops = ("marlin", "klipper") if args.loop == BOTH else (args.loop,)
-    problems = [make_problem(args, loop) for loop in loops]
+    problems = [make_problem(args, loop, name) for name in args.controller.split(",") for loop in loops]
     client = None
     if args.dask:
         from distributed import Client
 
         client = Client(args.dask)
-    status = 0
-    for problem, is_bed in problems:
-        status = max(status, tune_one(args, problem, is_bed, client))
-    return status
+    outcomes = [tune_one(args, problem, is_bed, client) for problem, is_bed in problems]
+    if len(outcomes) > 1:
+        print("\n".join(comparison(outcomes)))
+    return max(status for status, _, _ in outcomes)
 
 
-def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client) -> int:
-    """Tune, prove, report and plot one problem; the exit status (1: nothing passed the proof)."""
+def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client
+             ) -> tuple[int, TuneResult, Proven | None]:
+    """Tune, prove, report and plot one problem: (the exit status, 1 when nothing passed the proof; the
+    tune; its proof)."""
     started = time.perf_counter()
     result = tune(problem, args.objective, args.method, args.budget, args.seed, client, progress=True)
     for note in result.notes:
@@ -314,15 +322,31 @@ def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client) -
     proof = proven(result, args.proof) if args.proof and problem.loop != "ideal" else None
     status = report(result, proof, args.proof, is_bed)
     if args.plot != "none":
-        stem = (args.plant or Path(args.from_log).stem) + ("" if args.loop != BOTH else f"-{problem.loop}")
-        path = Path(args.plot or f"twin-out/twin-tune-{stem}.png")
-        if args.plot and args.loop == BOTH:
-            path = path.with_name(f"{path.stem}-{problem.loop}{path.suffix}")
+        several = args.loop == BOTH or "," in args.controller
+        suffix = f"-{problem.controller.name}-{problem.loop}" if several else ""
+        path = Path(args.plot or f"twin-out/twin-tune-{args.plant or Path(args.from_log).stem}.png")
+        path = path.with_name(f"{path.stem}{suffix}{path.suffix}")
         write_plot(path, result, f"{problem.name}: {problem.controller.name}, {args.objective} on the "
                                  f"{problem.loop} loop")
         print(f"plot: {path}")
     print(f"({time.perf_counter() - started:.1f} s)", file=sys.stderr)
-    return status
+    return status, result, proof
+
+
+def comparison(outcomes: list[tuple[int, TuneResult, Proven | None]]) -> list[str]:
+    """Controllers (and loops) side by side on the same plant and scenario: each one's answer, its
+    cost on the same ensemble and statistic, and its proof."""
+    lines = ["comparison on the same plant, scenario and ensemble (cost: the same statistic):"]
+    for _, result, proof in outcomes:
+        answer = result.best if proof is None else proof.answer
+        row = None if proof is None or answer is None else next(r for r in proof.rows if r.method == answer.method)
+        proved = "unproven" if proof is None else "nothing passed" if row is None else \
+            f"{row.trips} trips of {row.runs}, overshoot {row.overshoot_c[0]:.2f} / {row.overshoot_c[1]:.2f} C, " \
+            f"hold |e| {row.hold_error_c[0]:.2f} / {row.hold_error_c[1]:.2f} C (mean / worst)"
+        name = f"{result.problem.controller.name} ({result.problem.loop})"
+        cost = "-" if answer is None else f"{answer.method} cost {answer.cost:.4g}"
+        lines.append(f"  {name:<22} {cost:<26} {proved}")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

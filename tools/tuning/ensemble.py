@@ -27,7 +27,7 @@ corners for a preset's lag and loss). Each member gets its own noise seed at ``n
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -53,6 +53,8 @@ GROUPS: dict[str, tuple[str, int]] = {
     "fan_ambient_xfer_w_k": ("loss", +1),
     "radiating_area_m2": ("loss", +1),
     "gain": ("loss", -1),
+    "power_w": ("loss", -1),  # less power: the same losses weigh more (a fit holds P/C and P/A)
+    "ambient_c": ("loss", -1),  # a relay fit's loss is anchored to its ambient: a colder room loses more
     "block_heat_capacity_j_k": ("capacity", +1),
 }
 DEFAULT_SPREAD_GROUPS = ("lag", "loss")
@@ -76,14 +78,18 @@ class Uncertain:
 
 @dataclass(frozen=True)
 class Member:
-    """One plant of the ensemble: parameter changes from the nominal spec, ADC noise and its seed."""
+    """One plant of the ensemble: parameter changes from the nominal spec (and the spec they make, where
+    the source builds it: a fit rescales what its data anchor), ADC noise and its seed."""
 
     label: str
     changes: tuple[tuple[str, float], ...]
     noise_lsb: float
     seed: int
+    built: Spec | None = None
 
     def spec(self, nominal: Spec) -> Spec:
+        if self.built is not None:
+            return self.built
         return replace(nominal, **dict(self.changes)) if self.changes else nominal
 
 
@@ -145,8 +151,10 @@ def preset_spread(spec: Spec, fraction: float = DEFAULT_SPREAD,
 
 
 def corner_ensemble(spread: Sequence[Uncertain], noise_lsb: float = DEFAULT_NOISE_LSB,
-                    statistic: str = DEFAULT_STATISTIC, first_seed: int = 1) -> Ensemble:
-    """The nominal plant and every corner of the spread's groups, each with its own noise seed."""
+                    statistic: str = DEFAULT_STATISTIC, first_seed: int = 1,
+                    build: Callable[..., Spec] | None = None) -> Ensemble:
+    """The nominal plant and every corner of the spread's groups, each with its own noise seed;
+    ``build(**changes)`` makes a corner's spec where the source does (a fit's ``spec_with``)."""
     groups = sorted({GROUPS[u.name][0] for u in spread})
     members = [Member("nominal", (), noise_lsb, first_seed)]
     for k, ends in enumerate(itertools.product((+1, -1), repeat=len(groups)) if groups else (), start=1):
@@ -154,5 +162,5 @@ def corner_ensemble(spread: Sequence[Uncertain], noise_lsb: float = DEFAULT_NOIS
         changes = tuple((u.name, u.high if GROUPS[u.name][1] * end_of[GROUPS[u.name][0]] > 0 else u.low)
                         for u in spread)
         label = " ".join(f"{g}{'+' if e > 0 else '-'}" for g, e in end_of.items())
-        members.append(Member(label, changes, noise_lsb, first_seed + k))
+        members.append(Member(label, changes, noise_lsb, first_seed + k, None if build is None else build(**dict(changes))))
     return Ensemble(tuple(members), statistic, tuple(spread))

@@ -36,6 +36,7 @@ import scipy.signal
 
 from firmware_port.klipper import CommandError
 from firmware_port.marlin.board import HOTEND_CHANNEL
+from firmware_port.marlin.mpc_autotune import MpcAutotune
 from firmware_port.firmwares import param_space
 from firmware_port.marlin.pid import pid_space
 from firmware_port.params import ParamSpace
@@ -472,11 +473,36 @@ def klipper_autotune(problem: Problem) -> Gains:
     return Gains(result.kp, result.ki, result.kd)
 
 
-def firmware_autotune(problem: Problem) -> tuple[str, Gains]:
-    """The firmware's own autotune on the problem's plant: (its name, its gains)."""
-    if problem.loop == "klipper":
-        return "PID_CALIBRATE", klipper_autotune(problem)
-    return f"M303 C{M303_CYCLES}", marlin_autotune(problem)
+def mpc_autotune(problem: Problem) -> np.ndarray:
+    """M306 T on a Marlin twin of the problem's plant running the problem's MPC (at ambient, no
+    disturbances): the constants it finds, as the family's parameters (C, R, A, F). ValueError if it fails."""
+    quiet = replace(problem, scenario=replace(problem.scenario, events=()))
+    twin = _marlin_twin(quiet, problem.controller.defaults)
+    tune = MpcAutotune(twin.board)
+    tune.start(twin.board.now_ms)
+    twin.board.begin_tune(tune, HOTEND_CHANNEL)
+    while twin.board.autotune is not None and not twin.board.halted and twin.time_s < AUTOTUNE_TIMEOUT_S:
+        twin.run_until(twin.time_s + AUTOTUNE_POLL_S)
+    if not tune.succeeded:
+        raise ValueError(f"M306 T failed on {problem.name}: " + " | ".join(twin.console.lines()[-2:]))
+    constants = twin.board.hotend.controller.constants
+    return np.array([constants.block_heat_capacity_j_k, constants.sensor_responsiveness_per_s,
+                     constants.ambient_xfer_w_k, constants.fan_ambient_xfer_w_k])
+
+
+def firmware_autotune(problem: Problem) -> tuple[str, np.ndarray]:
+    """The firmware's own autotune of the problem's controller family on its plant: (its name, the
+    parameters it gives). ValueError when it fails or the family has none."""
+    kind = problem.controller.autotune
+    if kind == "M303":
+        if problem.loop == "klipper":
+            gains = klipper_autotune(problem)
+            return "PID_CALIBRATE", np.array([gains.kp, gains.ki, gains.kd])
+        gains = marlin_autotune(problem)
+        return f"M303 C{M303_CYCLES}", np.array([gains.kp, gains.ki, gains.kd])
+    if kind == "M306 T":
+        return kind, mpc_autotune(problem)
+    raise ValueError(f"controller {problem.controller.name} has no firmware autotune")
 
 
 # -- candidates: the rules' gains, scored together ---------------------------------------------------

@@ -10,7 +10,11 @@ serves it (M303, M306 T, M306) and through twin-sim's heat_hold scenario:
    plant's own;
 2. on ``hotend_cartridge`` at 210 C, from ambient: M303 E0 S210 C8 on the pid build gives the
    gains, M306 T then M306 on the mpc build the model; heat_hold (600 s) with each, without and
-   with 1 LSB of ADC noise (the autotunes run with the same noise).
+   with 1 LSB of ADC noise (the autotunes run with the same noise);
+3. the same hold with the MPC constants ``twin-tune --controller mpc`` identifies on that plant
+   (``TUNE_ARGS``: DE from M306 T's result, on the nominal plant), pasted as its M306 line
+   (``twin-sim --firmware mpc --mpc-from``): MPC's constants are its model, and a model identified
+   for the closed loop holds where M306 T's two-node reading of a three-node hotend drifts.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_port.marlin.mpc import MpcConstants, MpcController
+from firmware_port.marlin.mpc import DEFAULT_CONSTANTS, MpcConstants, MpcController
 from firmware_port.marlin.pid import PidGains
 from firmware_port.thermistor import B3950_TABLE
 from protocol.mpc_commands import mpc_constants_from_text
@@ -50,6 +54,8 @@ CONSTANTS = (("C", "block_heat_capacity_j_k"), ("R", "sensor_responsiveness_per_
              ("F", "fan_ambient_xfer_w_k"))
 SERIAL = parse_scenario('name = "serial"\nduration_s = 86400\n', "serial")
 DEFINE = re.compile(r"^#define DEFAULT_K([pid]) (\S+)$", re.M)
+TUNE_ARGS = ("--controller", "mpc", "--plant", PLANT, "--target", str(TARGET_C), "--spread", "0", "--noise", "0",
+             "--method", "de", "--budget", "360", "--seed", "0")
 
 
 def session(scenario: Scenario, firmware: str, lines: Sequence[str], noise_lsb: float = 0.0) -> str:
@@ -160,14 +166,28 @@ def heat_hold(firmware: str, noise_lsb: float, *, gains: PidGains | None = None,
                 float(np.mean(error_c)), trip)
 
 
+def tuned_model() -> MpcConstants:
+    """``twin-tune TUNE_ARGS``'s answer, through the M306 line a user would paste."""
+    from firmware_port.firmwares import param_space
+    from tools.tuning.tuner import preset_problem, tune
+
+    problem = preset_problem(PLANT, TARGET_C, controller=param_space("mpc"))  # nominal plant, noiseless: TUNE_ARGS
+    best = tune(problem, method="de", budget=int(TUNE_ARGS[-3]), seed=int(TUNE_ARGS[-1])).best
+    c, r, a, f = (float(v) for v in best.params)
+    return MpcConstants.from_m306(DEFAULT_CONSTANTS.heater_power_w, c, r, a, f,
+                                  DEFAULT_CONSTANTS.filament_heat_capacity_j_k_mm)
+
+
 def comparison_rows() -> list[str]:
     rows = []
     cartridge = plant_scenario({"preset": PLANT})
+    tuned = tuned_model()
     for noise in NOISES_LSB:
         gains, model = m303(cartridge, noise), m306_t(cartridge, noise)
         for label, hold in ((f"PID, M303 gains Kp {gains.kp:g} Ki {gains.ki:g} Kd {gains.kd:g}",
                              heat_hold("pid", noise, gains=gains)),
-                            (f"MPC, M306 T: `{model.m306()}`", heat_hold("mpc", noise, model=model))):
+                            (f"MPC, M306 T: `{model.m306()}`", heat_hold("mpc", noise, model=model)),
+                            (f"MPC, twin-tune: `{tuned.m306()}`", heat_hold("mpc", noise, model=tuned))):
             rows.append(f"| {noise:g} | {label} | " + " | ".join(hold.cells()) + " |")
     return rows
 
@@ -179,7 +199,8 @@ def markdown() -> str:
              "| plant | C J/K | R 1/s | A W/K | F W/K | sensor lag 1/R s |", "|---|---|---|---|---|---|",
              *accuracy_rows(), "",
              f"`{PLANT}` at {TARGET_C} C (heat_hold, 600 s, no bed), each firmware tuned by its own autotune on the "
-             "same twin, with the ADC noise of its row. Overshoot and the time to within 2 C on the firmware's "
+             "same twin, with the ADC noise of its row; the last row of each noise level runs the constants of "
+             f"`twin-tune {' '.join(TUNE_ARGS)}` (tuned once, noiseless). Overshoot and the time to within 2 C on the firmware's "
              f"reading; the hold is reading - target over {HOLD_FROM_S:g}..600 s; holds: within {HOLD_BAND_C:g} C. "
              f"A noiseless reading steps by one ADC count, {B3950_TABLE.count_c(TARGET_C):.2f} C at {TARGET_C} C.",
              "", "| noise LSB | firmware and its tuning | overshoot C | to +-2 C s | hold C | mean C | holds |",

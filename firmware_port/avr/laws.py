@@ -18,6 +18,7 @@ from firmware_port.fuzzy_pi import SEED004_HOTEND, FuzzyPi, FuzzyPiConfig
 from firmware_port.fuzzy_pid import SEED001_BOARD, FuzzyPid, FuzzyPidConfig
 from firmware_port.marlin.adc import AdcSequencer
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
+from firmware_port.marlin.constants import TICKS_PER_READING
 from firmware_port.marlin.pid import HOTEND_GAINS, PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidFixed, PidGains
 from firmware_port.marlin.softpwm import SoftPwm
 from firmware_port.thermistor import B3950_TABLE
@@ -33,6 +34,7 @@ class Law:
     name: str
     title: str  # one line for the report
     spec: ElfSpec
+    period_isrs: int = TICKS_PER_READING  # how often Marlin calls it: once a reading (per heater), or every ISR
     in_fields: Fields
     out_fields: Fields = ()
     state_fields: Fields = ()
@@ -42,6 +44,11 @@ class Law:
     def record_fields(self) -> Fields:
         """What the harness reads after each step: law_out, then law_state."""
         return self.out_fields + self.state_fields
+
+    @property
+    def init_record(self) -> tuple:
+        """The input record of a power-up (OP_INIT)."""
+        return (OP_INIT,) + (0,) * (len(self.in_fields) - 1)
 
     @property
     def symbols(self) -> tuple[str, ...]:
@@ -260,6 +267,7 @@ class AdcLaw(Law):
 
     name = "adc"
     title = "ADC x16 oversampled sums (ISR step, 2 channels)"
+    period_isrs = 1
     spec = ElfSpec("glue_adc.c", ("adc.c",))
     in_fields = (("op", "u1"), ("take", "u1"), ("conversion0", "<u2"), ("conversion1", "<u2"))
     state_fields = (("phase", "u1"), ("temp_count", "u1"), ("acc0", "<u2"), ("acc1", "<u2"), ("raw0", "<u2"),
@@ -288,6 +296,7 @@ class SoftPwmLaw(Law):
 
     name = "softpwm"
     title = "soft PWM (ISR step, 2 channels)"
+    period_isrs = 1
     spec = ElfSpec("glue_softpwm.c", ("softpwm.c",))
     in_fields = (("op", "u1"), ("write", "u1"), ("amount0", "u1"), ("amount1", "u1"))
     out_fields = (("pins", "u1"),)

@@ -102,7 +102,7 @@ def compare(law_sim: LawSim, settings: Any, records: Sequence[tuple]) -> Mismatc
     power-up state included (step 0)."""
     law = law_sim.law
     law_sim.configure(law.port(settings))
-    records = [(OP_INIT,) + (0,) * (len(law.in_fields) - 1), *records]
+    records = [law.init_record, *records]
     avr_rows = law_sim.run(law_sim.inputs(records))[0].tolist()
     port_rows = run_port(law, settings, records)
     names = [name for name, _ in law.record_fields]

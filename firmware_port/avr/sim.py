@@ -62,7 +62,7 @@ class AvrSim:
 
     def close(self) -> None:
         if self._avr:
-            self.ram = np.zeros(0, np.uint8)
+            self.ram = self.ram[:0]  # no view into the freed data space
             self._lib.shim_close(self._avr)
             self._avr = None
 

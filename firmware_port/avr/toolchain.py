@@ -35,8 +35,11 @@ HARNESS_DIR = HERE / "harness"
 SRAM_OFFSET = 0x800000  # avr-nm's address of data-space byte 0
 
 
-class ToolchainMissing(RuntimeError):
-    """The AVR toolchain or libsimavr is not installed; the message names the packages."""
+class ToolchainMissing(OSError):
+    """The AVR toolchain or libsimavr is not installed; the message (one line) names the packages.
+
+    An OSError, like a missing file: CLIs report it on one line with their other environment errors.
+    """
 
 
 @dataclass(frozen=True)

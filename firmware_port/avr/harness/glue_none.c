@@ -8,6 +8,8 @@ struct {
 
 void law_run(void)
 {
+	if (law_in.op != OP_STEP)
+		return;
 	MARK_ON();
 	MARK_OFF();
 }

@@ -59,11 +59,12 @@ static void fuzzify(int16_t x_q8, fired_t *fired)
 }
 
 /* Sampled centroid in Q12 units of [0, 3]. At grid point y only the output sets y / 8 and, between
- * two centres, the next one have a non-zero degree. num < 2^19, den >= 3.25 * 256. */
+ * two centres, the next one have a non-zero degree. y * mu <= 48 * 256 and the sum of the degrees
+ * <= 49 * 256 fit 16 bits; num < 2^19; den >= 3.25 * 256 (some rule fires at >= 1/2). */
 static int16_t centroid_q12(const uint16_t strength_q8[N_SETS])
 {
 	int32_t num = 0;
-	int32_t den = 0;
+	uint16_t den = 0;
 	for (uint8_t y = 0; y <= GRID_MAX; y++) {
 		uint8_t j = y / GRID;
 		uint8_t r = y % GRID;
@@ -75,7 +76,7 @@ static int16_t centroid_q12(const uint16_t strength_q8[N_SETS])
 			if (next > mu_q8)
 				mu_q8 = next;
 		}
-		num += (int32_t)y * mu_q8;
+		num += (uint16_t)(y * mu_q8);
 		den += mu_q8;
 	}
 	return (int16_t)div_round_s32(num * POS_ONE, den);

@@ -14,7 +14,7 @@ from typing import Any
 
 from firmware_port.avr.laws import OP_RESET, OP_STEP, law_for
 from firmware_port.avr.runner import LawSim
-from firmware_port.controller import Controller, is_tunable
+from firmware_port.controller import Controller, Tunable, is_tunable
 from firmware_port.marlin.pid import PidGains
 
 
@@ -51,14 +51,18 @@ class AvrController:
 class AvrTunable(AvrController):
     """An AvrController that takes PID gains (M301/M304, M303 U1), like the controller it mirrors."""
 
+    def __init__(self, controller: Tunable):
+        super().__init__(controller)
+        self._tunable = controller
+
     @property
     def gains(self) -> PidGains:
-        return self._config.gains  # type: ignore[attr-defined]
+        return self._tunable.gains
 
     def set_gains(self, gains: PidGains) -> None:
         """Scale the gains as the port does, write them into law_config, and reset the loop."""
-        self._config.set_gains(gains)  # type: ignore[attr-defined]
-        self._sim.configure(self._config)
+        self._tunable.set_gains(gains)
+        self._sim.configure(self._tunable)
         self.reset()
 
 

@@ -25,7 +25,6 @@ from firmware_port.thermistor import B3950_TABLE
 
 OP_STEP, OP_RESET, OP_INIT = 0, 1, 2  # harness/harness.h
 Fields = tuple[tuple[str, str], ...]  # (name, numpy format), in C struct order
-TEMP_IN: Fields = (("op", "u1"), ("temp_q5", "<i2"), ("target_c", "<i2"))
 
 
 class Law:
@@ -74,20 +73,34 @@ class Law:
     def reset(self, port: Any) -> None:
         port.reset()
 
+
+class ControllerLaw(Law):
+    """A controller: a reading and a target in (law_in is harness.h's reading_in_t), its output
+    first in law_out (``out_frac_bits`` below the 0..255 scale), built from ``port_type``."""
+
+    in_fields = (("op", "u1"), ("temp_q5", "<i2"), ("target_c", "<i2"))
+    out_fields: Fields = (("out", "u1"),)
+    out_frac_bits = 0
+    port_type: type
+
+    def step(self, port: Any, record: tuple) -> tuple:
+        return (port.update(record[1], record[2], 0),)
+
     def counts(self, record: tuple) -> int:
-        """A controller's output on the 0..255 scale from a record (laws that are controllers)."""
-        raise NotImplementedError(f"{self.name} is not a controller")
+        """The output on the 0..255 scale from a record."""
+        return record[0] >> self.out_frac_bits
 
     def mirrors(self, port: Any) -> bool:
         """Whether this law's C is the build of this Python controller, with its compile-time options."""
-        return False
+        return type(port) is self.port_type
 
 
-class PidLaw(Law):
+class PidLaw(ControllerLaw):
     """firmware_port/marlin/pid.py PidFixed; Marlin's previous-temperature update is a compile-time option."""
 
-    in_fields = TEMP_IN
+    port_type = PidFixed
     out_fields = (("out_q8", "<i4"),)
+    out_frac_bits = 8
     state_fields = (("i_sum_q5", "<i4"), ("d_term_q8", "<i4"), ("prev_q5", "<i2"), ("reset_pending", "u1"))
     config_fields = (("kp_q12", "<i4"), ("ki_q24", "<i4"), ("kd_q16", "<i4"), ("i_max_q5", "<i4"))
 
@@ -111,40 +124,26 @@ class PidLaw(Law):
     def state(self, port: PidFixed) -> tuple:
         return port.i_sum_q5, port.d_term_q8, port.prev_q5, int(port.reset_pending)
 
-    def counts(self, record: tuple) -> int:
-        return record[0] >> 8
-
     def mirrors(self, port: Any) -> bool:
-        return type(port) is PidFixed and port.prev_temp_mode == self.mode
+        return super().mirrors(port) and port.prev_temp_mode == self.mode
 
 
-class BangBangHotendLaw(Law):
+class BangBangHotendLaw(ControllerLaw):
     """firmware_port/marlin/bangbang.py BangBangHotend: stateless."""
 
     name = "bangbang_hotend"
     title = "bang-bang hotend"
     spec = ElfSpec("glue_bangbang_hotend.c", ("bangbang.c",))
-    in_fields = TEMP_IN
-    out_fields = (("out", "u1"),)
+    port_type = BangBangHotend
 
     def port(self, settings: None = None) -> BangBangHotend:
         return BangBangHotend()
 
-    def step(self, port: BangBangHotend, record: tuple) -> tuple:
-        return (port.update(record[1], record[2]),)
 
-    def counts(self, record: tuple) -> int:
-        return record[0]
-
-    def mirrors(self, port: Any) -> bool:
-        return type(port) is BangBangHotend
-
-
-class BangBangBedLaw(Law):
+class BangBangBedLaw(ControllerLaw):
     """firmware_port/marlin/bangbang.py BangBangBed; BED_LIMIT_SWITCHING is a compile-time option."""
 
-    in_fields = TEMP_IN
-    out_fields = (("out", "u1"),)
+    port_type = BangBangBed
     state_fields = (("output", "u1"),)
 
     def __init__(self, limit_switching: bool):
@@ -156,27 +155,20 @@ class BangBangBedLaw(Law):
     def port(self, settings: None = None) -> BangBangBed:
         return BangBangBed(self.limit_switching)
 
-    def step(self, port: BangBangBed, record: tuple) -> tuple:
-        return (port.update(record[1], record[2]),)
-
     def state(self, port: BangBangBed) -> tuple:
         return (port.output,)
 
-    def counts(self, record: tuple) -> int:
-        return record[0]
-
     def mirrors(self, port: Any) -> bool:
-        return type(port) is BangBangBed and port.limit_switching == self.limit_switching
+        return super().mirrors(port) and port.limit_switching == self.limit_switching
 
 
-class FuzzyPiLaw(Law):
+class FuzzyPiLaw(ControllerLaw):
     """firmware_port/fuzzy_pi.py FuzzyPi: seed 004's fuzzy-like PI."""
 
     name = "fuzzy_pi"
     title = "fuzzy-like PI (seed 004)"
     spec = ElfSpec("glue_fuzzy_pi.c", ("fuzzy_pi.c",))
-    in_fields = TEMP_IN
-    out_fields = (("out", "u1"),)
+    port_type = FuzzyPi
     state_fields = (("duty_q16", "<i4"), ("err_prev_q5", "<i4"), ("have_prev", "u1"))
     config_fields = (("n_sets", "u1"), ("err_range_q5", "<i2"), ("derr_range_q5", "<i2"), ("du_range_q4", "<i2"),
                      ("out_max", "u1"))
@@ -184,30 +176,22 @@ class FuzzyPiLaw(Law):
     def port(self, settings: FuzzyPiConfig | None = None) -> FuzzyPi:
         return FuzzyPi(settings or SEED004_HOTEND)
 
-    def step(self, port: FuzzyPi, record: tuple) -> tuple:
-        return (port.update(record[1], record[2], 0),)
-
     def config(self, port: FuzzyPi) -> tuple:
         return port.n_sets, port.err_range_q5, port.derr_range_q5, port.du_range_q4, port.out_max
 
     def state(self, port: FuzzyPi) -> tuple:
         return port.duty_q16, port.err_prev_q5, port.have_prev
 
-    def counts(self, record: tuple) -> int:
-        return record[0]
 
-    def mirrors(self, port: Any) -> bool:
-        return type(port) is FuzzyPi
-
-
-class FuzzyPidLaw(Law):
+class FuzzyPidLaw(ControllerLaw):
     """firmware_port/fuzzy_pid.py FuzzyPid: seed 001's fuzzy-PID; law_out also carries the gain factors."""
 
     name = "fuzzy_pid"
     title = "fuzzy-PID (seed 001)"
     spec = ElfSpec("glue_fuzzy_pid.c", ("fuzzy_pid.c",))
-    in_fields = TEMP_IN
+    port_type = FuzzyPid
     out_fields = (("out_q8", "<i4"), ("f_p_q12", "<i2"), ("f_i_q12", "<i2"), ("f_d_q12", "<i2"))
+    out_frac_bits = 8
     state_fields = (("i_q8", "<i4"), ("e_prev_q5", "<i2"), ("have_prev", "u1"))
     config_fields = (("ke_q12", "<u4"), ("kec_ps_q12", "<u4"), ("span_q4", "u1"), ("literal", "u1"),
                      ("kp_q12", "<i4"), ("ki_q24", "<i4"), ("kd_q16", "<i4"))
@@ -225,12 +209,6 @@ class FuzzyPidLaw(Law):
 
     def state(self, port: FuzzyPid) -> tuple:
         return port.i_q8, port.e_prev_q5, port.have_prev
-
-    def counts(self, record: tuple) -> int:
-        return record[0] >> 8
-
-    def mirrors(self, port: Any) -> bool:
-        return type(port) is FuzzyPid
 
 
 class ThermistorLaw(Law):
@@ -341,10 +319,11 @@ def dtype(fields: Fields) -> np.dtype:
     return np.dtype(list(fields))
 
 
-def law_for(controller: Any) -> Law:
+def law_for(controller: Any) -> ControllerLaw:
     """The law whose C build mirrors a Python controller; ValueError if it has none."""
-    for law in LAWS.values():
+    laws = [law for law in LAWS.values() if isinstance(law, ControllerLaw)]
+    for law in laws:
         if law.mirrors(controller):
             return law
-    names = sorted({type(law.port()).__name__ for law in LAWS.values() if law.mirrors(law.port())})
+    names = sorted({law.port_type.__name__ for law in laws})
     raise ValueError(f"{type(controller).__name__} has no AVR build (controllers with one: {', '.join(names)})")

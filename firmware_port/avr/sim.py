@@ -61,7 +61,7 @@ class AvrSim:
         self._check(self._lib.shim_wait(self._avr, self.mailbox, MAILBOX_IDLE, BOOT_MAX_CYCLES), "booting")
 
     def close(self) -> None:
-        if self._avr:
+        if getattr(self, "_avr", None):  # also when __init__ failed half way
             self.ram = self.ram[:0]  # no view into the freed data space
             self._lib.shim_close(self._avr)
             self._avr = None

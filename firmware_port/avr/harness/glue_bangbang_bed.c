@@ -2,11 +2,7 @@
 #include "bangbang.h"
 #include "harness.h"
 
-struct {
-	uint8_t op;
-	int16_t temp_q5;
-	int16_t target_c;
-} law_in;
+reading_in_t law_in;
 
 struct {
 	uint8_t out;

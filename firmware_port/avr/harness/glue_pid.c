@@ -4,11 +4,7 @@
 #include "harness.h"
 #include "pid.h"
 
-struct {
-	uint8_t op;
-	int16_t temp_q5;
-	int16_t target_c;
-} law_in;
+reading_in_t law_in;
 
 struct {
 	int32_t out_q8;

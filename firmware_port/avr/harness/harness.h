@@ -20,6 +20,13 @@
 #define MARK_ON() (PORTB = _BV(PORTB0))
 #define MARK_OFF() (PORTB = 0)
 
+/* A controller's law_in: a fresh reading and the target (Marlin's celsius_t). */
+typedef struct {
+	uint8_t op;
+	int16_t temp_q5;  /* celsius_q5 */
+	int16_t target_c; /* whole degC */
+} reading_in_t;
+
 void law_run(void);
 
 #endif

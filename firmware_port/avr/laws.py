@@ -70,9 +70,6 @@ class Law:
         """The port's state as law_state's fields."""
         return ()
 
-    def reset(self, port: Any) -> None:
-        port.reset()
-
 
 class ControllerLaw(Law):
     """A controller: a reading and a target in (law_in is harness.h's reading_in_t), its output

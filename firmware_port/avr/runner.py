@@ -76,7 +76,7 @@ def run_port(law: Law, settings: Any, records: Sequence[tuple]) -> list[tuple]:
         if record[0] == OP_INIT:
             port = law.port(settings)
         elif record[0] == OP_RESET:
-            law.reset(port)
+            port.reset()
         rows.append(zeros + law.state(port))
     return rows
 

@@ -39,7 +39,6 @@ def _shim() -> ctypes.CDLL:
     lib.shim_close.restype, lib.shim_close.argtypes = None, [ptr]
     lib.shim_data.restype, lib.shim_data.argtypes = ptr, [ptr]
     lib.shim_ramend.restype, lib.shim_ramend.argtypes = u32, [ptr]
-    lib.shim_cycle.restype, lib.shim_cycle.argtypes = u64, [ptr]
     lib.shim_wait.restype, lib.shim_wait.argtypes = ctypes.c_int, [ptr, u16, u8, u64]
     lib.shim_steps.restype = ctypes.c_int32
     lib.shim_steps.argtypes = [ptr, u16, u8, u8, u16, u16, ptr, u32, ptr, u8, ptr, u16, u8, ptr, u64]
@@ -68,10 +67,6 @@ class AvrSim:
 
     def __del__(self) -> None:
         self.close()
-
-    @property
-    def cycle(self) -> int:
-        return int(self._lib.shim_cycle(self._avr))
 
     def write(self, symbol: str, data: bytes) -> None:
         """Fill an SRAM symbol (its full size) with ``data``."""

@@ -56,10 +56,6 @@ class Toolchain:
         return _compiler_version(self.avr_gcc)
 
 
-def install_hint() -> str:
-    return "apt-get install " + " ".join(APT_PACKAGES)
-
-
 @cache
 def find_toolchain() -> Toolchain:
     """The installed toolchain; ToolchainMissing (one line naming the packages) if a part is absent."""
@@ -79,17 +75,9 @@ def find_toolchain() -> Toolchain:
     if host_cc is None:
         missing.append("gcc (a host C compiler for the simavr shim)")
     if missing:
-        raise ToolchainMissing(f"the AVR toolchain is missing {', '.join(missing)}: {install_hint()}")
+        raise ToolchainMissing(f"the AVR toolchain is missing {', '.join(missing)}: apt-get install {' '.join(APT_PACKAGES)}")
     assert include is not None and host_cc is not None
     return Toolchain(str(found["avr-gcc"]), str(found["avr-size"]), str(found["avr-nm"]), host_cc, include)
-
-
-def available() -> bool:
-    try:
-        find_toolchain()
-    except ToolchainMissing:
-        return False
-    return True
 
 
 @cache

@@ -103,11 +103,6 @@ uint32_t shim_ramend(avr_t *avr)
 	return avr->ramend;
 }
 
-uint64_t shim_cycle(avr_t *avr)
-{
-	return avr->cycle;
-}
-
 /* Run until data[addr] == value. 0, or SHIM_TIMEOUT after max_cycles, or SHIM_CRASHED. While
  * running, the cycles between the marker's rise and fall go to *marked (0 if it did not rise). */
 static int run_until(avr_t *avr, uint16_t addr, uint8_t value, uint16_t mark_addr, uint8_t mark_mask,

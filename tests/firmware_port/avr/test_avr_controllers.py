@@ -152,7 +152,7 @@ def unclamped(law_sim: LawSim, settings_: object, records: list[tuple]) -> int:
             out = law.counts(law.step(port, record))
             count += 0 < out < 255
         else:
-            law.reset(port)
+            port.reset()
     return count
 
 

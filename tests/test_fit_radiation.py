@@ -10,15 +10,10 @@ import numpy as np
 import pytest
 
 from tools.cli.fit import main
-from tools.ident.fit import (
-    RADIATING_BOUNDS_M2,
-    aic,
-    fit_losses,
-    fit_model,
-    fopdt_equivalent,
-    radiating_response,
-    zoh_response,
-)
+from tools.ident.fit import RADIATING_BOUNDS_M2, fit_losses, fit_model
+from tools.ident.fopdt import fopdt_equivalent
+from tools.ident.response import radiating_response, zoh_response
+from tools.ident.result import aic
 from tools.logs import hardware_logs_dir
 from tools.validation.plant_check import onion_fit_options
 from twin.plants import ONION_RADIATING_PARAMS, Lumped, Plant

@@ -12,22 +12,10 @@ import scipy.optimize
 import scipy.signal
 
 from tools.cli.fit import main
-from tools.ident.fit import (
-    CONTROL_DELAY_S,
-    MIN_HEATUP_S,
-    TWO_POINT_FRACTIONS,
-    Fopdt,
-    NotFittable,
-    default_segment,
-    fit_model,
-    fopdt_equivalent,
-    log_segments,
-    relay_fopdt,
-    split_heatups,
-    two_point_fopdt,
-    ultimate_point,
-    zoh_response,
-)
+from tools.ident.fit import fit_model
+from tools.ident.fopdt import CONTROL_DELAY_S, TWO_POINT_FRACTIONS, Fopdt, fopdt_equivalent, relay_fopdt, two_point_fopdt, ultimate_point
+from tools.ident.response import zoh_response
+from tools.ident.segments import MIN_HEATUP_S, NotFittable, default_segment, log_segments, split_heatups
 from tools.logs import hardware_logs_dir, load_log
 from tools.tuning.rules import amigo
 from twin.plants import Lumped, Plant, TransferFunction, make_plant

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tools.cli import compare as compare_cli
-from tools.ident.fit import NotFittable, log_segments
+from tools.ident.segments import NotFittable, log_segments
 from tools.logs import hardware_logs_dir, load_log
 from tools.validation import m303_compare
 from tools.validation.m303_compare import GOAL_SWING_REL, GOAL_TU_REL, M303_HEADER, relay_stats, twin_noise_lsb

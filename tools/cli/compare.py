@@ -15,7 +15,7 @@ from pathlib import Path
 
 from tools.validation import compare, m303_compare
 from tools.cli.args import OneLineParser, plot_path, ranged_float
-from tools.ident.fit import NotFittable
+from tools.ident.segments import NotFittable
 from tools.logs import HeattestLog, LogError, M303Log, StatsLog, load_log
 
 EXIT_UNUSABLE = 2

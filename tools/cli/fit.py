@@ -18,27 +18,10 @@ import numpy as np
 
 from tools.cli.args import OneLineParser, ranged_float
 from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c
-from tools.ident.fit import (
-    CONTROL_DELAY_S,
-    LOSSES,
-    LUMPED_MODELS,
-    MODELS,
-    RADIATING_BOUNDS_M2,
-    RADIATING_EMISSIVITY,
-    RADIATING_PARAM,
-    FitResult,
-    Fopdt,
-    NotFittable,
-    Segment,
-    aic,
-    default_segment,
-    fit_losses,
-    fit_model,
-    fopdt_equivalent,
-    log_segments,
-    relay_fopdt,
-    ultimate_point,
-)
+from tools.ident.fit import LOSSES, LUMPED_MODELS, MODELS, RADIATING_BOUNDS_M2, RADIATING_EMISSIVITY, RADIATING_PARAM, fit_losses, fit_model
+from tools.ident.fopdt import CONTROL_DELAY_S, Fopdt, fopdt_equivalent, relay_fopdt, ultimate_point
+from tools.ident.result import FitResult, aic
+from tools.ident.segments import NotFittable, Segment, default_segment, log_segments
 from tools.tuning.rules import amigo
 from tools.logs import MARLIN_POWER_MAX, HeattestLog, LogError, M303Log, PlainLog, StatsLog, load_log
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.ident.fit import zoh_response
+from tools.ident.response import zoh_response
 from twin.plants import Plant, Spec
 
 

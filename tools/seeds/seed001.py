@@ -40,7 +40,7 @@ from firmware_port.fuzzy_pid import (
     infer,
 )
 from firmware_port.marlin.pid import PidGains
-from tools.ident.fit import Fopdt, ultimate_point
+from tools.ident.fopdt import Fopdt, ultimate_point
 from tools.tuning.ideal import closed_loop
 from tools.tuning.models import model_of
 from twin.engine import BOOT_S, Twin

@@ -35,7 +35,7 @@ import scipy.signal
 from firmware_port.klipper import CommandError
 from firmware_port.marlin.board import HOTEND_CHANNEL
 from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PidGains
-from tools.ident.fit import CONTROL_DELAY_S
+from tools.ident.fopdt import CONTROL_DELAY_S
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of
 from tools.tuning.objectives import Run

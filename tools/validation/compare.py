@@ -30,13 +30,9 @@ from firmware_port.klipper.heater import (
     PWM_RESEND_BEFORE_2025_04,
 )
 from firmware_port.thermistor import KLIPPER_SENSORS
-from tools.ident.fit import (
-    MIN_HEATUP_S,
-    FitResult,
-    Segment,
-    fit_model,
-    log_segments,
-)
+from tools.ident.fit import fit_model
+from tools.ident.result import FitResult
+from tools.ident.segments import MIN_HEATUP_S, Segment, log_segments
 from tools.logs import (
     HeattestLog,
     StatsLog,

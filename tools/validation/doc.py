@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from tools.validation import compare, m303_compare
-from tools.ident.fit import NotFittable
+from tools.ident.segments import NotFittable
 from tools.logs import StatsLog, hardware_logs_dir, load_log
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "validation.md"

@@ -32,7 +32,9 @@ import numpy as np
 from firmware_port.marlin.autotune import STR_CLASSIC_PID
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
 from firmware_port.marlin.constants import OVERSAMPLENR
-from tools.ident.fit import FitResult, NotFittable, Segment, best_fit, log_segments, reading_noise_c
+from tools.ident.fit import best_fit, reading_noise_c
+from tools.ident.result import FitResult
+from tools.ident.segments import NotFittable, Segment, log_segments
 from tools.logs import M303Cycle, M303Log, load_log, parse_m303
 from tools.ident.relay_trace import ambient_hint_c
 from twin.engine import BOOT_S, Twin

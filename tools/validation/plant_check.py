@@ -20,7 +20,10 @@ from functools import partial
 import numpy as np
 import scipy.optimize
 
-from tools.ident.fit import FitResult, Segment, aic, fit_losses, fit_model, fit_plants, zoh_response
+from tools.ident.fit import fit_losses, fit_model, fit_plants
+from tools.ident.response import zoh_response
+from tools.ident.result import FitResult, aic
+from tools.ident.segments import Segment
 from tools.logs import csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S

@@ -1,7 +1,9 @@
 """Readers for captured heater logs, one module per format: Klipper Stats from klippy.log or CSV
 (klipper_stats), Klipper heattest (heattest), Marlin/Repetier M303 console text (m303), Klipper
 PID_CALIBRATE results (pid_calibrate), plain CSV of time, temperature and duty (plain_csv). The
-result types are in results, the shared line reading in lines, load_log's detection in detect.
+result types are in results, the shared line reading in lines. Each format's module declares its
+``Reader`` (tools/logs/registry.py); ``load_log`` (detect) asks the registered readers in turn, on
+the file's first lines only.
 
 The logs stay where they are: every reader takes a path (``hardware_logs_dir()`` finds the shared
 captures). All readers share one line reader, which keeps line numbers and skips comment lines:

@@ -11,11 +11,14 @@ from pathlib import Path
 import numpy as np
 
 from tools.logs.lines import LogError, csv_rows, is_comment, parse_integer, parse_number, read_lines, require_increasing
+from tools.logs.registry import Reader
 from tools.logs.results import HeaterSeries, StatsLog
 
 HEATER_KEYS = ("target", "temp", "pwm")  # heaters.py stats(): "<name>: target=%.0f temp=%.1f pwm=%.3f"
 STATS_LINE_RE = re.compile(r"^(?:INFO:root:)?Stats ([^\s:]+):(.*)$")  # graphstats.py accepts both
 START_RE = re.compile(r"^(?:INFO:root:)?Start printer at ")  # klippy.py, once per (re)start
+KLIPPY_RE = re.compile(r"^(?:INFO:root:)?(?:Stats [^\s:]+:|Start printer at )")  # a klippy.log
+STATS_CSV_START = "session,t_host_s,"  # the project's CSV of Stats lines
 CONFIG_START = "===== Config file ====="  # klippy.log's dump of printer.cfg, up to a "=====" line
 VERSION_RE = re.compile(r"Git version: '([^']*)'")
 SECTION_RE = re.compile(r"^\[([^\]]+)\]$")
@@ -156,3 +159,9 @@ def parse_klippy_log(path: str | Path) -> StatsLog:
     texts = [text for _, text in lines]
     meta = {"klipper_version": _klipper_version(texts), "config": _config_sections(config_lines), "comments": []}
     return StatsLog(Path(path), _stats_sessions(path, rows), meta)
+
+
+STATS_CSV_READER = Reader("Klipper Stats CSV", lambda head: head.first.startswith(STATS_CSV_START),
+                          parse_klipper_stats_csv)
+KLIPPY_LOG_READER = Reader("klippy.log", lambda head: any(KLIPPY_RE.match(text) for text in head.texts),
+                           parse_klippy_log)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from firmware_port.marlin.autotune import STR_CLASSIC_PID, STR_NO_OVERSHOOT
 from tools.logs.lines import GAIN_RE, LogError, console_text, data_lines, parse_integer, parse_number, read_lines
+from tools.logs.registry import Reader
 from tools.logs.results import M303Cycle, M303Log, M303Status
 
 COMMAND_RE = re.compile(r"^(?:N\d+\s+)?(M30[36]\b[^*;]*)")
@@ -32,6 +33,7 @@ FIRMWARE_HINTS = (
     (re.compile(r"PID Autotune failed"), "an autotune failed"),
     (re.compile(r"MPC Autotune"), "Marlin MPC autotune (M306): no relay cycles"),
 )
+CONSOLE_RE = re.compile(r"^(?:bias:|Ku:|PID Autotune|MPC Autotune|#define\s+DEFAULT_|[TB]:\s*[-\d.])")
 INCOMPLETE_STATUS = "status line without the power of each heater it shows (cut or elided)"
 
 
@@ -163,3 +165,6 @@ def parse_m303(path: str | Path) -> M303Log:
     rule = next((c.rule for c in reversed(reader.cycles) if c.rule), None)
     return M303Log(Path(path), reader.commands, reader.cycles, reader.status, reader.final_gains(), rule, power_max,
                    hints, reader.skipped, reader.idle_c)
+
+
+READER = Reader("M303 console text", lambda head: any(CONSOLE_RE.match(text) for text in head.texts), parse_m303)

@@ -49,7 +49,7 @@ MIN_BOUND = np.array([1.0, 0.05, 1.0])  # so a rule's zero Ki or Kd still leaves
 # -- the plant ---------------------------------------------------------------------------------
 def plant_from_log(args: argparse.Namespace) -> tuple[str, Spec, bool]:
     """Fit the log as twin-fit does: (a name, the fitted spec, whether it is a bed)."""
-    from tools.cli.fit import ASSUMED_POWER_W, BED
+    from tools.ident.log_fit import ASSUMED_POWER_W, BED
     from tools.ident.fit import fit_model
     from tools.ident.segments import default_segment, log_segments
     from tools.logs import load_log

@@ -113,7 +113,7 @@ def _first_order_guess(t_s: np.ndarray, temp_c: np.ndarray, duty: np.ndarray, am
     return Fopdt(float(-b / a), float(-1.0 / a), max(delay_s, float(np.median(dt)) / 2.0))
 
 
-def _start_values(model: str, guess: Fopdt, held: dict[str, float]) -> dict[str, float]:
+def start_values(model: str, guess: Fopdt, held: dict[str, float]) -> dict[str, float]:
     k, tau, delay = guess
     if model == "fopdt":
         return {"gain_c": k, "time_constant_s": tau, "delay_s": delay}
@@ -141,7 +141,8 @@ def _check_loss(model: str, loss: str) -> None:
 
 def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, power_w: float | None = None,
               fixed: dict[str, float] | None = None, start: dict[str, float] | None = None,
-              observed: np.ndarray | None = None, loss: str = "linear") -> FitResult:
+              observed: np.ndarray | None = None, loss: str = "linear",
+              on_evaluation: Callable[[], None] | None = None) -> FitResult:
     """Fit a model to one segment: readings temp_c at t_s under the duty (0..1) held from each sample.
 
     model: "fopdt" (gain_c, time_constant_s, delay_s), "sopdt" (two lags, lag1_s >= lag2_s),
@@ -160,7 +161,7 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
     _check_loss(model, loss)
     if loss == "linear":
         return _fit_loss(model, "linear", t_s, temp_c, duty, ambient_c, power_w=power_w, fixed=fixed, start=start,
-                         observed=observed)
+                         observed=observed, on_evaluation=on_evaluation)
     choice = fit_losses(model, t_s, temp_c, duty, ambient_c, power_w=power_w, fixed=fixed, start=start,
                         observed=observed)
     return choice.fits[choice.kept if loss == "auto" else "radiating"]
@@ -168,7 +169,7 @@ def fit_model(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *, 
 
 def _fit_loss(model: str, loss: str, t_s, temp_c, duty, ambient_c: float | None, *, power_w: float | None = None,
               fixed: dict[str, float] | None = None, start: dict[str, float] | None = None,
-              observed: np.ndarray | None = None) -> FitResult:
+              observed: np.ndarray | None = None, on_evaluation: Callable[[], None] | None = None) -> FitResult:
     """``fit_model`` with one loss, "linear" or "radiating", from start values guessed or given."""
     radiating = loss == "radiating"
     fitted = FITTED[model] + ((RADIATING_PARAM,) if radiating else ())
@@ -189,7 +190,7 @@ def _fit_loss(model: str, loss: str, t_s, temp_c, duty, ambient_c: float | None,
     slack_c = AMBIENT_SLACK_SIGMAS * reading_noise_c(temp_c[seen]) + READING_STEP_C
     ambient_start_c = float(ambient_c if ambient_c is not None else temp_c.min())
     guess = _first_order_guess(t_s, temp_c, duty, ambient_start_c)
-    first = {**_start_values(model, guess, held), **({RADIATING_PARAM: RADIATING_START_M2} if radiating else {}),
+    first = {**start_values(model, guess, held), **({RADIATING_PARAM: RADIATING_START_M2} if radiating else {}),
              "initial_c": float(temp_c[0]), **({} if ambient_c is not None else {"ambient_c": ambient_start_c}),
              **(start or {})}
     first = {k: v for k, v in first.items() if k not in held}
@@ -198,7 +199,7 @@ def _fit_loss(model: str, loss: str, t_s, temp_c, duty, ambient_c: float | None,
                                     "initial_c": (temp_c[0] - slack_c, temp_c[0] + slack_c),
                                     "delay_s": (0.0, math.inf),
                                     "sensor_responsiveness_per_s": (0.0, MAX_SENSOR_RESPONSIVENESS_PER_S),
-                                    RADIATING_PARAM: RADIATING_BOUNDS_M2})
+                                    RADIATING_PARAM: RADIATING_BOUNDS_M2}, on_evaluation=on_evaluation)
     params, std = est.values, est.std_errors
     if model == "sopdt" and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
         for d in (params, std):

@@ -108,7 +108,7 @@ def fopdt_equivalent(result: FitResult) -> Fopdt:
     model's own nonlinear step from ambient, ``radiating_response``, time constants taken at ambient,
     where its loss is least)."""
     if result.model == "fopdt":
-        return Fopdt(*(result.params[name] for name in Fopdt._fields))
+        return Fopdt(*(result.values[name] for name in Fopdt._fields))
     spec = result.spec()
     ambient_c = result.values.get("ambient_c", 0.0)
     lti = spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))

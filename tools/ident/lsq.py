@@ -55,10 +55,15 @@ def information_criterion(residuals_c: np.ndarray, n_params: int) -> float:
 
 def least_squares_fit(residuals: Callable[[dict[str, float]], np.ndarray], start: dict[str, float],
                       linear: Sequence[str] = LINEAR_PARAMS,
-                      bounds: dict[str, tuple[float, float]] | None = None) -> Estimate:
+                      bounds: dict[str, tuple[float, float]] | None = None, known_sigma: bool = False,
+                      on_evaluation: Callable[[], None] | None = None) -> Estimate:
     """Minimise sum(residuals(params)^2) from start, every parameter not in ``linear`` as its
     logarithm (positive, relative steps), within optional bounds (low, high) per parameter;
-    standard errors from the Jacobian at the optimum (NaN at a bound, infinite if undetermined)."""
+    standard errors from the Jacobian at the optimum (NaN at a bound, infinite if undetermined).
+    known_sigma: the residuals are already divided by their standard deviations, so s^2 = 1, or the
+    residuals' own SSE / (n - p) where that is larger (the stated deviations were too small).
+    on_evaluation: called at each evaluation of the residuals (at most MAX_EVALUATIONS and the
+    Jacobian's), for a progress bar."""
     names = list(start)
     is_log = np.array([name not in linear for name in names])
 
@@ -71,7 +76,12 @@ def least_squares_fit(residuals: Callable[[dict[str, float]], np.ndarray], start
             return np.array([np.log(max(v, 0.0)) if log else v for v, log in zip(values, is_log)], dtype=float)
 
     limits = [(bounds or {}).get(name, (-math.inf, math.inf)) for name in names]
-    sol = scipy.optimize.least_squares(lambda z: residuals(params(z)), internal(start.values()),
+    def evaluate(z: np.ndarray) -> np.ndarray:
+        if on_evaluation is not None:
+            on_evaluation()
+        return residuals(params(z))
+
+    sol = scipy.optimize.least_squares(evaluate, internal(start.values()),
                                        x_scale=np.where(is_log, LOG_X_SCALE, 1.0), max_nfev=MAX_EVALUATIONS,
                                        bounds=(internal([lo for lo, _ in limits]), internal([hi for _, hi in limits])))
     values = params(sol.x)
@@ -82,7 +92,9 @@ def least_squares_fit(residuals: Callable[[dict[str, float]], np.ndarray], start
     sigma_z = np.where(sol.active_mask == 0, np.inf, np.nan)
     jac = sol.jac[:, free]
     try:
-        cov = np.linalg.inv(jac.T @ jac) * float(sol.fun @ sol.fun) / max(len(sol.fun) - free.sum(), 1)
+        dof = len(sol.fun) - int(free.sum())
+        s2 = float(sol.fun @ sol.fun) / max(dof, 1)
+        cov = np.linalg.inv(jac.T @ jac) * (max(s2 if dof > 0 else 0.0, 1.0) if known_sigma else s2)
         sigma_z[free] = np.sqrt(np.abs(np.diag(cov)))
     except np.linalg.LinAlgError:  # the free ones are not determined apart
         pass

@@ -29,7 +29,6 @@ MIN_SAMPLES = 20
 M303_MIN_SAMPLES = 12  # a relay trace: three 10 s cycles of 2 s status lines at least
 M303_STATUS_PERIOD_S = 2.0  # Marlin reports every 2 s during M303 (hardware_logs README D)
 M303_MAX_LINE_STEP = 7  # bias, Ku/Tu, rule and Kp/Ki/Kd lines between two reports; more: a gap
-MAX_GUESS_DELAY_S = 60.0  # the start values try dead times up to this
 
 class Segment(NamedTuple):
     """A stretch of a log to fit: sample instants, readings, and the duty held from each sample to the next."""
@@ -44,6 +43,31 @@ class Segment(NamedTuple):
     cools_at_full_power: bool = False  # the reading fell while at max_power: the heater did not heat
     observed: np.ndarray | None = None  # False at inserted samples (relay switch instants): not compared
     target_c: float = math.nan  # an M303 relay's target
+    line_nos: np.ndarray | None = None  # an M303 trace: the status line of each sample (a switch: the next line's)
+
+    def before_line(self, line_no: int) -> Segment:
+        """The samples before a line of the capture (an M303 trace: the cycles printed up to it)."""
+        if self.line_nos is None:
+            raise ValueError("a segment without line numbers cannot be cut at a line")
+        keep = self.line_nos < line_no
+        return self._replace(t_s=self.t_s[keep], temp_c=self.temp_c[keep], duty=self.duty[keep],
+                             observed=None if self.observed is None else self.observed[keep],
+                             line_nos=self.line_nos[keep])
+
+    def decimated(self, max_samples: int) -> Segment:
+        """At most max_samples samples: every k-th kept, the duty of each kept interval the time
+        average of the logged duty over it (the heat it brings is kept; its timing within the interval
+        is not), the note saying so. A segment that short already is returned as it is."""
+        n = len(self.t_s)
+        if n <= max_samples:
+            return self
+        keep = np.unique(np.r_[np.arange(0, n, math.ceil(n / max_samples)), n - 1])
+        energy = np.r_[0.0, np.cumsum(self.duty[:-1] * np.diff(self.t_s))]  # duty x time up to each sample
+        duty = np.r_[np.diff(energy[keep]) / np.diff(self.t_s[keep]), self.duty[-1]]
+        step_s = float(np.median(np.diff(self.t_s[keep])))
+        note = f"{self.note}; decimated from {n} to {len(keep)} samples ({step_s:.3g} s apart, duty averaged over each)"
+        return self._replace(t_s=self.t_s[keep], temp_c=self.temp_c[keep], duty=duty, note=note,
+                             observed=None if self.observed is None else self.observed[keep], line_nos=None)
 
 
 def default_segment(segments: Sequence[Segment]) -> int:
@@ -145,12 +169,16 @@ def _relay_segment(log: M303Log, run: list, heater_key: str) -> Segment:
                    f"; {M303_STATUS_PERIOD_S:g} s per status line, which carry no time")
     if target_c is None:
         return seg
-    t_s, temp_c, duty, observed = switch_instants(t_s, temp_c, duty, target_c)
+    lines = np.array([s.line_no for s in run])
+    switched_t_s, temp_c, duty, observed = switch_instants(t_s, temp_c, duty, target_c)
+    line_nos = lines[np.searchsorted(t_s, switched_t_s)]  # an inserted switch: the status line after it
+    t_s = switched_t_s
     # Before the first switch the fit's start (every node at one temperature) is wrong mid-cycle: a
     # burn-in, simulated but not compared.
     observed[: int(np.argmin(observed))] = False
     note = f"{seg.note}; relay target {target_c:g} C ({how}), switches put at its crossings, compared from the first"
-    return seg._replace(t_s=t_s, temp_c=temp_c, duty=duty, observed=observed, target_c=target_c, note=note)
+    return seg._replace(t_s=t_s, temp_c=temp_c, duty=duty, observed=observed, target_c=target_c, note=note,
+                        line_nos=line_nos)
 
 
 def _m303_segments(log: M303Log, heater: str | None) -> tuple[str, list[Segment]]:

@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tools.cli.args import OneLineParser, plot_path, ranged_float
-from tools.cli.progress import progress_bar
+from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.lsq import MAX_EVALUATIONS
 from tools.ident.segments import NotFittable
-from tools.logs import HeattestLog, LogError, M303Log, StatsLog, load_log
+from tools.logs import HeattestLog, LogError, M303Log, StatsLog
 from tools.validation import compare, m303_compare
 from tools.validation.tables import WIDTH, markdown_cells, text_tables
 
@@ -74,7 +74,7 @@ def _stats_heater(path: Path, heater: str, report: Report, closed: list[str], tu
 
 
 def _stats(path: Path, log: StatsLog) -> Report:
-    report, closed, tunes = Report(), [], []
+    report, closed, tunes = Report(), list[str](), list[str]()
     for heater in compare.HEATERS:
         if any(heater in s for s in log.sessions):
             _stats_heater(path, heater, report, closed, tunes)
@@ -200,7 +200,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def _report(args: argparse.Namespace) -> Report:
-    log = load_log(args.log)
+    log = load_with_progress(args.log)
     if (args.fit_cycles is not None or args.plant is not None) and not isinstance(log, M303Log):
         raise compare.Unusable("--fit-cycles and --plant need an M303 capture")
     if isinstance(log, StatsLog):

@@ -24,7 +24,7 @@ import textwrap
 import numpy as np
 
 from tools.cli.args import OneLineParser, ranged_float
-from tools.cli.progress import progress_bar
+from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.fit import LOSSES, LUMPED_MODELS, MODELS, RADIATING_BOUNDS_M2, RADIATING_EMISSIVITY, RADIATING_PARAM
 from tools.ident.fopdt import CONTROL_DELAY_S, Fopdt, fopdt_equivalent, relay_fopdt, ultimate_point
 from tools.ident.log_fit import BED, HEATER_NAMES, LogFit, LogFitOptions, fit_log
@@ -33,7 +33,7 @@ from tools.ident.relay_points import CYCLE_SCATTER_SWING_REL, CYCLE_SCATTER_TU_R
 from tools.ident.relay_trace import AMBIENT_PRIOR_C
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
-from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog, load_log
+from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog
 from tools.tuning.rules import amigo
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
@@ -61,6 +61,7 @@ EXAMPLES = """examples:
 """
 AMBIENT_RANGE_C = (-40.0, 100.0)  # a room, a heated enclosure: a wider value is a typo
 POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
+TARGET_RANGE_C = (1.0, 500.0)  # a relay target: above freezing, below any hotend's limit
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -78,6 +79,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "least half the longest time at full power); for PID_CALIBRATE results, the entry (default 0)")
     parser.add_argument("--fit-cycles", type=int, metavar="K",
                         help="an M303 capture: fit the first K printed cycles only (and the trace up to them)")
+    parser.add_argument("--target", type=ranged_float(*TARGET_RANGE_C, "C"),
+                        help="relay data: the relay's target in C where the capture does not state it (default: an "
+                             "M303 capture's command, else its switches or the middle of its cycles; PID_CALIBRATE "
+                             "results: 200 C for a hotend, 60 C for a bed, assumed)")
     parser.add_argument("--ambient", type=ranged_float(*AMBIENT_RANGE_C, "C"),
                         help="ambient temperature in C (default: fitted, at most the segment's lowest reading; for "
                              "relay data, whose readings all sit near the target, the idle bed's reading or "
@@ -118,8 +123,8 @@ def _log_lines(log: Log, fitted: LogFit) -> list[str]:
         lines[0] += "; segments (open loop: full power or off; in between: the controller's duty):"
         for i, seg in enumerate(fitted.segments):
             seg = fitted.segment if i == fitted.chosen and fitted.segment is not None else seg
-            lines += _wrap(f"{'*' if i == fitted.chosen else ' '}{i:3d}  {seg.label}, {len(seg.t_s)} samples: "
-                           f"{seg.note}")
+            lines.append(f"  {'*' if i == fitted.chosen else ' '}{i:3d}  {seg.label}, {len(seg.t_s)} samples:")
+            lines += _wrap(seg.note, " " * 8)
     return lines
 
 
@@ -247,10 +252,12 @@ def _log_notes(log: Log, fitted: LogFit) -> list[str]:
     if isinstance(log, StatsLog) and (config := log.meta["config"].get(fitted.heater, {})).get("pid_kp"):
         return [f"the log's own gains: pid_Kp {config['pid_kp']}, pid_Ki {config.get('pid_ki')}, "
                 f"pid_Kd {config.get('pid_kd')}"]
-    cycle = next((c for c in reversed(log.cycles) if c.ku and c.tu_s), None) if isinstance(log, M303Log) else None
-    if cycle and log.power_max == MARLIN_POWER_MAX:  # Repetier's Ku takes the full swing: not compared
-        return [_relay_line(cycle.ku / MARLIN_KU_SCALE, cycle.tu_s, fopdt_equivalent(fitted.result))]
-    return []
+    if not isinstance(log, M303Log) or log.power_max != MARLIN_POWER_MAX:  # Repetier's Ku takes the full swing
+        return []
+    cycle = next((c for c in reversed(log.cycles) if c.ku and c.tu_s), None)
+    if cycle is None or cycle.ku is None or cycle.tu_s is None:
+        return []
+    return [_relay_line(cycle.ku / MARLIN_KU_SCALE, cycle.tu_s, fopdt_equivalent(fitted.result))]
 
 
 def _relay_line(ku: float, tu_s: float, fitted: Fopdt) -> str:
@@ -266,11 +273,11 @@ def _relay_line(ku: float, tu_s: float, fitted: Fopdt) -> str:
 
 def _options(args: argparse.Namespace, on_evaluation) -> LogFitOptions:
     return LogFitOptions(args.model, args.heater, args.session, args.segment, args.ambient, args.power_w, args.loss,
-                         args.fit_cycles, on_evaluation)
+                         args.fit_cycles, args.target, on_evaluation)
 
 
 def run(args: argparse.Namespace) -> int:
-    log = load_log(args.log)
+    log = load_with_progress(args.log)
     with progress_bar("fitting", MAX_EVALUATIONS, "evaluations") as bar:
         fitted = fit_log(log, _options(args, bar.update))
     print(f"twin-fit: {args.log}")

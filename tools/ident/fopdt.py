@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.optimize
 
-from tools.ident.response import radiating_response
+from tools.ident.response import radiating_response, spec_lti
 from tools.ident.result import FitResult
 from twin.linear import SENSOR, TICK_S, TickModel
 from twin.plants import Plant
@@ -111,7 +111,7 @@ def fopdt_equivalent(result: FitResult) -> Fopdt:
         return Fopdt(*(result.values[name] for name in Fopdt._fields))
     spec = result.spec()
     ambient_c = result.values.get("ambient_c", 0.0)
-    lti = spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))
+    lti = spec_lti(spec, ambient_c)
     slowest_s = 1.0 / float(np.min(np.abs(np.linalg.eigvals(lti.a).real)))
     if spec.linear:
         gain_c = float(-(lti.c[SENSOR] @ np.linalg.solve(lti.a, lti.b)))

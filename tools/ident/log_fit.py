@@ -29,7 +29,14 @@ import numpy as np
 from tools.ident.fit import LUMPED_MODELS, fit_losses, fit_model
 from tools.ident.plausible import heater_kind, plausible
 from tools.ident.relay_loop import MARLIN_SWITCH_DELAY_S, KLIPPER_SWITCH_DELAY_S
-from tools.ident.relay_points import RelayPoint, fit_points, klipper_points, marlin_points, marlin_target_c
+from tools.ident.relay_points import (
+    RelayPoint,
+    fit_points,
+    klipper_points,
+    marlin_points,
+    marlin_target_c,
+    relay_heater,
+)
 from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_reading_c
 from tools.ident.result import FitResult, aic
 from tools.ident.segments import NotFittable, Segment, default_segment, log_segments
@@ -62,6 +69,7 @@ class LogFitOptions:
     power_w: float | None = None
     loss: str = "linear"
     fit_cycles: int | None = None  # an M303 capture: fit its first cycles only
+    target_c: float | None = None  # relay data: the relay's target, where the capture does not state it
     on_evaluation: Callable[[], None] | None = None  # called at each residual evaluation (a progress bar)
 
 
@@ -158,22 +166,26 @@ def _m303_trace(log: M303Log, options: LogFitOptions) -> tuple[str, list[Segment
     try:
         heater, segments = log_segments(log, options.heater)
     except NotFittable:
-        return options.heater or _relay_heater(log), [], None
+        return options.heater or relay_heater(log), [], None
     chosen = default_segment(segments) if options.segment is None else options.segment
     if not 0 <= chosen < len(segments):
         raise ValueError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
     return heater, segments, chosen
 
 
-def _m303_points(log: M303Log, heater: str, trace: Segment | None) -> list[RelayPoint]:
-    """The printed cycles as relay points at the trace's target (else the command's or the cycles' middle);
-    NotFittable where there are none and no trace either."""
+def _m303_points(log: M303Log, heater: str, trace: Segment | None, target: float | None) -> list[RelayPoint]:
+    """The printed cycles as relay points at the given target, else the trace's (else the command's or the
+    cycles' middle); NotFittable where there are none and no trace either."""
     key = "B" if heater == BED else "T"
-    printed = [c for c in log.cycles if c.heater == key and c.tu_s and c.min_c is not None and c.max_c is not None]
+    printed = [c for c in log.cycles_of(key) if c.tu_s and c.min_c is not None and c.max_c is not None]
     repetier = log.power_max != MARLIN_POWER_MAX
     if printed and not repetier:
-        known = trace is not None and math.isfinite(trace.target_c)
-        return marlin_points(log, heater, trace.target_c if known else marlin_target_c(log, key, printed)[0])
+        target_c = trace.target_c if trace is not None else math.nan
+        if target is not None:
+            target_c = target
+        if not math.isfinite(target_c):
+            target_c = marlin_target_c(log, key, printed)[0]
+        return marlin_points(log, heater, target_c)
     if trace is None:
         why = ("Repetier's relay has its own levels and rules: its cycles are not read as relay points" if repetier
                else f"{len(printed)} printed cycles with Tu, min and max")
@@ -198,7 +210,7 @@ def _m303_fit(log: M303Log, options: LogFitOptions) -> LogFit:
     """The printed cycles, with the status trace if the capture has one, fitted together."""
     heater, segments, chosen = _m303_trace(log, options)
     trace = None if chosen is None else segments[chosen]
-    points = _m303_points(log, heater, trace)
+    points = _m303_points(log, heater, trace, options.target_c)
     notes = []
     if options.fit_cycles is not None:
         points, trace, note = _first_cycles(points, trace, options.fit_cycles)
@@ -216,11 +228,6 @@ def _m303_fit(log: M303Log, options: LogFitOptions) -> LogFit:
                   segment=trace)
 
 
-def _relay_heater(log: M303Log) -> str:
-    """The heater whose cycles a capture prints: the bed if all its cycles are the bed's."""
-    return BED if log.cycles and all(c.heater == "B" for c in log.cycles) else "extruder"
-
-
 def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) -> LogFit:
     """One PID_CALIBRATE entry (--segment, default the first) as a relay point at its heater's assumed target."""
     chosen = 0 if options.segment is None else options.segment
@@ -228,7 +235,7 @@ def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) 
         raise ValueError(f"--segment {chosen}: the entries are 0..{len(results) - 1}")
     entry = results[chosen]
     heater = options.heater or entry.heater or "extruder"
-    target_c = KLIPPER_TARGET_C[BED if heater_kind(heater) == "bed" else "extruder"]
+    target_c = options.target_c or KLIPPER_TARGET_C[BED if heater_kind(heater) == "bed" else "extruder"]
     model = options.model or "fopdt"
     if model != "fopdt":
         raise ValueError(f"--model {model}: a PID_CALIBRATE result (Tu and swing, no bias) fits fopdt only")
@@ -239,7 +246,8 @@ def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) 
     result = fit_points("fopdt", points, ambient_c, fixed={"gain_c": gain_c}, on_evaluation=options.on_evaluation)
     result = dataclasses.replace(result, assumed=("gain_c",))
     notes = [f"entry {chosen}: {entry.source or 'no source'}; Tu {entry.tu_s:.4g} s, swing {entry.peak_to_peak_c:.3g} C "
-             f"at an assumed target of {target_c:g} C (a result states none)",
+             f"at a target of {target_c:g} C" + (" (assumed: a result states none; --target sets it)"
+                                                  if options.target_c is None else ""),
              f"gain_c held at {gain_c:.4g} C: Klipper's relay prints no bias, so the static gain is not identified"]
     notes += [n for n in (ambient_note,) if n]
     return LogFit(heater, [], None, _finish(result, heater, assumed, target_c), points, notes,

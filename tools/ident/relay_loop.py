@@ -35,6 +35,7 @@ from firmware_port.klipper.heater import REPORT_TIME
 from firmware_port.klipper.pid_calibrate import TUNE_PID_DELTA
 from firmware_port.marlin.autotune import MIN_HALF_CYCLE_MS
 from firmware_port.marlin.constants import PID_DT_S
+from tools.ident.response import spec_lti
 from twin.linear import SENSOR
 from twin.plants import Spec, TransferFunction
 
@@ -96,10 +97,8 @@ class _Modal:
     """A linear plant in its modes: dz/dt = lam z + w(u), reading = Re(c z) + offset."""
 
     def __init__(self, spec: Spec, ambient_c: float):
-        if isinstance(spec, TransferFunction):
-            lti, self.delay_s = spec.lti(), spec.delay_s
-        else:
-            lti, self.delay_s = spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c)), 0.0
+        lti = spec_lti(spec, ambient_c)
+        self.delay_s = spec.delay_s if isinstance(spec, TransferFunction) else 0.0
         self.lam, v = np.linalg.eig(lti.a)
         if np.any(self.lam.real >= 0):
             raise NoOscillation("the plant is not stable: no limit cycle")

@@ -103,10 +103,13 @@ def _asymmetry_s(before: M303Cycle, after: M303Cycle, tu_s: float, max_pow: int)
 
 
 def marlin_target_c(log: M303Log, key: str, cycles: Sequence[M303Cycle]) -> tuple[float, str]:
-    """The relay's target: the S of the M303 command that tuned this heater, else the whole degree
-    nearest the middle of the printed cycles (M303 takes whole degrees; min <= target <= max)."""
-    for _, command in reversed(log.commands):
-        if command.startswith("M303") and ("B" if BED_COMMAND_RE.search(command) else "T") == key:
+    """The relay's target: the S of the last M303 command before the cycles, if it tuned this heater,
+    else the whole degree nearest the middle of the printed cycles (M303 takes whole degrees;
+    min <= target <= max)."""
+    first_line = cycles[0].line_no if cycles else math.inf
+    for line_no, command in reversed(log.commands):
+        if line_no < first_line and command.startswith("M303") \
+                and ("B" if BED_COMMAND_RE.search(command) else "T") == key:
             if m := TARGET_RE.search(command):
                 return float(m[1]), "from the M303 command"
     mids = [(c.min_c + c.max_c) / 2.0 for c in cycles if c.min_c is not None and c.max_c is not None]
@@ -115,12 +118,17 @@ def marlin_target_c(log: M303Log, key: str, cycles: Sequence[M303Cycle]) -> tupl
     return float(np.rint(np.mean(mids))), "estimated: the whole degree nearest the middle of the printed cycles"
 
 
+def relay_heater(log: M303Log) -> str:
+    """The heater whose cycles a capture prints: the bed where every cycle is the bed's, else the extruder."""
+    return "heater_bed" if log.cycles and all(c.heater == "B" for c in log.cycles) else "extruder"
+
+
 def marlin_points(log: M303Log, heater: str, target_c: float | None = None) -> list[RelayPoint]:
     """The printed cycles of a heater's M303 run that have Tu, min and max, each with the levels of
     the bias line before it (the cycle ran at those), or its own when the capture starts with it."""
     key = HEATER_KEYS[heater]
     max_pow = MAX_BED_POWER if heater == "heater_bed" else PID_MAX
-    cycles = [c for c in log.cycles if c.heater == key and c.bias is not None]
+    cycles = [c for c in log.cycles_of(key) if c.bias is not None]
     if target_c is None:
         target_c, _ = marlin_target_c(log, key, cycles)
     points = []
@@ -145,7 +153,8 @@ def klipper_points(results: Sequence[PidCalibrateResult], target_c: float) -> li
 
 def point_residuals(spec, ambient_c: float, points: Sequence[RelayPoint]) -> np.ndarray:
     """The points' residuals for one plant; a cycle it cannot oscillate at costs MISSING_PENALTY each."""
-    out, cache = [], {}
+    out: list[np.ndarray] = []
+    cache: dict[Relay, RelayCycle | None] = {}
     for p in points:
         if p.relay not in cache:
             try:

@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 import scipy.linalg
 
-from twin.linear import SENSOR, TICK_S
+from twin.linear import SENSOR, TICK_S, Lti
 from twin.plants import Lumped, Plant, Spec, TransferFunction
 
 def zoh_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.ndarray:
@@ -43,6 +43,7 @@ def radiating_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.nd
     parameter and a fit does not rebuild a tick model for every bin (about 5 s against 0.05 s per
     evaluation on the onionheater pulse)."""
     spec = plant.spec
+    assert isinstance(spec, Lumped)  # the radiating term is a lumped model's
     x = plant.x.copy()
     n = len(x)
     out = np.empty(len(t_s))
@@ -60,6 +61,14 @@ def radiating_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.nd
 
 
 # --- the models ----------------------------------------------------------------------------------
+
+
+def spec_lti(spec: Spec, ambient_c: float) -> Lti:
+    """A spec's continuous model at ambient_c with the part fan off and no flow (a radiating one
+    linearised with the block at ambient)."""
+    if isinstance(spec, TransferFunction):
+        return spec.lti()
+    return spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))
 
 
 def model_spec(model: str, params: dict[str, float]) -> Spec:

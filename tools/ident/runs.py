@@ -54,7 +54,7 @@ class Run:
         """The runs of its session up to this one, first first."""
         chain = [self]
         while chain[-1].follows is not None:
-            chain.append(chain[-1].follows)  # type: ignore[arg-type]
+            chain.append(chain[-1].follows)
         return chain[::-1]
 
 

@@ -113,11 +113,11 @@ def split_heatups(label: str, t_s: np.ndarray, temp_c: np.ndarray, duty: np.ndar
     last = len(t_s) - 1
     runs: list[list[int]] = []  # [start, end) at max_power, dips shorter than MIN_HEATUP_S bridged
     starts, ends = np.flatnonzero(full & ~np.r_[False, full[:-1]]), np.flatnonzero(full & ~np.r_[full[1:], False]) + 1
-    for start, end in zip(starts, ends):
-        if runs and t_s[start] - t_s[runs[-1][1]] < MIN_HEATUP_S:
-            runs[-1][1] = int(end)
+    for run_start, run_end in zip(starts.tolist(), ends.tolist()):
+        if runs and t_s[run_start] - t_s[runs[-1][1]] < MIN_HEATUP_S:
+            runs[-1][1] = run_end
         else:
-            runs.append([int(start), int(end)])
+            runs.append([run_start, run_end])
     heatups = {s: e for s, e in runs if t_s[min(e, last)] - t_s[s] >= MIN_HEATUP_S}
     bounds = sorted({int(on[0])} | {int(s) for s in heatups if s >= on[0]}) + [len(t_s)]
     segments = []

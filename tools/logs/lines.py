@@ -8,11 +8,13 @@ Comment lines are ``#`` alone or ``# ...``, the headers added to the captures (M
 from __future__ import annotations
 
 import array
+import contextvars
 import csv
 import itertools
 import math
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +23,22 @@ import numpy as np
 # "SENDING:", Printrun ">>> ", Repetier-Host "< 9:12:56 PM: " (and "> ..." for sent lines).
 HOST_PREFIX_RE = re.compile(r"^(?:Recv:|Send:|READ:|SENDING:|>>>|[<>] \d{1,2}:\d{2}:\d{2}(?: [AP]M)?:)\s*")
 GAIN_RE = re.compile(r"(?<!\w)(?:pid_)?K([pid])\s*[=:]\s*([^\s,]*)", re.IGNORECASE)  # Marlin and Klipper gains
+
+
+# Who is told how far a reading has got: a CLI's progress bar (``read_progress``), else nobody.
+_PROGRESS: contextvars.ContextVar[Callable[[int], None] | None] = contextvars.ContextVar("read_progress", default=None)
+PROGRESS_STEP_BYTES = 1 << 20  # reported every megabyte read
+
+
+@contextmanager
+def read_progress(on_bytes: Callable[[int], None]) -> Iterator[None]:
+    """Within the block, every reading of a log reports the bytes it has read (a megabyte at a time)
+    to on_bytes: how a CLI shows a progress bar for a long log."""
+    token = _PROGRESS.set(on_bytes)
+    try:
+        yield
+    finally:
+        _PROGRESS.reset(token)
 
 
 class LogError(ValueError):
@@ -39,8 +57,13 @@ def iter_lines(path: str | Path, cut_last_line_ok: bool = False) -> Iterator[tup
     A last line without a newline means the file was cut mid-line: LogError, unless the format's
     writer leaves the newline out (cut_last_line_ok).
     """
+    report, unreported = _PROGRESS.get(), 0
     with open(path, "rb") as f:
         for no, raw in enumerate(f, 1):
+            unreported += len(raw)
+            if report is not None and unreported >= PROGRESS_STEP_BYTES:
+                report(unreported)
+                unreported = 0
             try:
                 text = raw.decode("utf-8")
             except UnicodeDecodeError:
@@ -151,13 +174,13 @@ def time_series(path: str | Path, rows: Iterable[tuple[int, list[str]]], names: 
     arrays (8 bytes a value); time must increase."""
     values = array.array("d")
     t_prev_s, no_prev = -math.inf, 0
-    for no, (t, temp, duty) in rows:
-        t_s = parse_number(path, no, t, names[0])
-        if t_s <= t_prev_s:
-            raise LogError(path, no, f"time {t_s:g} s does not increase (previous sample: {t_prev_s:g} s)")
-        values.extend((t_s, parse_number(path, no, temp, names[1]), parse_number(path, no, duty, names[2], 0.0,
-                                                                                   duty_max)))
-        t_prev_s, no_prev = t_s, no
+    for no, (t_text, temp_text, duty_text) in rows:
+        now_s = parse_number(path, no, t_text, names[0])
+        if now_s <= t_prev_s:
+            raise LogError(path, no, f"time {now_s:g} s does not increase (previous sample: {t_prev_s:g} s)")
+        values.extend((now_s, parse_number(path, no, temp_text, names[1]),
+                       parse_number(path, no, duty_text, names[2], 0.0, duty_max)))
+        t_prev_s, no_prev = now_s, no
     if not values:
         raise LogError(path, no_prev or 1, "no data rows")
     t_s, temp_c, duty = np.frombuffer(values, dtype=float).reshape(-1, 3).T.copy()

@@ -42,7 +42,7 @@ from tools.logs import (
 )
 from tools.ident.runs import Run, run_response
 from twin.klipper_twin import PULLUP_OHM, PWM_CYCLE_TIME_S, HeaterSetup, KlipperTwin
-from twin.plants import Plant
+from twin.plants import Lumped, Plant
 
 ONION_AMBIENT_C = 21.4  # the author's room temperature (README B)
 ONION_FAN = 1.0  # "part fan on" (README B): its speed is not logged; taken as full
@@ -127,7 +127,9 @@ class OpenLoopResult:
 
 def _response(fit: FitResult, fan_xfer_w_k: float, run: Run) -> np.ndarray:
     """The fitted plant with fan loss F at the run's samples, from the state the run declares."""
-    spec = replace(fit.spec(), fan_ambient_xfer_w_k=float(fan_xfer_w_k))
+    lumped = fit.spec()
+    assert isinstance(lumped, Lumped)  # a fan loss needs the lumped models
+    spec = replace(lumped, fan_ambient_xfer_w_k=float(fan_xfer_w_k))
     return run_response(spec, fit.model, fit.values["ambient_c"], run)
 
 

@@ -47,7 +47,7 @@ from firmware_port.marlin.constants import OVERSAMPLENR
 from tools.ident.fit import reading_noise_c
 from tools.ident.log_fit import LogFit, LogFitOptions, fit_log
 from tools.ident.relay_loop import MARLIN_MIN_HALF_S
-from tools.ident.relay_points import marlin_target_c
+from tools.ident.relay_points import marlin_target_c, relay_heater
 from tools.ident.relay_trace import ambient_hint_c
 from tools.ident.response import zoh_response
 from tools.ident.result import aic
@@ -164,6 +164,7 @@ class M303Comparison:
     rows: list[CycleRow]
     trace_rows: list[TraceRow] = field(default_factory=list)
     trace: tuple | None = None  # (t_s, logged, plant, duty) for a plot
+    capture: M303Log | None = None  # the capture read
 
     def out_of_sample(self) -> list[CycleRow]:
         return [r for r in self.rows if r.sample == OUT]
@@ -314,11 +315,10 @@ def m303_check(path: str | Path, heater: str | None = None, ambient_c: float | N
     else:
         assert plant is not None
         name, spec, description = outside_plant(plant, on_evaluation)
-        heater = heater or _capture_heater(log)
+        heater = heater or relay_heater(log)
         target_c, ambient = _capture_target_c(log, heater), ambient_hint_c(log) if ambient_c is None else ambient_c
     assert target_c is not None
-    printed = [c for c in log.cycles if c.heater == CYCLE_RE_KEY[heater] and c.tu_s and c.min_c is not None
-               and c.max_c is not None]
+    printed = [c for c in log.cycles_of(CYCLE_RE_KEY[heater]) if c.tu_s and c.min_c is not None and c.max_c is not None]
     if not printed:
         raise NoRelay("no printed cycle with Tu, min and max to compare")
     command_cycles = [int(c.split("C")[1].split()[0]) for _, c in log.commands if " C" in c]
@@ -332,16 +332,12 @@ def m303_check(path: str | Path, heater: str | None = None, ambient_c: float | N
     rows = _cycle_rows(printed, fit_cycles, fitted is None, twin, goals)
     trace_rows, trace = _replay(fitted, None if fitted else (name, spec), log, heater, ambient, fit_cycles)
     return M303Comparison(path.name, heater, target_c, ambient, description, fitted, spec, noise_lsb, noise_note,
-                          version, ncycles, twin, rows, trace_rows, trace)
-
-
-def _capture_heater(log: M303Log) -> str:
-    return "heater_bed" if log.cycles and all(c.heater == "B" for c in log.cycles) else "extruder"
+                          version, ncycles, twin, rows, trace_rows, trace, log)
 
 
 def _capture_target_c(log: M303Log, heater: str) -> float:
     key = CYCLE_RE_KEY[heater]
-    return marlin_target_c(log, key, [c for c in log.cycles if c.heater == key])[0]
+    return marlin_target_c(log, key, log.cycles_of(key))[0]
 
 
 # --- rows as table cells -----------------------------------------------------------------------

@@ -31,7 +31,8 @@ def text_tables(columns: Sequence[str], rows: Sequence[Sequence[str]], keys: int
     out: list[str] = []
     j = keys
     while j < len(keep) or j == keys:
-        group, used = [], key_width
+        group: list[int] = []
+        used = key_width
         while j < len(keep) and (not group or used + widths[j] + 2 <= width):
             group.append(j)
             used += widths[j] + 2

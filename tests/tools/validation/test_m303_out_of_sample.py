@@ -46,12 +46,21 @@ def _check_prediction(r: m303_compare.M303Comparison, goals: tuple[float, float]
 @pytest.mark.slow
 @pytest.mark.parametrize("capture, heater", ACCEPTANCE)
 def test_later_cycles_predicted_from_the_first_half(capture, heater):
+    """The capture as posted, its first half fitted: the issue's goals (Tu 10 %, swing 25 %) met.
+    The Prusa bed excerpt prints 2 cycles, so its first half is one cycle, and its 6 status lines
+    before that cycle's bias line all come before the first reconstructed switch (a burn-in, not
+    compared): that fit has the printed cycle alone, and its row is judged on the results' goals,
+    so the trace goals are checked here on its numbers directly."""
     path = hardware_logs_dir() / capture
     n = _printed(path, heater)
     r = m303_check(path, heater, fit_cycles=n // 2)
-    assert r.fitted is not None and r.fitted.result.evidence == "relay results and status trace"
-    _check_prediction(r, GOALS["trace"])
-    assert {t.sample for t in r.trace_rows} == {IN, OUT} or r.trace_rows[0].sample == OUT
+    assert r.fitted is not None
+    evidence = r.fitted.result.evidence
+    assert evidence == ("relay results" if capture == PRUSA_BED else "relay results and status trace")
+    _check_prediction(r, GOALS["trace" if "trace" in evidence else "results"])
+    (row,) = r.out_of_sample()
+    assert (row.floor or abs(row.tu_rel) <= GOALS["trace"][0]) and abs(row.swing_rel) <= GOALS["trace"][1], \
+        _numbers(row)
 
 
 @pytest.mark.slow

@@ -97,10 +97,11 @@ def _heattest(path: Path) -> Report:
                                f"({', '.join(compare.ONION_FILES[:3])}); this heattest is not one of them")
     r = compare.open_loop_check(path.parent)
     report = Report(["Open-loop prediction (onionheater; out-of-sample: each fan run predicted from the others)", ""])
-    text = compare.open_loop_table(r).splitlines()
-    report.lines += [text[0], ""]
-    report.table("\n".join(text[2:4]), text[4:], keys=0)
-    report.lines += text[4 + len(r.rows):]
+    text = compare.open_loop_table(r).splitlines()  # the fit, a blank line, the table, a blank line, a note
+    end = 4 + len(r.rows)
+    report.lines += textwrap.wrap(text[0], WIDTH) + [""]
+    report.table("\n".join(text[2:4]), text[4:end], keys=1)
+    report.lines += [wrapped for line in text[end:] for wrapped in textwrap.wrap(line, WIDTH) or [""]]
     report.traces = [(name, (t, logged, twin, None, None)) for name, (t, logged, twin) in r.traces.items()]
     report.out_of_sample = [row["passed"] for row in r.rows]
     return report

@@ -13,6 +13,9 @@ Two engines drive the same state:
   soft-PWM amounts, the ADC samples the sensor at fixed ISR phases. So a whole control period
   is one linear map per plant and one bulk ADC conversion, and the board skips its ISRs in
   closed form. It feeds the firmware the same samples as the reference engine (tested).
+
+``avr`` is the fast engine with each heater's controller replaced by its AVR build, the compiled
+C law stepped in simavr (firmware_port/avr/controllers.py); its trace equals the fast engine's.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from twin.result import RunResult
 from twin.sensor import SensorChain, seeded_chains
 from twin.trace import Trace
 
-ENGINES = ("fast", "reference")
+ENGINES = ("fast", "reference", "avr")  # avr: the fast engine with the controllers' compiled C in simavr
 HALTED_RUN_TICKS = 160  # record cadence while the board is dead
 NORMAL, DISCONNECTED, STUCK_ON = "normal", "heater_disconnected", "heater_stuck_on"
 HEATER_NAMES = ("hotend", "bed")  # by channel
@@ -152,6 +155,10 @@ class Twin:
         Injected controller instances survive (reset, with their gains, as if from EEPROM);
         factories are called again."""
         built = list(build_controllers(self.firmware))
+        if self.engine == "avr":
+            from firmware_port.avr.controllers import on_avr  # ctypes and the toolchain, only when asked
+
+            built = [on_avr(controller) for controller in built]
         for channel, spec in enumerate(self.controllers):
             if spec is None:
                 continue

@@ -51,8 +51,9 @@ EPILOG = """examples:
 # -- the plant ---------------------------------------------------------------------------------
 def plant_from_log(args: argparse.Namespace) -> tuple[str, Spec, bool]:
     """Fit the log as twin-fit does: (a name, the fitted spec, whether it is a bed)."""
-    from tools.cli.fit import ASSUMED_POWER_W, BED
-    from tools.ident.fit import default_segment, fit_model, log_segments
+    from tools.ident.log_fit import ASSUMED_POWER_W, BED
+    from tools.ident.fit import fit_model
+    from tools.ident.segments import default_segment, log_segments
     from tools.logs import load_log
     from twin.plants import MPC_HEATER_POWER_W
 

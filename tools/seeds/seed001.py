@@ -48,7 +48,7 @@ from firmware_port.fuzzy_pid import (
 )
 from firmware_port.firmwares import build_controllers
 from firmware_port.marlin.pid import PidGains
-from tools.ident.fit import Fopdt, ultimate_point
+from tools.ident.fopdt import Fopdt, ultimate_point
 from tools.seeds.report import (
     DIFFERS,
     IMPOSSIBLE,

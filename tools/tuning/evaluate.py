@@ -40,7 +40,7 @@ from firmware_port.marlin.mpc_autotune import MpcAutotune
 from firmware_port.firmwares import param_space
 from firmware_port.marlin.pid import pid_space
 from firmware_port.params import ParamSpace
-from tools.ident.fit import CONTROL_DELAY_S
+from tools.ident.fopdt import CONTROL_DELAY_S
 from tools.tuning.ensemble import Ensemble
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of

@@ -8,7 +8,9 @@ relay cycles, each a measured point of the loop, fitted with the trace where the
 PID_CALIBRATE results (one entry's Tu and swing). tools/ident/log_fit.py does the fitting. The
 output gives each parameter with its standard error and whether the log identifies it, a
 plausible range with its source for those it does not, the residuals, a FOPDT equivalent, and
-Marlin (M306 for two_node, M301/M304) and Klipper settings (PID gains by the AMIGO rule).
+Marlin (M306 for two_node, M301/M304) and Klipper settings: the PID gains twin-tune's tuner suggests
+(tools/tuning/problems.py quick_tune: the rules and the twin's M303 on the fitted plant's ensemble,
+never one that trips on a plant the log allows).
 --loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
 
 Exit status: 0 fitted; 2 the log or the options cannot be used (one line on stderr); 3 the fit is
@@ -20,6 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 
@@ -34,7 +37,8 @@ from tools.ident.relay_trace import AMBIENT_PRIOR_C
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog
-from tools.tuning.rules import amigo
+from tools.tuning.evaluate import Candidate
+from tools.tuning.problems import build_problem, fitted_source, quick_tune, safe_best
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 EXIT_UNUSABLE = 2
@@ -142,18 +146,6 @@ def _point_lines(points: list[RelayPoint]) -> list[str]:
     return lines
 
 
-def _param_lines(result: FitResult) -> list[str]:
-    standing = result.identification()
-    lines = []
-    for name, value in result.params.items():
-        error = result.std_errors[name]
-        spread = ("at its bound" if np.isnan(error) else "not determined" if np.isinf(error) else f"+- {error:.2g}")
-        lines.append(f"  {name:30} {value:12.5g}  {spread:14} {standing.get(name, '')}".rstrip())
-    lines += [f"  {name:30} {value:12.5g}  {'held':14} {standing.get(name, '')}".rstrip()
-              for name, value in result.fixed.items() if name != "initial_c" or "initial_c" not in result.params]
-    return lines
-
-
 def _residual_lines(result: FitResult, fitted: LogFit) -> list[str]:
     if result.evidence == "trace":
         return [f"  RMSE {result.rmse_c:.2f} C, max |residual| {result.max_abs_residual_c:.2f} C"
@@ -179,9 +171,10 @@ def _spread_lines(result: FitResult) -> list[str]:
     return lines
 
 
-def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str]:
-    """The FOPDT equivalent, its ultimate point and the settings to paste; tuned on a dead time of
-    at least the log's sample interval (a log cannot show a shorter one)."""
+def _settings_lines(result: FitResult, heater: str, sample_s: float, suggestion: Candidate | None) -> list[str]:
+    """The FOPDT equivalent and its ultimate point (on a dead time of at least the log's sample interval: a
+    log cannot show a shorter one); the settings to paste: the M306 line of a two-node fit, and the PID
+    gains the tuner suggests (None: none holds on every plant the log allows)."""
     fopdt = fopdt_equivalent(result)
     how = "the fit itself" if result.model == "fopdt" else "seed 001's two-point method on the model's step response"
     lines = [f"FOPDT equivalent ({how}): gain {fopdt.gain_c:.4g} C at full power, time constant "
@@ -191,19 +184,22 @@ def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str
         lines.append(f"  tuned on a dead time of {sample_s:.3g} s, the log's sample interval: it cannot show less")
     delayed = fopdt._replace(delay_s=fopdt.delay_s + CONTROL_DELAY_S)
     ku, tu_s = ultimate_point(delayed)
-    gains = amigo(delayed)
-    kp, ki, kd = gains.kp, gains.ki, gains.kd
     lines += [f"  with the loop's {CONTROL_DELAY_S:g} s of delay: ultimate gain Ku {ku:.4g} duty per C (x255: Marlin's "
-              f"M303 Ku), period Tu {tu_s:.4g} s: what an ideal relay test would find",
-              "ready to paste (PID by the AMIGO rule on that FOPDT, gains on the 0..255 scale):"]
-    if heater == BED:
-        lines.append(f"  Marlin:  M304 P{kp:.4g} I{ki:.4g} D{kd:.4g}   (Marlin's MPC, M306, is for hotends only)")
-    else:
-        lines += _mpc_lines(result)
-        lines.append(f"           M301 P{kp:.4g} I{ki:.4g} D{kd:.4g}")
-    lines += ["  Klipper:", f"    [{heater}]", "    control: pid", f"    pid_Kp: {kp:.4g}", f"    pid_Ki: {ki:.4g}",
-              f"    pid_Kd: {kd:.4g}"]
-    return lines
+              f"M303 Ku), period Tu {tu_s:.4g} s: what an ideal relay test would find"]
+    if heater != BED:
+        lines += ["ready to paste, MPC (the fitted model is its own tune):", *_mpc_lines(result)]
+    if suggestion is None:
+        return lines + ["no tuning rule's gains, nor the twin's M303, hold on every plant this log allows (each trips "
+                        "on some): `twin-tune --from-log` searches further and proves what it prints"]
+    kp, ki, kd = suggestion.gains.kp, suggestion.gains.ki, suggestion.gains.kd
+    command = "M304" if heater == BED else "M301"
+    return lines + [
+        f"ready to paste, PID ({suggestion.method}: the best of the tuning rules and the twin's M303 on the fitted plant "
+        "and the corners its data allow, with ADC noise, tripping on none; scored on Marlin's loop by twin-tune's "
+        "tuner; `twin-tune --from-log` searches further and proves it):",
+        f"  Marlin:  {command} P{kp:.4g} I{ki:.4g} D{kd:.4g}",
+        "  Klipper (scored on Marlin's loop; `twin-tune --from-log LOG --loop klipper` tunes Klipper's own):",
+        f"    [{heater}]", "    control: pid", f"    pid_Kp: {kp:.4g}", f"    pid_Ki: {ki:.4g}", f"    pid_Kd: {kd:.4g}"]
 
 
 def _mpc_lines(result: FitResult) -> list[str]:
@@ -237,7 +233,7 @@ def _fit_report(fitted: LogFit, log: Log) -> list[str]:
         else []
     lines += [f"fit: {result.model}{', radiating loss' if result.loss == 'radiating' else ''}{where} ({result.evidence})"]
     lines += [f"  {note}" for note in fitted.notes]
-    lines += _param_lines(result) + ([_radiation_line(result)] if result.loss == "radiating" else [])
+    lines += result.parameter_lines() + ([_radiation_line(result)] if result.loss == "radiating" else [])
     lines += _residual_lines(result, fitted)
     if derived := result.derived():
         lines.append("  power-free: " + ", ".join(f"{name} {value:.4g}" for name, value in derived.items()))
@@ -285,7 +281,8 @@ def run(args: argparse.Namespace) -> int:
     if reason := fitted.degenerate:
         print(f"twin-fit: {args.log}: degenerate fit, no gains: {reason}", file=sys.stderr)
         return EXIT_DEGENERATE
-    settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s) + _log_notes(log, fitted)
+    suggestion = safe_best(quick_tune(build_problem(fitted_source(fitted, Path(args.log).name))))
+    settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s, suggestion) + _log_notes(log, fitted)
     print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
     return 0
 

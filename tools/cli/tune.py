@@ -24,18 +24,18 @@ import numpy as np
 
 from tools.cli.args import OneLineParser, finite_float, plot_path
 from tools.cli.entry import run_main
-from tools.tuning.controllers import controller_names, resolve_controller
-from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS, corner_ensemble, \
-    preset_spread
-from tools.tuning.evaluate import AMBIENT_C, LOOPS, Candidate, Problem, default_scenario, heater_of
+from tools.tuning.controllers import controller_names
+from tools.ident.log_fit import LogFitOptions
+from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
+from tools.tuning.evaluate import LOOPS, Candidate, Problem
+from tools.tuning.problems import BED_TARGET_C, HOTEND_TARGET_C, Source, build_problem, log_source, preset_source
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, heater_terms
 from tools.tuning.proof import PROOF_SEEDS, ProofRow
 from tools.tuning.proof import table as proof_table
 from tools.tuning.tuner import DEFAULT_BUDGET, Proven, TuneResult, methods, proven, tune
 from twin.metrics import step_metrics
-from twin.plants import SPECS, Spec
+from twin.plants import SPECS
 
-BED_TARGET_C, HOTEND_TARGET_C = 60.0, 210.0
 BOTH = "both"  # --loop both: tune and prove on Marlin's loop, then on Klipper's
 MODELS = ("two_node", "three_node", "fopdt", "sopdt")
 EPILOG = """examples:
@@ -49,53 +49,22 @@ EPILOG = """examples:
 
 
 # -- the plant ---------------------------------------------------------------------------------
-def plant_from_log(args: argparse.Namespace) -> tuple[str, Spec, bool]:
-    """Fit the log as twin-fit does: (a name, the fitted spec, whether it is a bed)."""
-    from tools.ident.log_fit import ASSUMED_POWER_W, BED
-    from tools.ident.fit import fit_model
-    from tools.ident.segments import default_segment, log_segments
-    from tools.logs import load_log
-    from twin.plants import MPC_HEATER_POWER_W
-
-    log = load_log(args.from_log)
-    heater, segments = log_segments(log, args.heater, None)
-    chosen = default_segment(segments) if args.segment is None else args.segment
-    if not 0 <= chosen < len(segments):
-        raise ValueError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
-    seg = segments[chosen]
-    power_w = ASSUMED_POWER_W.get(heater, MPC_HEATER_POWER_W) if args.model in ("two_node", "three_node") else None
-    result = fit_model(args.model, seg.t_s, seg.temp_c, seg.duty, None, power_w=power_w)
-    name = f"{Path(args.from_log).name} ({args.model}, segment {chosen}, RMSE {result.rmse_c:.2f} C)"
-    return name, result.spec(), heater == BED
+def source(args: argparse.Namespace) -> Source:
+    """The plant: a preset, or the log fitted exactly as twin-fit fits it (tools/ident/log_fit.py)."""
+    if not args.from_log:
+        return preset_source(args.plant, args.spread)
+    options = LogFitOptions(model=args.model, heater=args.heater, segment=args.segment)
+    return log_source(args.from_log, options)
 
 
 def make_problem(args: argparse.Namespace, loop: str | None = None, controller_name: str | None = None
                  ) -> tuple[Problem, bool]:
     """The problem the arguments describe (on ``loop``, default --loop, with ``controller_name``, default
     --controller), and whether its heater is a bed."""
-    loop = loop or args.loop
-    if args.from_log:
-        name, spec, is_bed = plant_from_log(args)
-    else:
-        if args.plant not in SPECS:
-            raise ValueError(f"--plant {args.plant!r}: valid presets: {', '.join(SPECS)}")
-        name, spec, is_bed = args.plant, SPECS[args.plant], heater_of(args.plant) == "bed"
-    target_c = args.target if args.target is not None else (BED_TARGET_C if is_bed else HOTEND_TARGET_C)
-    if target_c <= AMBIENT_C:
-        raise ValueError(f"--target {target_c:g}: a heater tune needs a target above the ambient {AMBIENT_C:g} C")
-    try:
-        scenario = default_scenario(spec, target_c)
-    except ValueError as exc:
-        raise ValueError(f"--target {target_c:g}: {exc}") from None
-    controller = resolve_controller(controller_name or args.controller, "bed" if is_bed else "hotend")
-    ensemble = None
-    if loop != "ideal":  # the papers' loop is noiseless arithmetic on the nominal model
-        ensemble = corner_ensemble(preset_spread(spec, args.spread) if args.spread else (), args.noise, args.statistic)
-    try:
-        problem = Problem(name, spec, scenario, loop, controller, ensemble)
-    except ValueError as exc:
-        raise ValueError(f"--loop {loop}: {exc}") from None
-    return problem, is_bed
+    plant = source(args)
+    problem = build_problem(plant, args.target, controller_name or args.controller, loop or args.loop,
+                            args.noise, args.statistic, spread=args.spread > 0)
+    return problem, plant.is_bed
 
 
 # -- output -------------------------------------------------------------------------------------
@@ -256,8 +225,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET,
                         help=f"objective evaluations per optimiser (default: {DEFAULT_BUDGET})")
     parser.add_argument("--seed", type=int, default=0, help="optimiser random seed (default: 0)")
-    parser.add_argument("--noise", type=finite_float, default=DEFAULT_NOISE_LSB, metavar="LSB",
-                        help=f"ADC noise of every ensemble member, in LSB (default: {DEFAULT_NOISE_LSB:g})")
+    parser.add_argument("--noise", type=finite_float, metavar="LSB",
+                        help=f"ADC noise of every ensemble member, in LSB of the loop's ADC (default: a log's own "
+                             f"reading noise where its trace shows it, else {DEFAULT_NOISE_LSB:g})")
     parser.add_argument("--spread", type=finite_float, default=DEFAULT_SPREAD, metavar="FRACTION",
                         help=f"a preset's lag and loss terms spread +-FRACTION: the ensemble's corner plants "
                              f"(default: {DEFAULT_SPREAD:g}; 0: the nominal plant only)")
@@ -266,8 +236,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--proof", type=int, default=PROOF_SEEDS, metavar="SEEDS",
                         help=f"prove the answer on the reference engine over SEEDS noise seeds and the corner plants "
                              f"(default: {PROOF_SEEDS}; 0: skip)")
-    parser.add_argument("--model", default="two_node", metavar="MODEL",
-                        help=f"--from-log: the model to fit, one of {', '.join(MODELS)} (default: two_node)")
+    parser.add_argument("--model", metavar="MODEL",
+                        help=f"--from-log: the model to fit, one of {', '.join(MODELS)} (default: as twin-fit, "
+                             "two_node for a trace, three_node for an M303 capture)")
     parser.add_argument("--heater", help="--from-log: extruder or heater_bed (default: the log's first)")
     parser.add_argument("--segment", type=int, help="--from-log: the segment to fit (default: the longest heat-up)")
     parser.add_argument("--plot", help="plot file (default twin-out/twin-tune-<plant>.png); 'none' for no plot")
@@ -280,7 +251,7 @@ def check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--objective {args.objective!r}: choose one of: {', '.join(OBJECTIVES)}")
     if args.budget < 1:
         raise ValueError(f"--budget {args.budget}: must be at least 1")
-    if args.noise < 0:
+    if args.noise is not None and args.noise < 0:
         raise ValueError(f"--noise {args.noise:g}: must be >= 0 LSB")
     if not 0 <= args.spread < 1:
         raise ValueError(f"--spread {args.spread:g}: must be within 0 .. 1 (a fraction)")
@@ -288,7 +259,7 @@ def check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--proof {args.proof}: must be >= 0 seeds")
     if args.method not in methods():
         raise ValueError(f"--method {args.method!r}: choose one of: {', '.join(methods())}")
-    if args.model not in MODELS:
+    if args.model is not None and args.model not in MODELS:
         raise ValueError(f"--model {args.model!r}: choose one of: {', '.join(MODELS)}")
     if args.plot not in (None, "none"):
         try:

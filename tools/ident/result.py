@@ -121,6 +121,18 @@ class FitResult:
                     "their values or on a bound)")
         return None
 
+    def parameter_lines(self) -> list[str]:
+        """Each parameter as twin-fit prints it: value, standard error (or why none), how well identified."""
+        standing = self.identification()
+        lines = []
+        for name, value in self.params.items():
+            error = self.std_errors[name]
+            spread = "at its bound" if np.isnan(error) else "not determined" if np.isinf(error) else f"+- {error:.2g}"
+            lines.append(f"  {name:30} {value:12.5g}  {spread:14} {standing.get(name, '')}".rstrip())
+        lines += [f"  {name:30} {value:12.5g}  {'held':14} {standing.get(name, '')}".rstrip()
+                  for name, value in self.fixed.items() if name != "initial_c" or "initial_c" not in self.params]
+        return lines
+
     def spread(self) -> list[Range]:
         """(name, low, high, source) of every parameter the data leave open: not identified or assumed,
         its plausible range (widened to take in the fitted value); poorly identified, two standard

@@ -114,6 +114,8 @@ def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
         return rules, optimisers
     if method == "auto":
         return rules, [DEFAULT_OPTIMISER]
+    if method == "rules":
+        return rules, []
     if method in optimisers:
         return [], [method]
     if method in rule_names():
@@ -125,7 +127,7 @@ def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
 
 def methods() -> list[str]:
     """Every value ``--method`` takes."""
-    return rule_names() + optimiser_names() + ["all", "auto"]
+    return rule_names() + optimiser_names() + ["all", "auto", "rules"]
 
 
 def search_bounds(problem: Problem, start: np.ndarray | None) -> np.ndarray:

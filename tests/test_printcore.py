@@ -26,7 +26,11 @@ import pytest
 from test_transport import twin_serial
 
 from protocol.lines import with_checksum
-from protocol.transport import MAX, PtyServer, RxCorruptor, Transcript, build_printer
+from protocol.build import build_printer
+from protocol.corruption import RxCorruptor
+from protocol.pacing import MAX
+from protocol.pty_server import PtyServer
+from protocol.transcript import Transcript
 
 try:
     with warnings.catch_warnings():

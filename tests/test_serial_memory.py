@@ -15,7 +15,8 @@ import serial
 
 import protocol  # noqa: F401  registers twin://
 from protocol.printer import RX_CAPACITY
-from protocol.transport import HOST_BUFFER_BYTES, build_printer
+from protocol.build import build_printer
+from protocol.server import HOST_BUFFER_BYTES
 from twin.linear import MAX_CACHED_MODELS
 
 FLOOD_BYTES = 8 * 1024 * 1024

@@ -21,7 +21,8 @@ import pytest
 import serial
 
 import protocol  # noqa: F401  registers twin://
-from protocol.transport import CATCH_UP_S, MAX, PACE_S, Pacer, build_printer, parse_speed
+from protocol.build import build_printer
+from protocol.pacing import CATCH_UP_S, MAX, PACE_S, Pacer, parse_speed
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-m", "tools.cli.serial"]

@@ -23,7 +23,9 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout, to_bytes
 
-from protocol.transport import HOST_BUFFER_BYTES, Pacer, build_printer, parse_idle_speed, parse_speed
+from protocol.build import build_printer
+from protocol.pacing import Pacer, parse_idle_speed, parse_speed
+from protocol.server import HOST_BUFFER_BYTES
 
 PARAMETERS = ("firmware", "plant", "bed_plant", "scenario", "speed", "idle_speed", "settings", "ok_after_resend")
 FLAGS = {"": True, "1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}

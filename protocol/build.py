@@ -22,7 +22,7 @@ def build_printer(*, firmware: str = "pid", plant: str | None = None, bed_plant:
     """
     chosen = scenario_for(scenario) if scenario else SERIAL_SCENARIO
     # firmware and plant names are checked where they are used (build_controllers, make_plant)
-    presets = {heater: {"preset": name} for heater, name in (("hotend", plant), ("bed", bed_plant)) if name}
+    presets: dict[str, dict[str, float | str]] = {heater: {"preset": name} for heater, name in (("hotend", plant), ("bed", bed_plant)) if name}
     if presets:
         chosen = with_overrides(chosen, plant=presets)
     eeprom = Eeprom.open(settings) if settings else None

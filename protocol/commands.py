@@ -110,7 +110,7 @@ def _residency_start(start_ms: int, diff_c: float, now_ms: int, first_loop: bool
 def wait_for_heater(p: PrinterContext, channel: int, no_wait_for_cooling: bool):
     """wait_for_hotend / wait_for_bed: 1 s reports with W:, residency 10 s within 1 C, M108 breaks."""
     board = p.twin.board
-    target_c = None
+    target_c = -1.0  # float target_temp = -1.0: a target of -1 is never seen as a change
     wants_to_cool = False
     residency_start_ms = next_temp_ms = next_cool_check_ms = 0
     old_temp_c = 9999.0

@@ -100,7 +100,9 @@ class Pacer:
         printer = self.printer
         if self.runs_free:
             return self._run_free()
-        speed = self.speed if printer.executing else self.idle_speed
+        speed = self.idle_speed
+        if printer.executing and self.speed != MAX:  # at max, runs_free took it above
+            speed = float(self.speed)
         now_s = self.clock()
         if speed == 0:  # host-driven and idle: the clock waits, and owes the wall nothing
             self._accounted_s = now_s

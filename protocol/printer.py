@@ -230,7 +230,7 @@ class VirtualPrinter:
             self.write(f"Error:internal error in {text.strip()[:40]!r}: {type(exc).__name__}\nok\n")
 
     def _start(self, cmd: Command) -> None:
-        handler = HANDLERS.get((cmd.letter, cmd.code))
+        handler = HANDLERS.get((cmd.letter, cmd.code)) if cmd.code is not None else None
         if handler is None:
             self.write(unknown_command_text(cmd))
             self.write("ok\n")
@@ -248,6 +248,8 @@ class VirtualPrinter:
 
     def _resume(self) -> None:
         """Run the executing command until it waits; when it ends, send its ok."""
+        if self.current is None:
+            return
         try:
             self.wake_tick = next(self.current)
         except StopIteration as stop:

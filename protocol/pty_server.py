@@ -70,9 +70,12 @@ class PtyServer(Server):
     def _wait(self, wait_s: float | None) -> None:
         if self._holders:
             self._poller.modify(self._master, select.POLLIN | (select.POLLOUT if self._unsent else 0))
+        watch = self._watch
+        if watch is None:
+            raise OSError(errno.EBADF, "the pty server is closed")
         events = dict(self._poller.poll(poll_ms(wait_s)))
-        if self._watch.fd in events:  # first: after a close and a reopen, the data is the new host's
-            changes = self._watch.changes()
+        if watch.fd in events:  # first: after a close and a reopen, the data is the new host's
+            changes = watch.changes()
             for k, change in enumerate(changes):
                 self._holders += change
                 if change > 0 and self._holders == 1:

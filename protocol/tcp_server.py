@@ -40,6 +40,8 @@ class TcpServer(Server):
         self._listener.close()
 
     def _write(self, data: bytes | bytearray) -> int:
+        if self._client is None:
+            raise ConnectionResetError("no client")
         return self._client.send(data)
 
     def _wait(self, wait_s: float | None) -> None:
@@ -67,6 +69,8 @@ class TcpServer(Server):
         self._host_came()
 
     def _read(self) -> None:
+        if self._client is None:
+            return
         try:
             data = self._client.recv(READ_SIZE)
         except BlockingIOError:

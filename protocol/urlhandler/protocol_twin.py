@@ -50,6 +50,8 @@ def parse_url(url: str) -> dict[str, str]:
 class Serial(SerialBase):
     """A VirtualPrinter (``.printer`` once open) with pyserial's Serial API; any baud rate goes."""
 
+    is_open: bool  # SerialBase's, set in its __init__
+
     def open(self) -> None:
         if self._port is None:
             raise SerialException("Port must be configured before it can be used.")

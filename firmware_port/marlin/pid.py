@@ -43,7 +43,8 @@ P_SHIFT = KP_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.17 product -> Q.8
 I_SHIFT = KI_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.29 product -> Q.8
 D_SHIFT = KD_FRAC_BITS + TEMP_FRAC_BITS - OUT_FRAC_BITS  # Q.21 product -> Q.8
 
-# Documented gain domain (user units). Bounds below are derived for these maxima.
+# Documented gain domain (user units): -MAX..MAX. Marlin stores any float M301 sends, negative
+# ones too; bounds below are derived for these magnitudes.
 KP_MAX = 1000.0
 KI_MAX = 100.0
 KD_MAX = 5000.0
@@ -60,21 +61,27 @@ D_FILTER_DIVISOR = int(1 / (1 - PID_K1))  # 1 - PID_K1 = 0.05 = 1/20 exactly
 
 @dataclass(frozen=True)
 class PidGains:
-    """Gains in user units (what M301/M303/EEPROM use)."""
+    """Gains in user units (what M301/M303/EEPROM use), each within -MAX..MAX.
+
+    A negative zero is stored as 0.0: Marlin would divide by -0.0 into an integral ceiling of -inf
+    and a NaN output; the twin keeps that one case sane.
+    """
 
     kp: float
     ki: float
     kd: float
 
     def __post_init__(self) -> None:
-        for name, value, top in (("kp", self.kp, KP_MAX), ("ki", self.ki, KI_MAX), ("kd", self.kd, KD_MAX)):
-            if not 0.0 <= value <= top:
-                raise ValueError(f"PID gain {name}={value} outside the supported range 0..{top}")
+        for name, top in (("kp", KP_MAX), ("ki", KI_MAX), ("kd", KD_MAX)):
+            value = getattr(self, name)
+            if not -top <= value <= top:
+                raise ValueError(f"PID gain {name}={value} outside the supported range -{top:g}..{top:g}")
+            object.__setattr__(self, name, value + 0.0)  # -0.0 + 0.0 == +0.0
 
     @classmethod
     def clamped(cls, kp: float, ki: float, kd: float) -> PidGains:
         """Gains forced into the supported ranges (M303 U1 on a degenerate oscillation)."""
-        return cls(min(max(kp, 0.0), KP_MAX), min(max(ki, 0.0), KI_MAX), min(max(kd, 0.0), KD_MAX))
+        return cls(*(min(max(value, -top), top) for value, top in ((kp, KP_MAX), (ki, KI_MAX), (kd, KD_MAX))))
 
 
 HOTEND_GAINS = PidGains(DEFAULT_KP, DEFAULT_KI, DEFAULT_KD)
@@ -118,9 +125,10 @@ class PidFixed:
         self.kp_q12 = q_scaled(gains.kp, Fraction(1), KP_FRAC_BITS)  # <= 2**22
         self.ki_q24 = q_scaled(gains.ki, PID_DT_S, KI_FRAC_BITS)  # <= 2**28
         self.kd_q16 = q_scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS)  # < 2**31
-        # Marlin: iState <= MAX_POW / Ki. In Q.5 with Ki in Q.24: floor(255 * 2**29 / ki_q24).
+        # Marlin: iState <= MAX_POW / Ki. In Q.5 with Ki in Q.24: floor(255 * 2**29 / ki_q24). A negative
+        # Ki gives a negative ceiling, which constrain() returns for any sum >= 0, as on the AVR.
         full_scale = PID_MAX << (KI_FRAC_BITS + TEMP_FRAC_BITS)
-        self.i_max_q5 = min(full_scale // self.ki_q24, I_SUM_CAP_Q5) if self.ki_q24 else I_SUM_CAP_Q5
+        self.i_max_q5 = clamp(full_scale // self.ki_q24, -I_SUM_CAP_Q5, I_SUM_CAP_Q5) if self.ki_q24 else I_SUM_CAP_Q5
         self.reset()
 
     def reset(self) -> None:
@@ -178,6 +186,7 @@ def float_error_bound_counts(gains: PidGains, max_dtemp_c: float) -> float:
     """
     lsb = 2.0**-OUT_FRAC_BITS / 2  # half a Q.8 step: one rounding
     f32 = 2.0**-24  # float32 relative rounding
+    gains = PidGains(abs(gains.kp), abs(gains.ki), abs(gains.kd))  # the terms' magnitudes bound their errors
     ki_int = gains.ki * float(PID_DT_S)
     kd_int = gains.kd / float(PID_DT_S)
     # P: Kp quantised to Q.12 over |e| <= 10, one rounding; float32 rounds Kp and the product.

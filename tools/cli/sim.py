@@ -15,6 +15,7 @@ import sys
 from firmware_port.firmwares import FIRMWARES
 from twin.build import build_twin
 from twin.engine import ENGINES
+from twin.plants import DEFAULT_BED, DEFAULT_HOTEND
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
 from twin.scenario import ScenarioError, scenario_for, with_overrides
@@ -33,8 +34,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         ),
     )
     parser.add_argument("--firmware", choices=list(FIRMWARES), default="pid", help="firmware build (default pid)")
-    parser.add_argument("--plant", choices=list(PLANT_PRESETS), help="hotend plant preset (default: the scenario's, else hotend)")
-    parser.add_argument("--bed-plant", choices=list(PLANT_PRESETS), help="bed plant preset (default: the scenario's, else bed)")
+    parser.add_argument("--plant", choices=list(PLANT_PRESETS), help=f"hotend plant preset (default: the scenario's, else {DEFAULT_HOTEND})")
+    parser.add_argument("--bed-plant", choices=list(PLANT_PRESETS), help=f"bed plant preset (default: the scenario's, else {DEFAULT_BED})")
     parser.add_argument("--no-bed", action="store_true", help="a board with a hotend only")
     parser.add_argument("--scenario", default="heat_hold", help="preset name or TOML file (default heat_hold)")
     parser.add_argument("--target", type=int, help="hotend target in C (replaces the scenario's first setpoint)")

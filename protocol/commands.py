@@ -17,7 +17,7 @@ from firmware_port.marlin.constants import (
     TEMP_BED_HYSTERESIS_C,
     TEMP_HYSTERESIS_C,
 )
-from firmware_port.marlin.pid import PidGains
+from firmware_port.marlin.pid import KD_MAX, KI_MAX, KP_MAX, PidGains
 from firmware_port.marlin.serial import format_float
 from protocol.context import PrinterContext
 from protocol.gcode import Command, float_to_u32, unknown_command_text
@@ -49,6 +49,7 @@ DEFAULT_KEEPALIVE_S = 2  # DEFAULT_KEEPALIVE_INTERVAL
 DWELL_MAX_MS = 1 << 31  # dwell(): PENDING() compares as int32
 STR_INVALID_EXTRUDER = "Invalid extruder"
 STR_PID_BAD_HEATER_ID = "PID Autotune failed! Bad heater id"
+STR_ERR_EEPROM_WRITE = "Error writing to EEPROM!"  # core/language.h
 
 
 def banner(p: PrinterContext, power_up: bool) -> str:
@@ -82,15 +83,23 @@ def m109(p: PrinterContext, cmd: Command):
     return wait_for_heater(p, HOTEND_CHANNEL, no_wait_for_cooling=cmd.has("S"))
 
 
+def _has_bed(p: PrinterContext, cmd: Command) -> bool:
+    """M140/M190 exist only with a heated bed (HAS_HEATED_BED); without one Marlin does not know them."""
+    if p.twin.board.bed is None:
+        p.write(unknown_command_text(cmd))
+        return False
+    return True
+
+
 def m140(p: PrinterContext, cmd: Command):
     """Set the bed target."""
-    if cmd.has("S"):
+    if _has_bed(p, cmd) and cmd.has("S"):
         p.twin.board.set_target(BED_CHANNEL, cmd.value_celsius("S", 0))
 
 
 def m190(p: PrinterContext, cmd: Command):
     """Set the bed target and wait (S: only when heating)."""
-    if not (cmd.has("S") or cmd.has("R")):
+    if not _has_bed(p, cmd) or not (cmd.has("S") or cmd.has("R")):
         return None
     p.twin.board.set_target(BED_CHANNEL, cmd.value_celsius("S" if cmd.has("S") else "R", 0))
     return wait_for_heater(p, BED_CHANNEL, no_wait_for_cooling=cmd.has("S"))
@@ -179,12 +188,22 @@ def m107(p: PrinterContext, cmd: Command):
 
 
 # -- PID --------------------------------------------------------------------------------------
+def _pid_text(gains: PidGains) -> str:
+    return f"P{format_float(gains.kp)} I{format_float(gains.ki)} D{format_float(gains.kd)}"
+
+
 def _pid_line(code: str, gains: PidGains) -> str:
-    return f"echo:  {code} P{format_float(gains.kp)} I{format_float(gains.ki)} D{format_float(gains.kd)}\n"
+    return f"echo:  {code} {_pid_text(gains)}\n"
 
 
 def _set_pid(p: PrinterContext, channel: int, cmd: Command, code: str):
-    """M301 / M304: set P, I, D (user units) or report them; Unknown without PID on that heater."""
+    """M301 / M304: set P, I, D (user units) or report them; Unknown without PID on that heater.
+
+    Marlin stores whatever float it is sent, negative gains too (gcode/config/M301.cpp), and so does
+    the twin, within the fixed-point port's range (pid.py KP_MAX...): beyond it the gain is clamped
+    and an echo line says so. A controller that refuses a gain (the fuzzy-PID's base gains must be
+    >= 0) keeps its gains, and the echo line says why.
+    """
     board = p.twin.board
     if not board.has_gains(channel):
         p.write(unknown_command_text(cmd))
@@ -193,8 +212,16 @@ def _set_pid(p: PrinterContext, channel: int, cmd: Command, code: str):
     if not any(cmd.has(k) for k in "PID"):
         p.write(_pid_line(code, g))
         return None
-    board.set_gains(channel, PidGains.clamped(cmd.value_float("P", g.kp), cmd.value_float("I", g.ki),
-                                              cmd.value_float("D", g.kd)))
+    asked = (cmd.value_float("P", g.kp), cmd.value_float("I", g.ki), cmd.value_float("D", g.kd))
+    gains = PidGains.clamped(*asked)
+    try:
+        board.set_gains(channel, gains)
+    except ValueError as exc:
+        p.write(f"echo:{code} refused: {exc}\n")
+        return None
+    if (gains.kp, gains.ki, gains.kd) != asked:
+        p.write(f"echo:{code} gains clamped to the twin's range (|P| <= {KP_MAX:g}, |I| <= {KI_MAX:g}, "
+                f"|D| <= {KD_MAX:g}): {_pid_text(gains)}\n")
     return None
 
 
@@ -237,11 +264,18 @@ def _autotune_wait(p: PrinterContext):
 
 
 # -- settings -----------------------------------------------------------------------------------
+def _hardcoded_settings(p: PrinterContext) -> Settings:
+    """Configuration.h's settings (M502, or no valid EEPROM): the gains the build came with."""
+    gains = p.twin.board.default_gains + [None]
+    defaults = Settings()
+    return Settings(gains[HOTEND_CHANNEL] or defaults.hotend, gains[BED_CHANNEL] or defaults.bed)
+
+
 def _current_settings(p: PrinterContext) -> Settings:
     board = p.twin.board
-    pids = [board.gains(c) if board.has_gains(c) else None for c in range(len(board.heaters))]
-    defaults = Settings()
-    return Settings(pids[0] or defaults.hotend, (pids[1] if len(pids) > 1 else None) or defaults.bed)
+    pids = [board.gains(c) if board.has_gains(c) else None for c in range(len(board.heaters))] + [None]
+    defaults = _hardcoded_settings(p)
+    return Settings(pids[HOTEND_CHANNEL] or defaults.hotend, pids[BED_CHANNEL] or defaults.bed)
 
 
 def _apply_settings(p: PrinterContext, settings: Settings) -> None:
@@ -255,12 +289,12 @@ def _load_settings(p: PrinterContext) -> str:
     """settings.load(): the stored image if it is valid, else the defaults."""
     data = p.eeprom.read()
     if data is None:
-        _apply_settings(p, Settings())
+        _apply_settings(p, _hardcoded_settings(p))
         return "echo:Hardcoded Default Settings Loaded\n"
     try:
         _apply_settings(p, Settings.from_bytes(data))
     except ValueError:
-        _apply_settings(p, Settings())
+        _apply_settings(p, _hardcoded_settings(p))
         return f"echo:EEPROM version mismatch (EEPROM=? Marlin={EEPROM_VERSION})\necho:Hardcoded Default Settings Loaded\n"
     return f"echo:{EEPROM_VERSION} stored settings retrieved ({len(data)} bytes; crc {crc16(data)})\n"
 
@@ -276,8 +310,13 @@ def _settings_report(p: PrinterContext) -> str:
 
 
 def m500(p: PrinterContext, cmd: Command):
+    """settings.save(). A failed write prints STR_ERR_EEPROM_WRITE (the HAL's write_data), and the
+    report follows it as on the board: Marlin 2.1's EEPROM_WRITE ignores write_data's result."""
     data = _current_settings(p).to_bytes()
-    p.eeprom.write(data)
+    try:
+        p.eeprom.write(data)
+    except OSError:
+        p.write(f"echo:{STR_ERR_EEPROM_WRITE}\n")
     p.write(f"echo:Settings Stored ({len(data)} bytes; crc {crc16(data)})\n")
 
 
@@ -286,7 +325,7 @@ def m501(p: PrinterContext, cmd: Command):
 
 
 def m502(p: PrinterContext, cmd: Command):
-    _apply_settings(p, Settings())
+    _apply_settings(p, _hardcoded_settings(p))
     p.write("echo:Hardcoded Default Settings Loaded\n")
 
 
@@ -339,9 +378,14 @@ def g0_g1(p: PrinterContext, cmd: Command):
     return _move_when_free(p, _axes(cmd))
 
 
+def _next_block_end(p: PrinterContext) -> int:
+    """The tick the head block ends: a waiting command sleeps until then, not a tick at a time."""
+    return p.now_tick + (p.planner.ticks_to_next_change() or 1)
+
+
 def _move_when_free(p: PrinterContext, axes: dict[str, float]):
     while p.planner.full:
-        yield p.now_tick + 1
+        yield _next_block_end(p)
     p.write(p.planner.move(axes))
 
 
@@ -372,7 +416,7 @@ def _dwell(p: PrinterContext, ms: int):
 def _synchronize(p: PrinterContext):
     """planner.synchronize(): idle until every block has run."""
     while p.planner.blocks:
-        yield p.now_tick + 1
+        yield _next_block_end(p)
 
 
 def m410(p: PrinterContext, cmd: Command):
@@ -390,8 +434,9 @@ def g92(p: PrinterContext, cmd: Command):
 
 
 def g28(p: PrinterContext, cmd: Command):
-    """Home: no axes to move, the positions become 0."""
-    p.planner.set_position({axis: 0.0 for axis in "XYZ"})
+    """Home the named axes (all without X, Y or Z): nothing to move, their positions become 0 and
+    the software endstops apply to them from now on."""
+    p.planner.home("".join(axis for axis in "XYZ" if cmd.has(axis)))
 
 
 def _mode(attr: str, value: bool):
@@ -402,9 +447,11 @@ def _mode(attr: str, value: bool):
 
 
 def m114(p: PrinterContext, cmd: Command):
-    pos = p.planner.position
+    """report_current_position_projected(): the position of the last move queued, then the
+    planner's step counts of it (stepper.report_a_position(planner.position), int32 steps)."""
+    pos, steps = p.planner.position, p.planner.steps
     p.write(f"X:{format_float(pos['X'])} Y:{format_float(pos['Y'])} Z:{format_float(pos['Z'])} "
-            f"E:{format_float(pos['E'])} Count X:0 Y:0 Z:0\n")
+            f"E:{format_float(pos['E'])} Count X:{steps['X']} Y:{steps['Y']} Z:{steps['Z']}\n")
 
 
 def accepted(p: PrinterContext, cmd: Command):

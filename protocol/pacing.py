@@ -89,7 +89,12 @@ class Pacer:
     @property
     def runs_free(self) -> bool:
         """The next advance() runs the clock free (one FREE_STEP_S of virtual time)."""
-        return self.speed == MAX and (self.printer.executing or self.host_driven)
+        return self.speed == MAX and (self.busy or self.host_driven)
+
+    @property
+    def busy(self) -> bool:
+        """A command executes, or bytes are still arriving: the clock runs at ``speed``."""
+        return self.printer.executing or self.printer.receiving
 
     def advance(self) -> float | None:
         """Run the clock as far as the speeds allow now.
@@ -101,7 +106,7 @@ class Pacer:
         if self.runs_free:
             return self._run_free()
         speed = self.idle_speed
-        if printer.executing and self.speed != MAX:  # at max, runs_free took it above
+        if self.busy and self.speed != MAX:  # at max, runs_free took it above
             speed = float(self.speed)
         now_s = self.clock()
         if speed == 0:  # host-driven and idle: the clock waits, and owes the wall nothing

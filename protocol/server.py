@@ -45,6 +45,7 @@ class Server(ABC):
     def serve_forever(self) -> None:
         """Serve until interrupted (KeyboardInterrupt, or SystemExit from a SIGTERM handler)."""
         while True:
+            self._note_tx()
             wait_s = None if self._unsent else self.pacer.advance()
             output = self.printer.take_output()
             if self._ready:
@@ -115,9 +116,13 @@ class Server(ABC):
             if not data:
                 return
         self._record(">", data)
-        # A host that does not read fills Marlin's TX side: the main loop stalls in a write and
-        # only the RX interrupt runs (the ring fills, the rest is lost) until the host reads.
-        self.printer.receive(data, loop_running=len(self._unsent) < HOST_BUFFER_BYTES)
+        self._note_tx()
+        self.printer.receive(data)
+
+    def _note_tx(self) -> None:
+        """A host that does not read fills Marlin's TX side: the main loop stalls in a write and
+        only the RX interrupt runs (the ring fills, the rest is lost) until the host reads."""
+        self.printer.tx_blocked = len(self._unsent) >= HOST_BUFFER_BYTES
 
     def _flush(self) -> None:
         """Write what the host takes now; the rest waits for POLLOUT."""

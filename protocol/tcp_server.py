@@ -15,7 +15,11 @@ from protocol.transcript import Transcript
 class TcpServer(Server):
     """The printer on a TCP port (pyserial's ``socket://``, Pronterface's host:port).
 
-    One client at a time; others wait in the listen backlog. Each connection resets the board.
+    One client at a time, and the newest one has the printer: a connection that arrives while
+    another is open takes it over, as plugging a USB cable into a second computer does; the old
+    client's socket is closed ("host replaced" in the transcript). A client that went silent
+    without closing (a crashed host, a dropped Wi-Fi link) so never blocks the next one. Each
+    connection resets the board.
     """
 
     def __init__(self, printer: VirtualPrinter, pacer: Pacer | None = None, host: str = "127.0.0.1", port: int = 0, *,
@@ -50,7 +54,7 @@ class TcpServer(Server):
         for fd, revents in self._poller.poll(poll_ms(wait_s)):
             if fd == self._listener.fileno():
                 self._accept()
-            elif self._client is not None:
+            elif self._client is not None and fd == self._client.fileno():  # not a client replaced meanwhile
                 if revents & select.POLLOUT:
                     self._flush()
                 if revents & (select.POLLIN | select.POLLHUP | select.POLLERR):
@@ -63,7 +67,9 @@ class TcpServer(Server):
             return
         client.setblocking(False)
         client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # replies are short lines
-        self._poller.unregister(self._listener)
+        if self._client is not None:  # the newcomer takes the printer over
+            self._record("*", "host replaced")
+            self._drop_host()
         self._poller.register(client, select.POLLIN)
         self._client = client
         self._host_came()
@@ -87,5 +93,4 @@ class TcpServer(Server):
             self._poller.unregister(self._client)
             self._client.close()
             self._client = None
-            self._poller.register(self._listener, select.POLLIN)
             self._host_left()

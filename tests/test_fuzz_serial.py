@@ -82,6 +82,7 @@ def test_fuzzed_lines_over_twin_url_get_marlin_replies_only(caplog):
                 unanswered.append((line, text))
         internal_errors = port.printer.internal_errors
         growth_mb = rss_mb() - start_mb
+    print(f"resident memory: {start_mb:.1f} MB at the start, grew {growth_mb:.1f} MB over {FUZZ_LINES} lines")
     assert shapes == []
     assert unanswered == []
     assert internal_errors == 0 and caplog.records == []  # no command raised

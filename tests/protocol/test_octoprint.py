@@ -65,16 +65,6 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-    try:
-        proc.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(timeout=20)
-
-
 class OctoPrint:
     """The REST API of a running server, with the key from its config.yaml."""
 
@@ -119,26 +109,22 @@ class OctoPrint:
 
 
 @pytest.fixture
-def twin_printer(tmp_path):
-    """twin-serial on a pty behind tmp_path/printer: the default stock printer."""
+def twin_printer(tmp_path, spawn):
+    """twin-serial on a pty behind tmp_path/printer: the default stock printer (stopped by ``spawn``)."""
     link = tmp_path / "printer"
-    stderr = open(tmp_path / "twin-serial.stderr", "w+")
-    proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serial", "--link", str(link),
-                             "--idle-speed", str(IDLE_SPEED)], stdout=subprocess.PIPE, stderr=stderr, text=True)
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], 60)
-        assert ready and proc.stdout.readline().strip(), "twin-serial printed no port"
-        yield link
-    finally:
-        _stop(proc)
-        proc.stdout.close()
-        stderr.seek(0)
-        assert "Traceback" not in stderr.read()
-        stderr.close()
+    stderr_path = tmp_path / "twin-serial.stderr"
+    with open(stderr_path, "w") as stderr:
+        proc = spawn([sys.executable, "-m", "tools.cli.serial", "--link", str(link), "--idle-speed", str(IDLE_SPEED)],
+                     stdout=subprocess.PIPE, stderr=stderr, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], 60)
+    assert ready and proc.stdout.readline().strip(), "twin-serial printed no port"
+    yield link
+    proc.stdout.close()
+    assert "Traceback" not in stderr_path.read_text()
 
 
 @pytest.fixture
-def octoprint(tmp_path, twin_printer):
+def octoprint(tmp_path, twin_printer, spawn):
     _require_octoprint()
     basedir = tmp_path / "octoprint"
     basedir.mkdir()
@@ -155,15 +141,11 @@ def octoprint(tmp_path, twin_printer):
             "--basedir", str(basedir)]
     if os.geteuid() == 0:
         args.append("--iknowwhatimdoing")  # OctoPrint refuses root without it
-    log = open(tmp_path / "octoprint.out", "w+")
-    proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT)
+    with open(tmp_path / "octoprint.out", "w") as log:
+        spawn(args, stdout=log, stderr=subprocess.STDOUT)  # OctoPrint's log, for a failure's post-mortem
     server = OctoPrint(port, api_key)
-    try:
-        server.wait_for("the server", lambda reply: "api" in reply, START_TIMEOUT_S, "/api/version")
-        yield server, twin_printer
-    finally:
-        _stop(proc)
-        log.close()
+    server.wait_for("the server", lambda reply: "api" in reply, START_TIMEOUT_S, "/api/version")
+    return server, twin_printer
 
 
 def _print_once(server: OctoPrint) -> None:

@@ -16,25 +16,18 @@ READ_TIMEOUT_S = 30
 
 
 @pytest.fixture
-def tcp_printer():
-    """twin-serial --tcp on a free port: its address; the process is always stopped."""
-    proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serial", "--tcp", "127.0.0.1:0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT_S)
-        assert ready, "twin-serial printed no address"
-        host, port = proc.stdout.readline().strip().rsplit(":", 1)
-        yield host, int(port)
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        assert "Traceback" not in proc.stderr.read()
-        proc.stdout.close()
-        proc.stderr.close()
+def tcp_printer(spawn, tmp_path):
+    """twin-serial --tcp on a free port: its address (stopped at teardown by ``spawn``)."""
+    stderr_path = tmp_path / "stderr.txt"
+    with open(stderr_path, "w") as stderr:
+        proc = spawn([sys.executable, "-m", "tools.cli.serial", "--tcp", "127.0.0.1:0"],
+                     stdout=subprocess.PIPE, stderr=stderr, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT_S)
+    assert ready, "twin-serial printed no address"
+    host, port = proc.stdout.readline().strip().rsplit(":", 1)
+    yield host, int(port)
+    proc.stdout.close()
+    assert "Traceback" not in stderr_path.read_text()
 
 
 def _read_until(sock: socket.socket, marker: bytes) -> bytes:

@@ -8,9 +8,11 @@ import pytest
 from firmware_port.marlin.constants import TEMP_HYSTERESIS_C
 from firmware_port.marlin.pid import PidGains
 from protocol.lines import with_checksum
+from protocol.link import BYTE_TICKS
 from protocol.printer import VirtualPrinter
 from protocol.settings import Eeprom
 from twin.build import build_twin
+from twin.clock import TICK_S
 from twin.scenario import parse_scenario
 
 SERIAL = parse_scenario('duration_s = 86400\nname = "serial"\n', "serial")
@@ -106,11 +108,11 @@ def test_fans_and_extrusion_reach_the_plant():
     send(printer, "M107")
     assert printer.twin.board.fan_speed == 0
     send(printer, "M83", "G1 E10 F120", run=False)  # 10 mm at 2 mm/s: 5 s of 2 mm/s flow
-    printer.run_for(1.0)
+    printer.run_for(1.0)  # the G1 arrives 1.2 ms (14 bytes) after the M83, then its ok
     assert printer.twin.flow_mm_s == pytest.approx(2.0)
     printer.run_for(5.0)
     assert printer.twin.flow_mm_s == 0.0
-    assert send(printer, "M114")[0].startswith("X:0.00 Y:0.00 Z:0.00 E:10.00")
+    assert send(printer, "M114")[-2].startswith("X:0.00 Y:0.00 Z:0.00 E:10.00")
 
 
 def test_m400_and_g4_take_virtual_time():
@@ -119,7 +121,9 @@ def test_m400_and_g4_take_virtual_time():
     assert send(printer, "G4 P1500") == ["ok"]
     assert printer.time_s - start == pytest.approx(1.5, abs=0.002)
     send(printer, "G91", "G1 X100 F6000", "M400")  # 100 mm at 100 mm/s
-    assert printer.time_s - start == pytest.approx(2.5, abs=0.002)
+    # the move starts when its line has arrived behind the G91's: 14 bytes at 115200 baud, 1.2 ms,
+    # up to the next tick (1.024 ms), and ends on a tick
+    assert printer.time_s - start == pytest.approx(2.5 + 14 * BYTE_TICKS * TICK_S, abs=0.002)
 
 
 def test_busy_lines_every_2_s_and_m113():
@@ -204,8 +208,8 @@ def test_no_ok_after_resend_option():
 
 def test_m112_kills_and_nothing_answers_until_reset():
     printer = make_printer()
-    # M112 acts when its line arrives: the M104 read into the queue with it never runs
-    printer.receive(b"M104 S200\nM112\nM105\n")
+    # M112 acts when its line arrives: the M104 queued behind a running G4 never runs
+    printer.receive(b"G4 S10\nM104 S200\nM112\nM105\n")
     printer.run_until_idle()
     lines = printer.take_output().decode().splitlines()
     assert lines == ["echo:M112 Shutdown", "Error:Printer halted. kill() called!"]
@@ -270,8 +274,10 @@ def test_an_absurd_move_lasts_a_bounded_time_and_m410_stops_it():
     send(printer, "G1 X1 F0.0001", run=False)  # 80 steps at MINIMAL_STEP_RATE (120/s), not 10 hours
     assert printer.planner.blocks[0].duration_s == pytest.approx(80 / 120)
     send(printer, f"G1 X{HUGE}", run=False)
-    assert printer.planner.blocks
+    printer.run_for(0.01)  # its 49 bytes arrive behind the first line's
+    assert len(printer.planner.blocks) == 2
     printer.receive(b"M410\n")  # quickstop: acted on when the line arrives
+    printer.run_for(0.001)
     assert not printer.planner.blocks
 
 

@@ -78,8 +78,8 @@ class PidFloat:
                 self.reset_pending = False
                 self.i_state = ZERO_F32
                 self.d_term = ZERO_F32
-            with np.errstate(divide="ignore"):
-                i_max = F32(MAX_POW_F32 / self.ki)  # +inf when Ki == 0, as on the AVR
+            with np.errstate(divide="ignore", over="ignore"):
+                i_max = F32(MAX_POW_F32 / self.ki)  # +-inf when Ki is 0 or denormal, as on the AVR
             self.i_state = _constrain(F32(self.i_state + error), ZERO_F32, i_max)
             p_term = F32(self.kp * error)
             i_term = F32(self.ki * self.i_state)

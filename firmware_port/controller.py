@@ -19,8 +19,8 @@ from typing import Protocol, runtime_checkable
 
 OUTPUT_MAX = 255  # Marlin's PID_MAX: the top of every controller's output
 
-# The gain domain in user units that the firmware's fixed-point PID documents and derives its
-# bounds for (firmware_port/marlin/pid.py): what M301/M304 accept.
+# The gain domain in user units (-MAX..MAX) that the firmware's fixed-point PID documents and derives
+# its bounds for (firmware_port/marlin/pid.py): what M301/M304 accept.
 KP_MAX = 1000.0
 KI_MAX = 100.0
 KD_MAX = 5000.0
@@ -28,21 +28,28 @@ KD_MAX = 5000.0
 
 @dataclass(frozen=True)
 class PidGains:
-    """Gains in user units (what M301/M303/EEPROM use): Kp counts/degC, Ki counts/(degC s), Kd counts s/degC."""
+    """Gains in user units (what M301/M303/EEPROM use), each within -MAX..MAX: Marlin stores any float
+    M301 sends, negative ones too. Kp counts/degC, Ki counts/(degC s), Kd counts s/degC.
+
+    A negative zero is stored as 0.0: Marlin would divide by -0.0 into an integral ceiling of -inf
+    and a NaN output; the twin keeps that one case sane.
+    """
 
     kp: float
     ki: float
     kd: float
 
     def __post_init__(self) -> None:
-        for name, value, top in (("kp", self.kp, KP_MAX), ("ki", self.ki, KI_MAX), ("kd", self.kd, KD_MAX)):
-            if not 0.0 <= value <= top:
-                raise ValueError(f"PID gain {name}={value} outside the supported range 0..{top}")
+        for name, top in (("kp", KP_MAX), ("ki", KI_MAX), ("kd", KD_MAX)):
+            value = getattr(self, name)
+            if not -top <= value <= top:
+                raise ValueError(f"PID gain {name}={value} outside the supported range -{top:g}..{top:g}")
+            object.__setattr__(self, name, value + 0.0)  # -0.0 + 0.0 == +0.0
 
     @classmethod
     def clamped(cls, kp: float, ki: float, kd: float) -> PidGains:
         """Gains forced into the supported ranges (M303 U1 on a degenerate oscillation)."""
-        return cls(min(max(kp, 0.0), KP_MAX), min(max(ki, 0.0), KI_MAX), min(max(kd, 0.0), KD_MAX))
+        return cls(*(min(max(value, -top), top) for value, top in ((kp, KP_MAX), (ki, KI_MAX), (kd, KD_MAX))))
 
 
 @runtime_checkable

@@ -14,15 +14,12 @@ build without MPC, M306 is an unknown command, as in Marlin.
 from __future__ import annotations
 
 import re
-from typing import TYPE_CHECKING
 
 from firmware_port.marlin.board import HOTEND_CHANNEL, MarlinBoard
 from firmware_port.marlin.mpc import DEFAULT_CONSTANTS, MpcConstants, MpcController
 from firmware_port.marlin.mpc_autotune import MpcAutotune
+from protocol.context import PrinterContext
 from protocol.gcode import Command, parse, unknown_command_text
-
-if TYPE_CHECKING:  # the printer calls these handlers
-    from protocol.printer import VirtualPrinter
 
 # Configuration.h (Marlin 2.1.2.1): MPC_TUNING_POS { X_CENTER, Y_CENTER, 1.0f } on the stock
 # 200 x 200 bed, MPC_TUNING_END_Z 10.0f (do_z_clearance after the tune).
@@ -48,7 +45,7 @@ def set_from_command(constants: MpcConstants, cmd: Command) -> MpcConstants:
     return constants.with_m306(**values)
 
 
-def m306(p: VirtualPrinter, cmd: Command):
+def m306(p: PrinterContext, cmd: Command):
     """M306 T: autotune; M306 [E0] P C R A F H: set; M306 alone: report."""
     mpc = hotend_mpc(p.twin.board)
     if mpc is None:
@@ -66,7 +63,7 @@ def m306(p: VirtualPrinter, cmd: Command):
     return None
 
 
-def _autotune(p: VirtualPrinter):
+def _autotune(p: PrinterContext):
     """MPC_autotune(): home (the moves finish first), to the tuning position, the loops (no
     idle(): no busy lines, no auto-reports), then the Z clearance."""
     while p.planner.blocks:  # gcode.home_all_axes(): planner.synchronize()

@@ -8,6 +8,7 @@ computed over the stored bytes as Marlin computes it over its EEPROM image.
 from __future__ import annotations
 
 import json
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -85,12 +86,13 @@ class Eeprom:
         try:
             data = path.read_bytes()
         except FileNotFoundError:
-            return cls(path)
+            data = b""
         except OSError as exc:
             raise ValueError(f"settings file {path}: cannot read it ({exc.strerror})") from None
         if data and not is_settings_image(data):
             raise ValueError(f"settings file {path}: not a heater-twin settings file (M500 writes JSON with "
                              "version, hotend_pid and bed_pid); refusing to overwrite it")
+        _check_writable(path)
         return cls(path)
 
     def read(self) -> bytes | None:
@@ -102,7 +104,23 @@ class Eeprom:
             return None
 
     def write(self, data: bytes) -> None:
+        """Store the image; OSError if the file cannot be written (M500 answers as Marlin does)."""
         if self.path is None:
             self._memory = data
         else:
             self.path.write_bytes(data)
+
+
+def _check_writable(path: Path) -> None:
+    """At start, so M500 does not fail later: the file opens for writing, or (a new file) a file can
+    be created beside it. Nothing is changed: an existing file is opened without truncating, a probe
+    file is removed at once. ValueError says why not."""
+    try:
+        if path.exists():
+            with open(path, "r+b"):
+                pass
+        else:
+            with tempfile.NamedTemporaryFile(dir=path.resolve().parent, prefix=".heater-twin-probe-"):
+                pass
+    except OSError as exc:
+        raise ValueError(f"settings file {path}: cannot be written ({exc.strerror or exc})") from None

@@ -136,13 +136,14 @@ class Twin:
         self._events = EventQueue()  # actions due at a tick
 
     @classmethod
-    def create(cls, firmware: str = "pid", hotend: str = "hotend", bed: str | None = None, *,
+    def create(cls, firmware: str = "pid", hotend: str | None = None, bed: str | None = None, *,
                controllers: Sequence[ControllerSpec | None] = (), ambient_c: float = 25.0,
                boot_s: float = BOOT_S, **options) -> Twin:
-        """A twin on plant presets (twin.plants.PRESETS), booted so that time 0 is a running board."""
-        from twin.plants import make_plant
+        """A twin on plant presets (twin.plants.PRESETS; the hotend by default twin.plants.DEFAULT_HOTEND,
+        no bed unless named), booted so that time 0 is a running board."""
+        from twin.plants import DEFAULT_HOTEND, make_plant
 
-        plants = [make_plant(hotend, ambient_c=ambient_c)]
+        plants = [make_plant(hotend or DEFAULT_HOTEND, ambient_c=ambient_c)]
         if bed is not None:
             plants.append(make_plant(bed, ambient_c=ambient_c))
         twin = cls(plants, firmware, controllers=controllers, **options)

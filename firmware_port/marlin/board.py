@@ -113,6 +113,9 @@ class MarlinBoard:
                 HeaterWatch.bed(),
             )
             self.heaters.append(bed)
+        # Configuration.h's DEFAULT_Kp... of this build (what M502 restores): the gains its controllers came with
+        self.default_gains = [heater.controller.gains if is_tunable(heater.controller) else None  # type: ignore[attr-defined]
+                              for heater in self.heaters]
         self.adc = AdcSequencer(len(self.heaters), adc_port)
         self.pwm = SoftPwm(len(self.heaters))
         self.ticks = 0  # ISRs run since reset

@@ -97,7 +97,7 @@ class MpcAutotune:
     """Marlin's M306 T on the board's hotend; the board calls ``poll`` on every main-loop pass
     and reads ``amount`` (the hotend's soft PWM) after it, as it runs M303's ``Autotune``."""
 
-    gains = None  # no PID gains for M303 U1's path to apply
+    gains: tuple[float, float, float] | None = None  # no PID gains for M303 U1's path to apply
 
     def __init__(self, board: MarlinBoard) -> None:
         controller = board.hotend.controller

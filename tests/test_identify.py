@@ -202,7 +202,7 @@ def test_twin_fit_onionheater_two_node(capsys):
     assert re.search(r"^  block_heat_capacity_j_k\s+\S+\s+\+- \S+\s+identified$", out, re.M)
     assert 1.0 < _rmse(out) < 4.0  # a few C: a two-node model misses the cartridge's lag
     assert re.search(r"^  Marlin:  M306 P40\.00 C[\d.]+ R[\d.]+ A[\d.]+ F[\d.]+$", out, re.M)
-    assert re.search(r"^\s+M301 P[\d.]+ I[\d.]+ D[\d.]+$", out, re.M)
+    assert re.search(r"^\s+Marlin:\s+M301 P[\d.]+ I[\d.]+ D[\d.]+$", out, re.M)
     assert re.search(r"^    \[extruder\]\n    control: pid\n    pid_Kp: [\d.]+\n    pid_Ki: [\d.]+\n"
                      r"    pid_Kd: [\d.]+$", out, re.M)
 
@@ -212,7 +212,7 @@ def test_twin_fit_klipper_stats_bed_and_extruder(capsys):
     assert code == 0, err
     assert "power_w 220 W assumed" in out and "the pwm Klipper last sent" in " ".join(out.split())
     assert _rmse(out) < 1.0
-    assert re.search(r"^  Marlin:  M304 P[\d.]+ I[\d.]+ D[\d.]+ ", out, re.M) and "M306 P" not in out
+    assert re.search(r"^  Marlin:  M304 P[\d.]+ I[\d.]+ D[\d.]+$", out, re.M) and "M306 P" not in out
     assert "    [heater_bed]\n    control: pid\n" in out
     assert "the log's own gains: pid_Kp 54.027" in out
     code, out, err = twin_fit(capsys, str(hardware_logs_dir() / ENDER5), "--model", "fopdt", "--segment", "0")

@@ -31,11 +31,10 @@ def test_reduced_run_beats_m303_and_matches_the_best_rule(reduced) -> None:
 
 def test_optimiser_gains_reproduce_their_cost(reduced) -> None:
     """The stated cost is the cost of the stated gains: rescoring them gives it back (same machine)."""
-    from tools.cli.tune import make_problem, parse_args
     from tools.tuning.evaluate import score
     from tools.tuning.objectives import heater_cost
 
-    problem, _ = make_problem(parse_args(optimtable._argv(REDUCED_PLANT)))
+    problem = optimtable.problem_of(REDUCED_PLANT)
     for method, candidate in reduced.optimised.items():
         again = score(problem, heater_cost, {method: candidate.gains})[0]
         assert again.cost == pytest.approx(candidate.cost, rel=1e-9)

@@ -54,7 +54,8 @@ def test_a_fitted_log_is_tuned(capsys, tmp_path):
                  "--plot", "none"]) == 0
     out = capsys.readouterr().out
     assert "klipper_heattest_onionheater_heattest_200.csv (two_node" in out
-    assert BEST.search(out).group(1) == method
+    assert re.search(rf"^ [ *]{method}\s+Kp \S+ Ki \S+ Kd \S+\s+cost", out, re.M)  # the rule ran, scored
+    assert "plant: two_node fitted to klipper_heattest_onionheater_heattest_200.csv as twin-fit fits it:" in out
 
 
 @pytest.mark.parametrize("argv, flag", [

@@ -57,14 +57,21 @@ def source(args: argparse.Namespace) -> Source:
     return log_source(args.from_log, options)
 
 
-def make_problem(args: argparse.Namespace, loop: str | None = None, controller_name: str | None = None
-                 ) -> tuple[Problem, bool]:
-    """The problem the arguments describe (on ``loop``, default --loop, with ``controller_name``, default
-    --controller), and whether its heater is a bed."""
-    plant = source(args)
-    problem = build_problem(plant, args.target, controller_name or args.controller, loop or args.loop,
-                            args.noise, args.statistic, spread=args.spread > 0)
+def make_problem(args: argparse.Namespace, plant: Source, loop: str, controller_name: str) -> tuple[Problem, bool]:
+    """The problem the arguments describe on ``plant`` (with ``loop`` and ``controller_name``), and whether its
+    heater is a bed."""
+    problem = build_problem(plant, args.target, controller_name, loop, args.noise, args.statistic,
+                            spread=args.spread > 0)
     return problem, plant.is_bed
+
+
+def plant_lines(plant: Source) -> list[str]:
+    """A fitted plant's parameters, exactly as twin-fit prints them."""
+    if plant.fitted is None:
+        return []
+    result = plant.fitted.result
+    return [f"plant: {result.model} fitted to {plant.name.split(' (')[0]} as twin-fit fits it:",
+            *result.parameter_lines()]
 
 
 # -- output -------------------------------------------------------------------------------------
@@ -271,7 +278,9 @@ def check_args(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     check_args(args)
     loops = ("marlin", "klipper") if args.loop == BOTH else (args.loop,)
-    problems = [make_problem(args, loop, name) for name in args.controller.split(",") for loop in loops]
+    plant = source(args)
+    problems = [make_problem(args, plant, loop, name) for name in args.controller.split(",") for loop in loops]
+    print("\n".join(plant_lines(plant)))
     client = None
     if args.dask:
         from distributed import Client

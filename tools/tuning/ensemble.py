@@ -58,6 +58,7 @@ GROUPS: dict[str, tuple[str, int]] = {
     "block_heat_capacity_j_k": ("capacity", +1),
 }
 DEFAULT_SPREAD_GROUPS = ("lag", "loss")
+PRESET_STATED = ("power_w", "ambient_c")  # a preset states its heater's rating and its room: a fit's source spreads them
 
 
 @dataclass(frozen=True)
@@ -137,14 +138,15 @@ NOMINAL = Ensemble((Member("nominal", (), 0.0, 0),), "mean")
 
 def preset_spread(spec: Spec, fraction: float = DEFAULT_SPREAD,
                   groups: Sequence[str] = DEFAULT_SPREAD_GROUPS) -> tuple[Uncertain, ...]:
-    """+-fraction on every non-zero parameter of the given groups (``DEFAULT_SPREAD_GROUPS``: lag and loss)."""
+    """+-fraction on every non-zero parameter of the given groups (``DEFAULT_SPREAD_GROUPS``: lag and loss)
+    but the ratings a preset states (``PRESET_STATED``)."""
     source = f"preset, default +-{fraction:.0%}"
     out = []
     for f in fields(spec):
         value = getattr(spec, f.name)
         if f.name == "radiating_area_m2" and not getattr(spec, "emissivity", 0.0):
             continue  # no radiation without emissivity: the area does nothing
-        if f.name in GROUPS and GROUPS[f.name][0] in groups and value:
+        if f.name in GROUPS and f.name not in PRESET_STATED and GROUPS[f.name][0] in groups and value:
             low, high = sorted((value * (1 - fraction), value * (1 + fraction)))
             out.append(Uncertain(f.name, low, high, source))
     return tuple(out)

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from tools.ident.fit import reading_noise_c
 from tools.ident.log_fit import BED, LogFit, LogFitOptions, fit_log
+from tools.ident.plausible import ROOM_C
 from tools.logs import load_log
 from tools.tuning.controllers import resolve_controller
 from tools.tuning.ensemble import (
@@ -34,7 +35,7 @@ from tools.tuning.ensemble import (
 )
 from tools.tuning.evaluate import AMBIENT_C, Candidate, Problem, default_scenario, heater_of
 from tools.tuning.objectives import heater_terms
-from tools.tuning.tuner import TuneResult, tune
+from tools.tuning.tuner import DEFAULTS, TuneResult, tune
 from tools.validation.m303_compare import twin_noise_lsb
 from twin.plants import SPECS, Spec
 
@@ -79,8 +80,13 @@ def fitted_source(fitted: LogFit, log_name: str) -> Source:
     residuals = fitted.trace_residuals_c()
     noise_c = reading_noise_c(residuals) if result.evidence == "trace" and residuals.size > 2 else None
     name = f"{log_name} ({result.model}, {result.evidence}, RMSE {result.rmse_c:.2f} C)"
-    return Source(name, result.spec(), fitted.heater == BED, result.ambient_c, spread, result.spec_with,
-                  noise_c, fitted)
+    ambient_c = result.ambient_c
+    if result.identification().get("ambient_c") != "identified" and not ROOM_C[0] <= ambient_c <= ROOM_C[1]:
+        # a fitted ambient the data do not identify, outside any room: the tune runs at the nearest room
+        # temperature (the spread still spans the fitted value)
+        ambient_c = min(max(ambient_c, ROOM_C[0]), ROOM_C[1])
+        name += f", ambient {ambient_c:g} C (the fit's {result.ambient_c:.3g} C is not identified)"
+    return Source(name, result.spec(), fitted.heater == BED, ambient_c, spread, result.spec_with, noise_c, fitted)
 
 
 def build_problem(source: Source, target_c: float | None = None, controller: str = "pid", loop: str = "marlin",
@@ -115,8 +121,9 @@ def quick_tune(problem: Problem, budget: int = QUICK_BUDGET, seed: int = 0) -> T
 
 
 def safe_best(result: TuneResult) -> Candidate | None:
-    """The best candidate that trips in no member of the ensemble, or None."""
+    """The best candidate from the plant itself (a rule, the autotune, a search: not the build's own
+    defaults, tuned for another heater) that trips in no member of the ensemble, or None."""
     for candidate in result.ranked:
-        if not heater_terms(candidate.run).tripped.any():
+        if candidate.method != DEFAULTS and not heater_terms(candidate.run).tripped.any():
             return candidate
     return None

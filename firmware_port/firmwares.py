@@ -7,7 +7,8 @@ from collections.abc import Callable
 from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat, fuzzy_pi_space
 from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat, fuzzy_pid_space
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
-from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed, pid_space
+from firmware_port.marlin.mpc import MpcController, mpc_space
+from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed, PidGains, pid_space
 from firmware_port.marlin.pid_float import PidFloat, pid_float_space
 from firmware_port.params import ParamSpace
 from firmware_port.seed000 import (
@@ -19,17 +20,31 @@ from firmware_port.seed000 import (
     gaussian_space,
 )
 
+# The stock printer's Configuration.h: as a vendor puts its own M303 results into DEFAULT_Kp/Ki/Kd
+# and DEFAULT_bedKp/Ki/Kd, these are `M303 E0 S210 C8` and `M303 E-1 S60 C8` on the twin's default
+# plants (twin/plants.py hotend_stock and bed), each sent to a fresh twin-serial (tests/protocol/
+# test_stock_autotune.py re-runs both). Marlin's own example gains (22.2/1.08/114, bed 10/0.023/305.4) are HOTEND_GAINS and
+# BED_GAINS: tuned for other heaters, on the default bed they crawl the last degrees and trip the
+# heating watch from a warm start.
+STOCK_HOTEND_GAINS = PidGains(19.96, 2.06, 48.23)
+STOCK_BED_GAINS = PidGains(86.92, 10.40, 484.20)
+
 # name -> (hotend controller factory, bed controller factory, one-line description)
 FIRMWARES: dict[str, tuple[Callable, Callable, str]] = {
     "pid": (
-        lambda: PidFixed(HOTEND_GAINS),
-        lambda: PidFixed(BED_GAINS),
-        "Marlin's PID law in integer fixed point (PIDTEMP + PIDTEMPBED)",
+        lambda: PidFixed(STOCK_HOTEND_GAINS),
+        lambda: PidFixed(STOCK_BED_GAINS),
+        "Marlin's PID law in integer fixed point (PIDTEMP + PIDTEMPBED), the stock printer's M303 gains",
     ),
     "pid_float": (
-        lambda: PidFloat(HOTEND_GAINS),
-        lambda: PidFloat(BED_GAINS),
-        "Marlin's PID law in float32, as Marlin itself computes it",
+        lambda: PidFloat(STOCK_HOTEND_GAINS),
+        lambda: PidFloat(STOCK_BED_GAINS),
+        "Marlin's PID law in float32, as Marlin itself computes it, the stock printer's M303 gains",
+    ),
+    "mpc": (
+        MpcController,
+        lambda: PidFixed(BED_GAINS),
+        "Marlin's MPC (MPCTEMP) on the hotend in float32 with Configuration.h's model (M306); the bed's PID as in pid",
     ),
     "bangbang": (
         BangBangHotend,
@@ -87,8 +102,8 @@ HEATERS = ("hotend", "bed")
 # name -> (hotend space, bed space): the builds whose controllers have parameters to tune, each
 # space's defaults being what the build runs on that heater.
 PARAM_SPACES: dict[str, tuple[Callable[[], ParamSpace], Callable[[], ParamSpace]]] = {
-    "pid": (lambda: pid_space(HOTEND_GAINS), lambda: pid_space(BED_GAINS)),
-    "pid_float": (lambda: pid_float_space(HOTEND_GAINS), lambda: pid_float_space(BED_GAINS)),
+    "pid": (lambda: pid_space(STOCK_HOTEND_GAINS), lambda: pid_space(STOCK_BED_GAINS)),
+    "pid_float": (lambda: pid_float_space(STOCK_HOTEND_GAINS), lambda: pid_float_space(STOCK_BED_GAINS)),
     "fuzzy_pi": (lambda: fuzzy_pi_space(SEED004_HOTEND), lambda: fuzzy_pi_space(SEED004_BED)),
     "fuzzy_pi_float": (lambda: fuzzy_pi_space(SEED004_HOTEND, integer=False),
                        lambda: fuzzy_pi_space(SEED004_BED, integer=False)),
@@ -98,7 +113,12 @@ PARAM_SPACES: dict[str, tuple[Callable[[], ParamSpace], Callable[[], ParamSpace]
     "seed000_fuzzy": (fuzzy_space, fuzzy_space),
     "seed000_gauss": (gaussian_space, gaussian_space),
     "seed000_adaptive": (adaptive_space, adaptive_space),
+    "mpc": (mpc_space, lambda: _hotend_only("mpc")),
 }
+
+
+def _hotend_only(name: str) -> ParamSpace:
+    raise ValueError(f"{name} is a hotend controller (Marlin's MPCTEMP): the bed runs PID or bang-bang")
 
 
 def param_space(name: str, heater: str = "hotend") -> ParamSpace:

@@ -197,6 +197,13 @@ def factor(c: float, config: FuzzyPidConfig) -> float:
     return c if config.reading == LITERAL else 1.0 + config.span * (c - OUT_ZO) / OUT_ZO
 
 
+def check_non_negative(gains: PidGains) -> None:
+    """The fuzzy-PID's widths are derived for base gains >= 0 (the paper's); ValueError otherwise."""
+    negative = [name for name, value in vars(gains).items() if value < 0]
+    if negative:
+        raise ValueError(f"the fuzzy-PID takes base gains >= 0, not {', '.join(negative)} < 0")
+
+
 class FuzzyPidFloat:
     """The fuzzy-PID in float64: the paper's loop (``step``), and the board interface (``update``)."""
 
@@ -218,6 +225,7 @@ class FuzzyPidFloat:
 
     def set_gains(self, gains: PidGains) -> None:
         """Base gains (M301): kp, ki per second, kd in seconds; resets the loop."""
+        check_non_negative(gains)
         self.gains = gains
         kp, ki, kd = gains.kp, gains.ki, gains.kd
         self.ke, self.kec = self.config.ke, self.config.kec
@@ -331,6 +339,7 @@ class FuzzyPid:
 
     def set_gains(self, gains: PidGains) -> None:
         """M301: the base gains, rounded as PidFixed rounds them; resets the loop."""
+        check_non_negative(gains)
         self.gains = gains
         self.k = FixedConstants.of(self.config, gains)
         self.reset()
@@ -404,7 +413,7 @@ def fuzzy_pid_space(default: PidGains = HOTEND_GAINS, integer: bool = True) -> P
         gains = PidGains(kp, ki, kd)
         return FuzzyPid(gains) if integer else FuzzyPidFloat.board(gains)
 
-    return ParamSpace("fuzzy_pid" if integer else "fuzzy_pid_float", params, factory)
+    return ParamSpace("fuzzy_pid" if integer else "fuzzy_pid_float", params, factory, autotune="M303")
 
 
 # RAM and flash on the AVR, as C structs lay them out (uint8 1, int16 2, int32 4).

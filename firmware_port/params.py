@@ -11,8 +11,9 @@ builds a fresh controller from x. The firmware builds declare theirs (firmware_p
 
 ``held`` maps x to the nearest values the firmware can hold (its fixed-point quanta): the
 parameters a tuner prints are those. ``pid=True`` says the parameters are (Kp, Ki, Kd) in Marlin's M301 units and the factory's
-controller is a ``Tunable`` PID: tuning rules, the firmware's autotune, the idealised and Klipper
-loops apply to it. ``log=True`` asks optimisers to search that parameter on a log scale (ranges
+controller is a ``Tunable`` PID: tuning rules, the idealised and Klipper loops apply to it.
+``autotune`` names the firmware's own autotune of the family (M303 for a PID, M306 T for MPC): a
+tuner runs it on the same twin as the reference to beat. ``log=True`` asks optimisers to search that parameter on a log scale (ranges
 that span decades); its bounds must then be positive.
 """
 
@@ -57,6 +58,7 @@ class ParamSpace:
     factory: Callable[..., Controller]
     pid: bool = False
     held: Callable[..., tuple[float, ...]] | None = None  # x -> the nearest values the firmware can hold
+    autotune: str | None = None  # the firmware's own autotune of this family ("M303", "M306 T"), if any
 
     def __post_init__(self) -> None:
         names = [p.name for p in self.params]

@@ -237,6 +237,11 @@ class TempTable:
         frac = f32(raw - raws[lo]) * (t1 - t0) / f32(raws[hi] - raws[lo])
         return t0 + frac
 
+    def count_c(self, temp_c: float, divider: Divider = Divider()) -> float:
+        """One ADC count near ``temp_c``, in degC: what a noiseless reading (16 equal samples) steps by."""
+        raw = OVERSAMPLENR * int(divider.adc_exact(temp_c))
+        return (self.lookup_q5(raw) - self.lookup_q5(raw + OVERSAMPLENR)) / TEMP_ONE
+
     def raw_threshold(self, temp_c: int, *, above: bool) -> int:
         """Marlin's MINTEMP/MAXTEMP raw threshold, found at init by stepping raw by OVERSAMPLENR.
 

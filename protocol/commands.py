@@ -9,8 +9,6 @@ M105.cpp, M303.cpp, Marlin/src/gcode/queue.cpp, Marlin/src/module/temperature.cp
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from firmware_port.fixed import wrap_s32
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
 from firmware_port.marlin.constants import (
@@ -19,13 +17,12 @@ from firmware_port.marlin.constants import (
     TEMP_BED_HYSTERESIS_C,
     TEMP_HYSTERESIS_C,
 )
-from firmware_port.marlin.pid import PidGains
+from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX, PidGains
 from firmware_port.marlin.serial import format_float
+from protocol.context import PrinterContext
 from protocol.gcode import Command, float_to_u32, unknown_command_text
+from protocol.mpc_commands import MPC_HANDLERS, load_constants, settings_report, stored_constants
 from protocol.settings import EEPROM_VERSION, Settings, crc16
-
-if TYPE_CHECKING:  # the printer imports these handlers
-    from protocol.printer import VirtualPrinter
 
 NO_OK = object()
 
@@ -53,9 +50,10 @@ DEFAULT_KEEPALIVE_S = 2  # DEFAULT_KEEPALIVE_INTERVAL
 DWELL_MAX_MS = 1 << 31  # dwell(): PENDING() compares as int32
 STR_INVALID_EXTRUDER = "Invalid extruder"
 STR_PID_BAD_HEATER_ID = "PID Autotune failed! Bad heater id"
+STR_ERR_EEPROM_WRITE = "Error writing to EEPROM!"  # core/language.h
 
 
-def banner(p: VirtualPrinter, power_up: bool) -> str:
+def banner(p: PrinterContext, power_up: bool) -> str:
     """setup(): start, the reset reason, the version, memory, then the settings (EEPROM first_load)."""
     lines = ["start", "PowerUp" if power_up else " External Reset", f"Marlin {SHORT_BUILD_VERSION}",
              "echo: Last Updated: 2026-11-21 | Author: (heater-twin)",
@@ -64,7 +62,7 @@ def banner(p: VirtualPrinter, power_up: bool) -> str:
 
 
 # -- temperatures ---------------------------------------------------------------------------
-def _target_extruder_ok(p: VirtualPrinter, cmd: Command) -> bool:
+def _target_extruder_ok(p: PrinterContext, cmd: Command) -> bool:
     """get_target_extruder_from_command(): only T0 exists."""
     if cmd.has("T") and cmd.value_int("T", 0) != 0:
         p.write(f"echo:M{cmd.code} {STR_INVALID_EXTRUDER} {cmd.value_int('T', 0)}\n")
@@ -72,13 +70,13 @@ def _target_extruder_ok(p: VirtualPrinter, cmd: Command) -> bool:
     return True
 
 
-def m104(p: VirtualPrinter, cmd: Command):
+def m104(p: PrinterContext, cmd: Command):
     """Set the hotend target (S or R), clamped by the board to maxtemp - 15."""
     if _target_extruder_ok(p, cmd) and (cmd.has("S") or cmd.has("R")):
         p.twin.board.set_target(HOTEND_CHANNEL, cmd.value_celsius("S" if cmd.has("S") else "R", 0))
 
 
-def m109(p: VirtualPrinter, cmd: Command):
+def m109(p: PrinterContext, cmd: Command):
     """Set the hotend target and wait: S waits only when heating, R either way."""
     if not _target_extruder_ok(p, cmd) or not (cmd.has("S") or cmd.has("R")):
         return None
@@ -86,15 +84,23 @@ def m109(p: VirtualPrinter, cmd: Command):
     return wait_for_heater(p, HOTEND_CHANNEL, no_wait_for_cooling=cmd.has("S"))
 
 
-def m140(p: VirtualPrinter, cmd: Command):
+def _has_bed(p: PrinterContext, cmd: Command) -> bool:
+    """M140/M190 exist only with a heated bed (HAS_HEATED_BED); without one Marlin does not know them."""
+    if p.twin.board.bed is None:
+        p.write(unknown_command_text(cmd))
+        return False
+    return True
+
+
+def m140(p: PrinterContext, cmd: Command):
     """Set the bed target."""
-    if cmd.has("S"):
+    if _has_bed(p, cmd) and cmd.has("S"):
         p.twin.board.set_target(BED_CHANNEL, cmd.value_celsius("S", 0))
 
 
-def m190(p: VirtualPrinter, cmd: Command):
+def m190(p: PrinterContext, cmd: Command):
     """Set the bed target and wait (S: only when heating)."""
-    if not (cmd.has("S") or cmd.has("R")):
+    if not _has_bed(p, cmd) or not (cmd.has("S") or cmd.has("R")):
         return None
     p.twin.board.set_target(BED_CHANNEL, cmd.value_celsius("S" if cmd.has("S") else "R", 0))
     return wait_for_heater(p, BED_CHANNEL, no_wait_for_cooling=cmd.has("S"))
@@ -111,10 +117,10 @@ def _residency_start(start_ms: int, diff_c: float, now_ms: int, first_loop: bool
     return now_ms if diff_c > WAIT_HYSTERESIS_C[channel] else start_ms
 
 
-def wait_for_heater(p: VirtualPrinter, channel: int, no_wait_for_cooling: bool):
+def wait_for_heater(p: PrinterContext, channel: int, no_wait_for_cooling: bool):
     """wait_for_hotend / wait_for_bed: 1 s reports with W:, residency 10 s within 1 C, M108 breaks."""
     board = p.twin.board
-    target_c = None
+    target_c = -1.0  # float target_temp = -1.0: a target of -1 is never seen as a change
     wants_to_cool = False
     residency_start_ms = next_temp_ms = next_cool_check_ms = 0
     old_temp_c = 9999.0
@@ -154,7 +160,7 @@ def wait_for_heater(p: VirtualPrinter, channel: int, no_wait_for_cooling: bool):
     return None
 
 
-def m105(p: VirtualPrinter, cmd: Command):
+def m105(p: PrinterContext, cmd: Command):
     """Report temperatures: one line that is its own ok."""
     if _target_extruder_ok(p, cmd):
         p.write(f"ok{p.twin.board.heater_states()}\n")
@@ -162,7 +168,7 @@ def m105(p: VirtualPrinter, cmd: Command):
     return None
 
 
-def m155(p: VirtualPrinter, cmd: Command):
+def m155(p: PrinterContext, cmd: Command):
     """Auto-report temperatures every S seconds (parser.value_byte(), S0 off, at most 60)."""
     if cmd.has_value("S"):
         p.autoreport_s = min(cmd.value_byte("S"), AUTOREPORT_MAX_S)
@@ -170,25 +176,35 @@ def m155(p: VirtualPrinter, cmd: Command):
         p.autoreport_wall_s = p.wall_s() + p.autoreport_s
 
 
-def m106(p: VirtualPrinter, cmd: Command):
+def m106(p: PrinterContext, cmd: Command):
     """Part fan speed S0..255 (255 without S); P0 is the only fan."""
     if cmd.value_int("P", 0) == 0:
         p.twin.board.fan_speed = min(max(cmd.value_int("S", 255), 0), 255)
 
 
-def m107(p: VirtualPrinter, cmd: Command):
+def m107(p: PrinterContext, cmd: Command):
     """Part fan off."""
     if cmd.value_int("P", 0) == 0:
         p.twin.board.fan_speed = 0
 
 
 # -- PID --------------------------------------------------------------------------------------
+def _pid_text(gains: PidGains) -> str:
+    return f"P{format_float(gains.kp)} I{format_float(gains.ki)} D{format_float(gains.kd)}"
+
+
 def _pid_line(code: str, gains: PidGains) -> str:
-    return f"echo:  {code} P{format_float(gains.kp)} I{format_float(gains.ki)} D{format_float(gains.kd)}\n"
+    return f"echo:  {code} {_pid_text(gains)}\n"
 
 
-def _set_pid(p: VirtualPrinter, channel: int, cmd: Command, code: str):
-    """M301 / M304: set P, I, D (user units) or report them; Unknown without PID on that heater."""
+def _set_pid(p: PrinterContext, channel: int, cmd: Command, code: str):
+    """M301 / M304: set P, I, D (user units) or report them; Unknown without PID on that heater.
+
+    Marlin stores whatever float it is sent, negative gains too (gcode/config/M301.cpp), and so does
+    the twin, within the fixed-point port's range (pid.py KP_MAX...): beyond it the gain is clamped
+    and an echo line says so. A controller that refuses a gain (the fuzzy-PID's base gains must be
+    >= 0) keeps its gains, and the echo line says why.
+    """
     board = p.twin.board
     if not board.has_gains(channel):
         p.write(unknown_command_text(cmd))
@@ -197,12 +213,20 @@ def _set_pid(p: VirtualPrinter, channel: int, cmd: Command, code: str):
     if not any(cmd.has(k) for k in "PID"):
         p.write(_pid_line(code, g))
         return None
-    board.set_gains(channel, PidGains.clamped(cmd.value_float("P", g.kp), cmd.value_float("I", g.ki),
-                                              cmd.value_float("D", g.kd)))
+    asked = (cmd.value_float("P", g.kp), cmd.value_float("I", g.ki), cmd.value_float("D", g.kd))
+    gains = PidGains.clamped(*asked)
+    try:
+        board.set_gains(channel, gains)
+    except ValueError as exc:
+        p.write(f"echo:{code} refused: {exc}\n")
+        return None
+    if (gains.kp, gains.ki, gains.kd) != asked:
+        p.write(f"echo:{code} gains clamped to the twin's range (|P| <= {KP_MAX:g}, |I| <= {KI_MAX:g}, "
+                f"|D| <= {KD_MAX:g}): {_pid_text(gains)}\n")
     return None
 
 
-def m301(p: VirtualPrinter, cmd: Command):
+def m301(p: PrinterContext, cmd: Command):
     """Hotend PID gains."""
     if cmd.value_int("E", 0) != 0:
         p.write(f"Error:{STR_INVALID_EXTRUDER}\n")
@@ -210,12 +234,12 @@ def m301(p: VirtualPrinter, cmd: Command):
     return _set_pid(p, HOTEND_CHANNEL, cmd, "M301")
 
 
-def m304(p: VirtualPrinter, cmd: Command):
+def m304(p: PrinterContext, cmd: Command):
     """Bed PID gains."""
     return _set_pid(p, BED_CHANNEL, cmd, "M304")
 
 
-def m303(p: VirtualPrinter, cmd: Command):
+def m303(p: PrinterContext, cmd: Command):
     """PID autotune: E0 hotend, E-1 bed; S target, C cycles (5), U1 applies the result."""
     board = p.twin.board
     heater_id = cmd.value_int("E", 0)
@@ -230,7 +254,7 @@ def m303(p: VirtualPrinter, cmd: Command):
     return _autotune_wait(p)
 
 
-def _autotune_wait(p: VirtualPrinter):
+def _autotune_wait(p: PrinterContext):
     """M303's loop is its own: no idle(), so no busy lines or auto-reports meanwhile."""
     board = p.twin.board
     p.idle_calls = False
@@ -241,69 +265,83 @@ def _autotune_wait(p: VirtualPrinter):
 
 
 # -- settings -----------------------------------------------------------------------------------
-def _current_settings(p: VirtualPrinter) -> Settings:
-    board = p.twin.board
-    pids = [board.gains(c) if board.has_gains(c) else None for c in range(len(board.heaters))]
+def _hardcoded_settings(p: PrinterContext) -> Settings:
+    """Configuration.h's settings (M502, or no valid EEPROM): the gains the build came with."""
+    gains = p.twin.board.default_gains + [None]
     defaults = Settings()
-    return Settings(pids[0] or defaults.hotend, (pids[1] if len(pids) > 1 else None) or defaults.bed)
+    return Settings(gains[HOTEND_CHANNEL] or defaults.hotend, gains[BED_CHANNEL] or defaults.bed)
 
 
-def _apply_settings(p: VirtualPrinter, settings: Settings) -> None:
+def _current_settings(p: PrinterContext) -> Settings:
+    board = p.twin.board
+    pids = [board.gains(c) if board.has_gains(c) else None for c in range(len(board.heaters))] + [None]
+    defaults = _hardcoded_settings(p)
+    return Settings(pids[HOTEND_CHANNEL] or defaults.hotend, pids[BED_CHANNEL] or defaults.bed,
+                    stored_constants(board))
+
+
+def _apply_settings(p: PrinterContext, settings: Settings) -> None:
     board = p.twin.board
     for channel, gains in ((HOTEND_CHANNEL, settings.hotend), (BED_CHANNEL, settings.bed)):
         if board.can_autotune(channel):
             board.set_gains(channel, gains)
+    load_constants(board, settings.hotend_mpc)
 
 
-def _load_settings(p: VirtualPrinter) -> str:
+def _load_settings(p: PrinterContext) -> str:
     """settings.load(): the stored image if it is valid, else the defaults."""
     data = p.eeprom.read()
     if data is None:
-        _apply_settings(p, Settings())
+        _apply_settings(p, _hardcoded_settings(p))
         return "echo:Hardcoded Default Settings Loaded\n"
     try:
         _apply_settings(p, Settings.from_bytes(data))
     except ValueError:
-        _apply_settings(p, Settings())
+        _apply_settings(p, _hardcoded_settings(p))
         return f"echo:EEPROM version mismatch (EEPROM=? Marlin={EEPROM_VERSION})\necho:Hardcoded Default Settings Loaded\n"
     return f"echo:{EEPROM_VERSION} stored settings retrieved ({len(data)} bytes; crc {crc16(data)})\n"
 
 
-def _settings_report(p: VirtualPrinter) -> str:
+def _settings_report(p: PrinterContext) -> str:
     """M503: the PID sections of Marlin's settings report."""
     board = p.twin.board
     text = ""
     for channel, code, title in ((HOTEND_CHANNEL, "M301", "Hotend PID"), (BED_CHANNEL, "M304", "Bed PID")):
         if board.can_autotune(channel):
             text += f"echo:; {title}:\n" + _pid_line(code, board.gains(channel))
-    return text
+    return text + settings_report(board)
 
 
-def m500(p: VirtualPrinter, cmd: Command):
+def m500(p: PrinterContext, cmd: Command):
+    """settings.save(). A failed write prints STR_ERR_EEPROM_WRITE (the HAL's write_data), and the
+    report follows it as on the board: Marlin 2.1's EEPROM_WRITE ignores write_data's result."""
     data = _current_settings(p).to_bytes()
-    p.eeprom.write(data)
+    try:
+        p.eeprom.write(data)
+    except OSError:
+        p.write(f"echo:{STR_ERR_EEPROM_WRITE}\n")
     p.write(f"echo:Settings Stored ({len(data)} bytes; crc {crc16(data)})\n")
 
 
-def m501(p: VirtualPrinter, cmd: Command):
+def m501(p: PrinterContext, cmd: Command):
     p.write(_load_settings(p))
 
 
-def m502(p: VirtualPrinter, cmd: Command):
-    _apply_settings(p, Settings())
+def m502(p: PrinterContext, cmd: Command):
+    _apply_settings(p, _hardcoded_settings(p))
     p.write("echo:Hardcoded Default Settings Loaded\n")
 
 
-def m503(p: VirtualPrinter, cmd: Command):
+def m503(p: PrinterContext, cmd: Command):
     p.write(_settings_report(p))
 
 
 # -- host protocol -------------------------------------------------------------------------------
-def m108(p: VirtualPrinter, cmd: Command):
+def m108(p: PrinterContext, cmd: Command):
     """Break a heat wait: already acted on when the line arrived."""
 
 
-def m113(p: VirtualPrinter, cmd: Command):
+def m113(p: PrinterContext, cmd: Command):
     """Host keepalive interval (S0 off, at most 60); report it without S."""
     if cmd.has("S"):
         p.keepalive_s = min(cmd.value_byte("S", DEFAULT_KEEPALIVE_S), 60)  # parser.byteval('S', ...)
@@ -311,20 +349,20 @@ def m113(p: VirtualPrinter, cmd: Command):
         p.write(f"echo:M113 S{p.keepalive_s}\n")
 
 
-def m115(p: VirtualPrinter, cmd: Command):
+def m115(p: PrinterContext, cmd: Command):
     """Firmware name and capabilities."""
     p.write(f"FIRMWARE_NAME:{FIRMWARE_NAME} SOURCE_CODE_URL:github.com/MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 "
             f"MACHINE_TYPE:heater-twin EXTRUDER_COUNT:1 UUID:{UUID}\n")
     p.write("".join(f"Cap:{name}:{value}\n" for name, value in CAPABILITIES))
 
 
-def m110(p: VirtualPrinter, cmd: Command):
+def m110(p: PrinterContext, cmd: Command):
     """Set the line number (the line layer already took an N'd M110)."""
     if cmd.has("N"):
         p.reader.last_n = cmd.value_long("N", 0)
 
 
-def m999(p: VirtualPrinter, cmd: Command):
+def m999(p: PrinterContext, cmd: Command):
     """Restart after a stop(): clear it and ask for the next line (a kill needs a reset)."""
     p.reader.stopped = False
     p.write(f"Resend: {wrap_s32(p.reader.last_n + 1)}\n")
@@ -335,7 +373,7 @@ def _axes(cmd: Command) -> dict[str, float]:
     return {k: cmd.value_float(k, 0.0) for k in "XYZEF" if cmd.has(k)}
 
 
-def g0_g1(p: VirtualPrinter, cmd: Command):
+def g0_g1(p: PrinterContext, cmd: Command):
     """A move: queued in the planner, waiting for a free block first (that is when time runs)."""
     if not p.planner.full:
         p.write(p.planner.move(_axes(cmd)))
@@ -343,13 +381,18 @@ def g0_g1(p: VirtualPrinter, cmd: Command):
     return _move_when_free(p, _axes(cmd))
 
 
-def _move_when_free(p: VirtualPrinter, axes: dict[str, float]):
+def _next_block_end(p: PrinterContext) -> int:
+    """The tick the head block ends: a waiting command sleeps until then, not a tick at a time."""
+    return p.now_tick + (p.planner.ticks_to_next_change() or 1)
+
+
+def _move_when_free(p: PrinterContext, axes: dict[str, float]):
     while p.planner.full:
-        yield p.now_tick + 1
+        yield _next_block_end(p)
     p.write(p.planner.move(axes))
 
 
-def g4(p: VirtualPrinter, cmd: Command):
+def g4(p: PrinterContext, cmd: Command):
     """Dwell P milliseconds (parser.value_millis(), a uint32) or S seconds (value_millis_from_seconds(),
     the float times 1000 cast to uint32; S wins when both are given), after the moves."""
     ms = 0
@@ -366,36 +409,37 @@ def dwell_span_ms(ms: int) -> int:
     return ms if ms <= DWELL_MAX_MS else 0
 
 
-def _dwell(p: VirtualPrinter, ms: int):
+def _dwell(p: PrinterContext, ms: int):
     yield from _synchronize(p)
     end = p.after_ms(dwell_span_ms(ms))
     while p.now_tick < end:
         yield end
 
 
-def _synchronize(p: VirtualPrinter):
+def _synchronize(p: PrinterContext):
     """planner.synchronize(): idle until every block has run."""
     while p.planner.blocks:
-        yield p.now_tick + 1
+        yield _next_block_end(p)
 
 
-def m410(p: VirtualPrinter, cmd: Command):
+def m410(p: PrinterContext, cmd: Command):
     """Quickstop: the moves are dropped (already done when the line arrived)."""
     p.planner.clear()
 
 
-def m400(p: VirtualPrinter, cmd: Command):
+def m400(p: PrinterContext, cmd: Command):
     """Wait for the moves to finish."""
     return _synchronize(p) if p.planner.blocks else None
 
 
-def g92(p: VirtualPrinter, cmd: Command):
+def g92(p: PrinterContext, cmd: Command):
     p.planner.set_position(_axes(cmd))
 
 
-def g28(p: VirtualPrinter, cmd: Command):
-    """Home: no axes to move, the positions become 0."""
-    p.planner.set_position({axis: 0.0 for axis in "XYZ"})
+def g28(p: PrinterContext, cmd: Command):
+    """Home the named axes (all without X, Y or Z): nothing to move, their positions become 0 and
+    the software endstops apply to them from now on."""
+    p.planner.home("".join(axis for axis in "XYZ" if cmd.has(axis)))
 
 
 def _mode(attr: str, value: bool):
@@ -405,13 +449,15 @@ def _mode(attr: str, value: bool):
     return handler
 
 
-def m114(p: VirtualPrinter, cmd: Command):
-    pos = p.planner.position
+def m114(p: PrinterContext, cmd: Command):
+    """report_current_position_projected(): the position of the last move queued, then the
+    planner's step counts of it (stepper.report_a_position(planner.position), int32 steps)."""
+    pos, steps = p.planner.position, p.planner.steps
     p.write(f"X:{format_float(pos['X'])} Y:{format_float(pos['Y'])} Z:{format_float(pos['Z'])} "
-            f"E:{format_float(pos['E'])} Count X:0 Y:0 Z:0\n")
+            f"E:{format_float(pos['E'])} Count X:{steps['X']} Y:{steps['Y']} Z:{steps['Z']}\n")
 
 
-def accepted(p: VirtualPrinter, cmd: Command):
+def accepted(p: PrinterContext, cmd: Command):
     """Known to Marlin, nothing to do without steppers, a display or a card."""
 
 
@@ -425,5 +471,6 @@ HANDLERS = {
     ("G", 90): _mode("absolute_xyz", True), ("G", 91): _mode("absolute_xyz", False),
     ("M", 82): _mode("absolute_e", True), ("M", 83): _mode("absolute_e", False),
 }
+HANDLERS.update(MPC_HANDLERS)  # M306 on MPC builds: protocol/mpc_commands.py
 HANDLERS.update({("G", code): accepted for code in (20, 21, 29)})
 HANDLERS.update({("M", code): accepted for code in (17, 18, 73, 84, 92, 111, 117, 201, 203, 204, 205, 220, 221, 302)})

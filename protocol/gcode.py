@@ -128,7 +128,10 @@ class Command:
     def value_float(self, letter: str, default: float = 0.0) -> float:
         """parser.floatval(): the value's prefix as float32, or ``default`` without a value."""
         raw = self.params.get(letter)
-        return float32(float(_FLOAT_PREFIX.match(raw)[0])) if raw else default
+        if not raw:
+            return default
+        prefix = _FLOAT_PREFIX.match(raw)  # a stored value is a valid float's text, so it has one
+        return float32(float(prefix[0])) if prefix else 0.0
 
     def value_bool(self, letter: str, default: bool = False) -> bool:
         """parser.boolval(): seen, and either no value or a value_byte() (strtol clamped to

@@ -13,6 +13,12 @@ and avr-libc's lround gives LONG_MIN for a value that is not finite or overflows
 comes from the step deltas, each axis keeps to its DEFAULT_MAX_FEEDRATE, a block never steps
 slower than MINIMAL_STEP_RATE, and an extrusion longer than EXTRUDE_MAXLENGTH is dropped
 (PREVENT_LENGTHY_EXTRUDE). So every block lasts a finite time: at most 2^32 steps at 120 steps/s.
+
+Software endstops (MIN/MAX_SOFTWARE_ENDSTOPS, on in the stock Configuration.h) clamp a move's
+destination on every axis that was homed (module/motion.cpp apply_motion_limits): X and Y to
+0..X_BED_SIZE/Y_BED_SIZE (200 mm), Z to Z_MIN_POS..Z_MAX_POS (0..200 mm). A number too large for
+a float (``G1 X1`` followed by 46 zeros) parses as +inf (strtof) and is clamped to the limit; on an
+axis never homed it is not, as on the board, and the move runs for the 2^32 steps it became.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from dataclasses import dataclass
 
 from firmware_port.fixed import INT32_MAX, INT32_MIN, wrap_s32
 from protocol.gcode import float32
+from twin.clock import TICK_S
 
 BLOCK_BUFFER_SIZE = 16  # Marlin Configuration_adv.h (AVR default)
 DEFAULT_FEEDRATE_MM_S = 25.0  # until the first F word (Marlin starts at 1500 mm/min)
@@ -31,6 +38,9 @@ STEPS_PER_MM = {"X": 80.0, "Y": 80.0, "Z": 400.0, "E": 500.0}  # DEFAULT_AXIS_ST
 MAX_FEEDRATE_MM_S = {"X": 300.0, "Y": 300.0, "Z": 5.0, "E": 25.0}  # DEFAULT_MAX_FEEDRATE
 MINIMAL_STEP_RATE = 120  # planner.h: the slowest a block steps, steps/s
 EXTRUDE_MAXLENGTH_MM = 200  # Configuration.h, PREVENT_LENGTHY_EXTRUDE
+HOMED_AXES = "XYZ"
+SOFT_MIN_MM = {"X": 0.0, "Y": 0.0, "Z": 0.0}  # Configuration.h X_MIN_POS, Y_MIN_POS, Z_MIN_POS
+SOFT_MAX_MM = {"X": 200.0, "Y": 200.0, "Z": 200.0}  # X_MAX_POS = X_BED_SIZE, Y_MAX_POS = Y_BED_SIZE, Z_MAX_POS
 STR_ERR_LONG_EXTRUDE_STOP = "echo: too long extrusion prevented\n"  # language.h, via SERIAL_ECHO_MSG
 
 
@@ -61,6 +71,8 @@ class Planner:
         self.feedrate_mm_s = DEFAULT_FEEDRATE_MM_S
         self.blocks: deque[Block] = deque()
         self.block_left_s = 0.0  # time left in the block at the head of the queue
+        self.homed: set[str] = set()  # axis_homed: axes G28 homed since the reset
+        self.soft_endstops = True  # soft_endstop._enabled
 
     @property
     def full(self) -> bool:
@@ -78,12 +90,13 @@ class Planner:
         """
         if "F" in params and params["F"] > 0:
             self.feedrate_mm_s = float32(params["F"] / 60.0)
-        delta_steps = {}
         for axis in AXES:
             if axis in params:
                 absolute = self.absolute_e if axis == "E" else self.absolute_xyz
-                target = params[axis] if absolute else float32(self.position[axis] + params[axis])
-                self.position[axis] = target
+                self.position[axis] = params[axis] if absolute else float32(self.position[axis] + params[axis])
+        self._apply_motion_limits()
+        delta_steps = {}
+        for axis in AXES:
             target_steps = lround32(self.position[axis] * STEPS_PER_MM[axis])
             delta_steps[axis] = wrap_s32(target_steps - self.steps[axis])
             self.steps[axis] = target_steps
@@ -109,6 +122,25 @@ class Planner:
         if len(self.blocks) == 1:
             self.block_left_s = duration_s
 
+    def _apply_motion_limits(self) -> None:
+        """apply_motion_limits(): each homed axis into its soft endstops, NOLESS then NOMORE
+        (``if (min > v) v = min``), so +-inf lands on a limit and NaN passes as on the board."""
+        if not self.soft_endstops:
+            return
+        for axis in self.homed:
+            value = self.position[axis]
+            if SOFT_MIN_MM[axis] > value:
+                value = SOFT_MIN_MM[axis]
+            if SOFT_MAX_MM[axis] < value:
+                value = SOFT_MAX_MM[axis]
+            self.position[axis] = value
+
+    def home(self, axes: str) -> None:
+        """G28: the given axes (all of X, Y, Z when none is given) are at 0 and count as homed."""
+        homing = [axis for axis in HOMED_AXES if axis in axes] or list(HOMED_AXES)
+        self.set_position({axis: 0.0 for axis in homing})
+        self.homed.update(homing)
+
     def set_position(self, params: dict[str, float]) -> None:
         """G92: the given axes take the given values (all zero when none is given)."""
         for axis in AXES:
@@ -116,9 +148,9 @@ class Planner:
                 self.position[axis] = params.get(axis, 0.0)
                 self.steps[axis] = lround32(self.position[axis] * STEPS_PER_MM[axis])
 
-    def time_to_next_change_s(self) -> float | None:
-        """Until the head block ends (the flow may change then), or None when idle."""
-        return self.block_left_s if self.blocks else None
+    def ticks_to_next_change(self) -> int | None:
+        """Clock ticks until the head block ends (the flow may change then; at least 1), or None when idle."""
+        return max(1, round(self.block_left_s / TICK_S)) if self.blocks else None
 
     def advance(self, seconds: float) -> None:
         """Let ``seconds`` of motion pass (the printer never crosses a block boundary within)."""

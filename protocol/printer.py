@@ -13,9 +13,13 @@ most once per interval of virtual time *and* of wall time, so a clock running 50
 does not send a host 500 lines a second (without it, both follow virtual time only, which keeps
 host-driven runs deterministic).
 
-The receive side is an ATmega328's: a 128-byte RX ring (Marlin's RX_BUFFER_SIZE) that the main
-loop empties only while the command queue has room; bytes that arrive to a full ring are lost,
-as MarlinSerial's store_rxd_char() drops them. A command that raises is a bug of the twin, not
+The receive side is an ATmega328's behind a 115200-baud wire (``protocol/link.py``): bytes arrive
+at the link's byte rate in virtual time, so an instant command (M110) runs before the line a host
+pipelined behind it has arrived, as on the board. They land in a 128-byte RX ring (Marlin's
+RX_BUFFER_SIZE) that the main loop empties only while the command queue has room; bytes that
+arrive to a full ring are lost, as MarlinSerial's store_rxd_char() drops them. A host that writes
+more than its serial buffer (WIRE_BUFFER_BYTES) ahead of the wire waits: ``receive()`` runs the
+clock until the wire has taken the excess, as a real writer's write() blocks. A command that raises is a bug of the twin, not
 of the host: it is logged, answered with ``Error:`` and ``ok``, and the printer keeps serving.
 """
 
@@ -29,6 +33,7 @@ from firmware_port.marlin.constants import ms_to_ticks, ticks_to_ms
 from protocol.commands import DEFAULT_KEEPALIVE_S, HANDLERS, NO_OK, banner
 from protocol.gcode import Command, parse, unknown_command_text
 from protocol.lines import Line, LineReader
+from protocol.link import SerialLink, first_eol
 from protocol.planner import Planner
 from protocol.settings import Eeprom
 from twin.engine import Twin
@@ -37,6 +42,7 @@ from twin.linear import TICK_S
 BUFSIZE = 4  # Marlin's command ring buffer
 RX_BUFFER_SIZE = 128  # Marlin Configuration_adv.h (AVR); the ring keeps one slot empty, so 127 bytes
 RX_CAPACITY = RX_BUFFER_SIZE - 1
+WIRE_BUFFER_BYTES = 4096  # what a host's serial driver holds before its write() blocks (Linux N_TTY_BUF_SIZE)
 TICKS_PER_S = 1.0 / TICK_S
 BOOT_TICKS = round(1.0 * TICKS_PER_S)  # from reset to the host's first command: readings are in
 
@@ -57,6 +63,10 @@ class VirtualPrinter:
         self._boots = 0
         self.wall_clock: Callable[[], float] | None = None  # set by a transport paced to the wall
         self.rx_dropped = 0  # bytes lost to a full RX ring since the printer was made
+        self.link = SerialLink()
+        # Set by a transport whose host leaves Marlin's output unread: Marlin's main loop is then
+        # stuck writing to a full TX buffer, reads no line, and only the receive interrupt runs.
+        self.tx_blocked = False
         self.internal_errors = 0  # commands that raised (a bug of the twin), answered with Error:
         self.reset()
 
@@ -65,6 +75,7 @@ class VirtualPrinter:
         """Reset the board (DTR toggle, new connection): the banner, settings from the EEPROM."""
         self.twin.reset_board()
         self.reader.reset()
+        self.link.clear()
         self._rx = bytearray()
         self.queue: deque[Line] = deque()
         self.current: Task | None = None
@@ -84,22 +95,43 @@ class VirtualPrinter:
         self.twin.run_ticks(BOOT_TICKS)  # setup() finishes; the first readings come in
         self.twin.origin_tick = self.twin.tick  # time_s counts from here
 
-    def receive(self, data: bytes, *, loop_running: bool = True) -> None:
-        """Bytes from the host into the RX ring; lines go to the queue as it has room.
-
-        The ring takes what fits; the main loop (``loop_running``) empties it line by line while
-        the queue has room, and what arrives to a full ring is dropped (``rx_dropped``). A
-        transport whose host does not read passes ``loop_running=False``: Marlin is then stuck
-        writing to a full TX buffer and only the receive interrupt runs.
-        """
+    def receive(self, data: bytes) -> None:
+        """The host writes ``data``: onto the wire, whose first line on an idle link arrives at
+        once and the rest at the byte rate as the clock runs (see the module's docstring)."""
         if self.halted:
             return
-        view = memoryview(data)
+        self.link.send(data, self.twin.tick)
+        self._take_arrivals()
+        if self.link.in_flight > WIRE_BUFFER_BYTES:  # the host's write blocks until the wire drains
+            self._run(max(self.twin.tick, self.link.drained_tick(WIRE_BUFFER_BYTES)))
+
+    @property
+    def receiving(self) -> bool:
+        """Bytes are on the wire, still arriving (the clock must run for them)."""
+        return self.link.in_flight > 0 and not self.halted
+
+    def _take_arrivals(self) -> None:
+        """The bytes that have arrived by now, a line at a time into the ring; between two lines
+        the main loop (unless stuck on a full TX buffer) reads and runs what it can."""
+        data = self.link.take(self.twin.tick)
+        start = 0
+        while start < len(data):
+            if self.halted or (len(self._rx) >= RX_CAPACITY and not self._reads_lines):
+                self.rx_dropped += len(data) - start  # a full ring nobody reads: all of it is lost
+                return
+            end = first_eol(data, start) + 1 or len(data)
+            self._to_ring(data[start:end])
+            start = end
+
+    def _to_ring(self, piece: bytes) -> None:
+        """The ring takes what fits; the main loop empties it line by line while the queue has
+        room; what arrives to a full ring is dropped (``rx_dropped``)."""
+        view = memoryview(piece)
         while view:
             taken = min(len(view), RX_CAPACITY - len(self._rx))
             self._rx += view[:taken]
             view = view[taken:]
-            if not loop_running:
+            if self.tx_blocked:
                 break
             before = len(self._rx)
             self._read_lines()
@@ -147,8 +179,8 @@ class VirtualPrinter:
         self._run(self.twin.tick + round(max_seconds * TICKS_PER_S), stop_when=_idle_and_still)
 
     def run_while_busy(self, max_seconds: float) -> None:
-        """Run free while a command executes (up to ``max_seconds``); moves left over keep
-        running later, at the transport's idle speed."""
+        """Run free while a command executes or bytes are arriving (up to ``max_seconds``); moves
+        left over keep running later, at the transport's idle speed."""
         self._run(self.twin.tick + round(max_seconds * TICKS_PER_S), stop_when=_no_command)
 
     @property
@@ -179,7 +211,7 @@ class VirtualPrinter:
     def _read_lines(self) -> None:
         """Marlin reads serial only while the queue has room; the rest waits in the RX buffer."""
         while self._rx and len(self.queue) < BUFSIZE and not self.halted:
-            cut = _first_eol(self._rx)
+            cut = first_eol(self._rx)
             if cut < 0:  # a partial line: the reader keeps it until its end arrives
                 chunk = bytes(self._rx)
                 self._rx.clear()
@@ -230,7 +262,7 @@ class VirtualPrinter:
             self.write(f"Error:internal error in {text.strip()[:40]!r}: {type(exc).__name__}\nok\n")
 
     def _start(self, cmd: Command) -> None:
-        handler = HANDLERS.get((cmd.letter, cmd.code))
+        handler = HANDLERS.get((cmd.letter, cmd.code)) if cmd.code is not None else None
         if handler is None:
             self.write(unknown_command_text(cmd))
             self.write("ok\n")
@@ -248,6 +280,8 @@ class VirtualPrinter:
 
     def _resume(self) -> None:
         """Run the executing command until it waits; when it ends, send its ok."""
+        if self.current is None:
+            return
         try:
             self.wake_tick = next(self.current)
         except StopIteration as stop:
@@ -271,15 +305,18 @@ class VirtualPrinter:
         while twin.tick < end_tick:
             if self.halted:  # a dead board: the world goes on, nothing answers
                 self.current, self.queue = None, deque()
+                self.rx_dropped += self.link.in_flight
+                self.link.clear()
                 if stop_when is None:
                     twin.run_ticks(end_tick - twin.tick)
                 return
-            if self.current is None:
+            if self.current is None and not self.tx_blocked:
                 self._dispatch()
             if stop_when is not None and stop_when(self):
                 return
             target = min(end_tick, self._next_event_tick())
             self._advance(max(target, twin.tick) - twin.tick)
+            self._take_arrivals()
             self._idle()
             if self.current is not None and twin.tick >= self.wake_tick and not self.halted:
                 self._resume()
@@ -297,10 +334,18 @@ class VirtualPrinter:
                 target = min(target, self.keepalive_tick)
             if self.autoreport_s and self.autoreport_tick > tick:
                 target = min(target, self.autoreport_tick)
-        change_s = self.planner.time_to_next_change_s()
-        if change_s is not None:
-            target = min(target, tick + max(1, round(change_s * TICKS_PER_S)))
+        change_ticks = self.planner.ticks_to_next_change()
+        if change_ticks is not None:
+            target = min(target, tick + change_ticks)
+        arrival = self.link.next_line_tick()
+        if arrival is not None and self._reads_lines:  # else arrivals wait for the next event (a full
+            target = min(target, max(arrival, tick + 1))  # ring drops them then, as it would have)
         return target
+
+    @property
+    def _reads_lines(self) -> bool:
+        """The main loop would take an arriving line now: the ring and the queue have room."""
+        return not self.tx_blocked and len(self._rx) < RX_CAPACITY and len(self.queue) < BUFSIZE
 
     def _advance(self, n_ticks: int) -> None:
         if n_ticks <= 0:
@@ -330,14 +375,8 @@ _FAR = 1 << 62  # no event: a tick no run reaches
 
 
 def _idle_and_still(p: VirtualPrinter) -> bool:
-    return p.current is None and not p.planner.blocks
+    return p.current is None and not p.planner.blocks and not p.receiving
 
 
 def _no_command(p: VirtualPrinter) -> bool:
-    return p.current is None
-
-
-def _first_eol(data: bytearray) -> int:
-    """Index of the first CR or LF, or -1."""
-    positions = [p for p in (data.find(b"\n"), data.find(b"\r")) if p >= 0]
-    return min(positions) if positions else -1
+    return p.current is None and not p.receiving

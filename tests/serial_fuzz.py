@@ -32,7 +32,7 @@ MARLIN_REPLY = re.compile("|".join((
     r"echo:.*",
     r"Error:.*",
     r"Resend: -?\d+",
-    r"X:\S+ Y:\S+ Z:\S+ E:\S+ Count X:0 Y:0 Z:0",
+    r"X:\S+ Y:\S+ Z:\S+ E:\S+ Count X:-?\d+ Y:-?\d+ Z:-?\d+",
     r"FIRMWARE_NAME:Marlin .*",
     r"Cap:[A-Z0-9_]+:[01]",
     r"start|PowerUp| External Reset|Marlin 2\.1\.2\.1",

@@ -1,4 +1,5 @@
-"""F1-F23: known minima, the seed-002 checks of printed values, and the report command."""
+"""F1-F23: known minima, the seed-002 checks of printed values, and the report command
+(python -m tools.cli.benchfuncs)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.optimize import minimize
 
-from tools.seeds import seed002
-from tools.tuning import benchfuncs
+from tools.cli import benchfuncs
+from tools.seeds import seed002_benchmark as bench002
 from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME
 from tools.tuning.optim.benchmark import run_all
 
@@ -56,17 +57,17 @@ def test_no_point_of_the_box_beats_the_known_minimum(bench, seed) -> None:
 
 
 def test_printed_values_below_the_minimum_are_flagged_allowing_for_rounding() -> None:
-    assert seed002.printed_half_unit("3.02E-04") == pytest.approx(0.005e-4)
-    assert seed002.printed_half_unit("-3.8662") == pytest.approx(0.00005)
-    assert seed002.below_minimum(seed002.PRINTED_MEAN["F9"]["OCALO"], 0.0)  # -2.83E-12 for Rastrigin
-    assert seed002.below_minimum(seed002.PRINTED_MEAN["F19"]["IALO"], BY_NAME["F19"].minimum)  # -3.8662
-    assert seed002.below_minimum(seed002.PRINTED_BEST["F15"]["OCALO"], BY_NAME["F15"].minimum)  # 3.02E-04
-    assert not seed002.below_minimum("-1.0316", BY_NAME["F16"].minimum)  # -1.03163 rounds to it
-    assert not seed002.below_minimum("0.998", BY_NAME["F14"].minimum)
+    assert bench002.printed_half_unit("3.02E-04") == pytest.approx(0.005e-4)
+    assert bench002.printed_half_unit("-3.8662") == pytest.approx(0.00005)
+    assert bench002.below_minimum(bench002.PRINTED_MEAN["F9"]["OCALO"], 0.0)  # -2.83E-12 for Rastrigin
+    assert bench002.below_minimum(bench002.PRINTED_MEAN["F19"]["IALO"], BY_NAME["F19"].minimum)  # -3.8662
+    assert bench002.below_minimum(bench002.PRINTED_BEST["F15"]["OCALO"], BY_NAME["F15"].minimum)  # 3.02E-04
+    assert not bench002.below_minimum("-1.0316", BY_NAME["F16"].minimum)  # -1.03163 rounds to it
+    assert not bench002.below_minimum("0.998", BY_NAME["F14"].minimum)
 
 
 def test_printed_best_worse_than_worst_is_an_ordering_error() -> None:
-    errors = seed002.ordering_errors()
+    errors = bench002.ordering_errors()
     assert "F19 OCALO: best -3.8615, mean -3.8625, worst -3.8627" in errors
     assert not any(line.startswith("F1 ") for line in errors)
 
@@ -84,7 +85,7 @@ def test_quick_command_writes_the_report(tmp_path, capsys) -> None:
     out = tmp_path / "table.md"
     assert benchfuncs.main(["--quick", "--workers", "1", "--functions", "F1,F9,F16", "--out", str(out)]) == 0
     report = out.read_text()
-    assert re.search(r"OCALO beats ALO on \d of 3 \(mean over 2 runs\)", report)
+    assert re.search(r"OCALO beats ALO on \d of 3 \(mean over 2 runs, plain form\)", report)
     rows = [line for line in report.splitlines() if re.match(r"\| F(1|9|16) ", line)]
     assert len(rows) == 6  # one row per function in each table
     assert "F9 OCALO mean -2.83E-12 < known minimum 0" in report
@@ -94,7 +95,7 @@ def test_quick_command_writes_the_report(tmp_path, capsys) -> None:
 @pytest.mark.parametrize(
     ("flags", "message"),
     [(["--runs", "0"], "--runs"), (["--methods", "nm,sa"], "--methods"), (["--functions", "F24"], "--functions"),
-     (["--iterations", "2"], "--iterations"), (["--shift", "1.5"], "--shift")],
+     (["--iterations", "2"], "--iterations"), (["--forms", "plain,tilted"], "--forms")],
 )  # fmt: skip
 def test_bad_flags_get_a_one_line_error(flags, message, capsys) -> None:
     assert benchfuncs.main(flags) == 2
@@ -102,12 +103,11 @@ def test_bad_flags_get_a_one_line_error(flags, message, capsys) -> None:
     assert err.count("\n") == 1 and message in err
 
 
-def test_ocalo_is_pulled_to_the_origin_and_shift_exposes_it() -> None:
+def test_ocalo_is_pulled_to_the_origin_and_the_shifted_form_exposes_it() -> None:
     # Seed 002's cosine factors end at 0.01 R_A (ocalo.py): ants land near x = 0. On F1 with a
-    # tiny budget OCALO reaches ~1e-8 at the origin; with the minimiser moved to x_i = 30 it stays
-    # ~1e4 away, as far as ALO. Margins of 4+ orders of magnitude, not a tolerance on a float.
+    # tiny budget OCALO reaches ~1e-8 at the origin; with the minimiser moved (shifted form) it
+    # stays ~1e4 away, as far as ALO. Margins of 4+ orders of magnitude, not a tolerance on a float.
     settings = {"seed": 0, "population": 10, "iterations": 10, "workers": 1}
-    at_origin = run_all(["F1"], ["alo", "ocalo"], 2, **settings)
-    shifted = run_all(["F1"], ["alo", "ocalo"], 2, shift=0.3, **settings)
-    assert at_origin["F1", "ocalo"].max() < 1e-3 < 1e3 < at_origin["F1", "alo"].min()
-    assert shifted["F1", "ocalo"].min() > 1e3
+    results = run_all(["F1"], ["alo", "ocalo"], 2, forms=("plain", "shifted"), **settings)
+    assert results["F1", "ocalo", "plain"].max() < 1e-3 < 1e3 < results["F1", "alo", "plain"].min()
+    assert results["F1", "ocalo", "shifted"].min() > 1e3

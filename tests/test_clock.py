@@ -10,7 +10,8 @@ import serial
 
 import protocol  # noqa: F401  registers twin://
 from firmware_port.thermistor import TEMP_ONE
-from protocol.transport import MAX, Pacer, build_printer, parse_idle_speed
+from protocol.build import build_printer
+from protocol.pacing import MAX, Pacer, parse_idle_speed
 from test_transport import expect, twin_serial
 
 REPORT = re.compile(r"^ T:(\d+\.\d\d) /200\.00")

@@ -114,6 +114,7 @@ def test_twin_compare_missing_file_exits_2(tmp_path, capsys):
     assert "not usable" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_validation_doc_is_up_to_date(logs):
     """Verdicts, words and integers exactly, decimals within tools/validation/doc_compare.py's tolerance: the
     fits' last bits depend on the BLAS kernel (OPENBLAS_CORETYPE), never the verdicts."""

@@ -10,15 +10,10 @@ import numpy as np
 import pytest
 
 from tools.cli.fit import main
-from tools.ident.fit import (
-    RADIATING_BOUNDS_M2,
-    aic,
-    fit_losses,
-    fit_model,
-    fopdt_equivalent,
-    radiating_response,
-    zoh_response,
-)
+from tools.ident.fit import RADIATING_BOUNDS_M2, fit_losses, fit_model
+from tools.ident.fopdt import fopdt_equivalent
+from tools.ident.response import radiating_response, zoh_response
+from tools.ident.result import aic
 from tools.logs import hardware_logs_dir
 from tools.validation.plant_check import onion_fit_options
 from twin.plants import ONION_RADIATING_PARAMS, Lumped, Plant
@@ -136,7 +131,7 @@ def test_twin_fit_loss_auto_keeps_radiating_on_the_onionheater_pulse(capsys):
     assert radiating_aic < linear_aic and radiating_rmse < linear_rmse
     assert "fit: two_node, radiating loss on segment 0" in out
     assert re.search(r"^  radiation: effective area \S+ cm\^2 \+- \S+ cm\^2, at emissivity 1 ", out, re.M)
-    assert re.search(r"^  radiating_area_m2\s+\S+\s+\+- \S+$", out, re.M)
+    assert re.search(r"^  radiating_area_m2\s+\S+\s+\+- \S+\s+(poorly |not )?identified$", out, re.M)
     assert re.search(rf"RMSE {re.escape(f'{radiating_rmse:.2f}')} C, max \|residual\|", out)  # the kept fit's
     assert "M306 has no radiation term" in out and "M306 P" not in out  # Marlin's MPC is linear
     assert re.search(r"^    pid_Kp: [\d.]+$", out, re.M)

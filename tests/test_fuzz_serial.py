@@ -7,6 +7,10 @@ pty, the twin-serial process itself gets a smaller run. The host is a patient bu
 one: after each line it reads until the printer is idle or has run FREE_STEPS_PER_LINE virtual
 seconds, then resets the board (DTR) if a command still runs or the board was killed, as a host
 that times out reconnects.
+
+The twin:// run also bounds the process's memory: its resident size may grow by at most
+RSS_GROWTH_BOUND_MB over the session, whatever its length (the plant caches are bounded:
+twin/linear.py; docs/serial.md states the bound and the 10^5-line measurement).
 """
 
 from __future__ import annotations
@@ -24,6 +28,9 @@ from serial_fuzz import bad_replies, fuzz_lines
 from test_transport import twin_serial
 
 FUZZ_LINES = int(os.environ.get("FUZZ_LINES", "20000"))
+# Two plants x MAX_CACHED_MODELS (8) x MAX_CACHED_RUNS (48) maps of up to ~45 kB: 35 MB at most,
+# and slack for the allocator. Measured: +7 MB over 10^5 lines (docs/serial.md).
+RSS_GROWTH_BOUND_MB = 48
 PTY_FUZZ_LINES = 1500
 FREE_STEPS_PER_LINE = 3  # virtual seconds a line may run before the host gives up on it
 SEED = 20261123
@@ -48,11 +55,18 @@ def _exchange(port, line: bytes) -> tuple[str, bool]:
     return out.decode("latin-1"), reset
 
 
+def rss_mb() -> float:
+    """This process's resident set (Linux /proc), MB."""
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) for line in status if line.startswith("VmRSS:")) / 1024
+
+
 def test_fuzzed_lines_over_twin_url_get_marlin_replies_only(caplog):
     caplog.set_level(logging.ERROR)
     unanswered, shapes, resets = [], [], 0
     with serial.serial_for_url("twin://?speed=max&idle_speed=0", timeout=0) as port:
         port.reset_input_buffer()
+        start_mb = rss_mb()
         for line in fuzz_lines(SEED, FUZZ_LINES):
             printer = port.printer
             was_idle = not printer.executing and not printer.queue
@@ -67,10 +81,13 @@ def test_fuzzed_lines_over_twin_url_get_marlin_replies_only(caplog):
             if was_idle and expected and not reset and not answered:
                 unanswered.append((line, text))
         internal_errors = port.printer.internal_errors
+        growth_mb = rss_mb() - start_mb
+    print(f"resident memory: {start_mb:.1f} MB at the start, grew {growth_mb:.1f} MB over {FUZZ_LINES} lines")
     assert shapes == []
     assert unanswered == []
     assert internal_errors == 0 and caplog.records == []  # no command raised
     assert resets < FUZZ_LINES / 10  # the host mostly got its answers without a reset
+    assert growth_mb < RSS_GROWTH_BOUND_MB
 
 
 def test_fuzzed_lines_over_a_pty_never_stop_the_server(tmp_path):

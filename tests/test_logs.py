@@ -173,7 +173,7 @@ def test_m303_captures(name):
     assert sum(c.ku is not None for c in log.cycles) == n_ku
     assert len(log.status) == n_status
     assert log.final_gains == final_gains and log.rule == rule
-    assert {c.heater for c in log.cycles} <= {heater}
+    assert {c.heater for c in log.cycles} <= {heater, "?"}  # "?": printed before anything says which heater
     assert all(0 <= s.power <= log.power_max for s in log.status)
 
 

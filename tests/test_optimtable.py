@@ -7,7 +7,7 @@ import re
 import pytest
 
 from tools.tuning import optimtable
-from tools.tuning.benchfuncs import replace_section
+from tools.validation.doc_compare import replace_section
 from tools.tuning.table import REL_TOL, cost_verdict
 
 # The full table (900 evaluations per optimiser, four plants) takes minutes; the test runs the
@@ -31,11 +31,10 @@ def test_reduced_run_beats_m303_and_matches_the_best_rule(reduced) -> None:
 
 def test_optimiser_gains_reproduce_their_cost(reduced) -> None:
     """The stated cost is the cost of the stated gains: rescoring them gives it back (same machine)."""
-    from tools.cli.tune import make_problem, parse_args
     from tools.tuning.evaluate import score
     from tools.tuning.objectives import heater_cost
 
-    problem, _ = make_problem(parse_args(optimtable._argv(REDUCED_PLANT)))
+    problem = optimtable.problem_of(REDUCED_PLANT)
     for method, candidate in reduced.optimised.items():
         again = score(problem, heater_cost, {method: candidate.gains})[0]
         assert again.cost == pytest.approx(candidate.cost, rel=1e-9)
@@ -78,13 +77,13 @@ def test_bad_flags_one_line(argv, flag, capsys) -> None:
 
 def test_benchfuncs_doc_rewrites_only_its_section(tmp_path) -> None:
     """benchfuncs --doc (the F1-F23 section of docs/tuning.md) uses the same section writer."""
-    from tools.tuning import benchfuncs
+    from tools.cli import benchfuncs
 
     doc = tmp_path / "tuning.md"
     doc.write_text("keep\n<!-- benchfuncs: begin (cmd) -->\nold\n<!-- benchfuncs: end -->\ntail\n")
     argv = ["--quick", "--functions", "F1,F6", "--methods", "alo,ocalo", "--workers", "1", "--doc", str(doc)]
     assert benchfuncs.main(argv) == 0
     text = doc.read_text()
-    assert text.startswith("keep\n<!-- benchfuncs: begin (cmd) -->\nWritten by `python -m tools.tuning.benchfuncs --quick")
+    assert text.startswith("keep\n<!-- benchfuncs: begin (cmd) -->\nWritten by `python -m tools.cli.benchfuncs --quick")
     assert text.endswith("<!-- benchfuncs: end -->\ntail\n") and "\nold\n" not in text and "OCALO beats ALO on" in text
     assert benchfuncs.main(["--quick", "--doc", str(tmp_path / "missing.md")]) == 2

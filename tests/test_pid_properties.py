@@ -21,17 +21,23 @@ from firmware_port.marlin.pid import (
 from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.thermistor import B3950_TABLE, MAX_RAW_THERMISTOR_VALUE
 
-gains_st = st.builds(
+gains_st = st.builds(  # M301 stores negative gains too (Marlin's gcode/config/M301.cpp)
     PidGains,
-    kp=st.floats(0.0, KP_MAX),
-    ki=st.floats(0.0, KI_MAX),
-    kd=st.floats(0.0, KD_MAX),
+    kp=st.floats(-KP_MAX, KP_MAX),
+    ki=st.floats(-KI_MAX, KI_MAX),
+    kd=st.floats(-KD_MAX, KD_MAX),
 )
 realistic_gains_st = st.builds(
     PidGains,
     kp=st.floats(1.0, 200.0),
     ki=st.floats(0.01, 20.0),
     kd=st.floats(0.0, 2000.0),
+)
+signed_gains_st = st.builds(  # what a mistyped M301 P-5 gives: realistic magnitudes, any sign
+    PidGains,
+    kp=st.floats(-200.0, 200.0),
+    ki=st.floats(-20.0, 20.0),
+    kd=st.floats(-2000.0, 2000.0),
 )
 mode_st = st.sampled_from([PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND])
 raw_seq_st = st.lists(st.integers(0, MAX_RAW_THERMISTOR_VALUE), min_size=1, max_size=120)
@@ -59,12 +65,17 @@ def test_no_overflow_for_any_int16_temperature(gains, mode, temps_q5, target):
 
 @given(gains_st, mode_st, raw_seq_st, target_st)
 def test_integral_clamp_invariant_after_every_step(gains, mode, raws, target):
-    """0 <= i_sum <= i_max and Ki * i_sum <= PID_MAX (in the firmware's own integers)."""
+    """0 <= i_sum <= i_max and Ki * i_sum <= PID_MAX (in the firmware's own integers); with a
+    negative Ki the ceiling is negative and constrain() gives 0 or the ceiling, a term >= PID_MAX."""
     pid = PidFixed(gains, mode)
     for raw in raws:
         pid.update(B3950_TABLE.lookup_q5(raw), target)
-        assert 0 <= pid.i_sum_q5 <= pid.i_max_q5
-        assert pid.ki_q24 * pid.i_sum_q5 <= 255 << I_SHIFT + OUT_FRAC_BITS
+        if pid.ki_q24 >= 0:
+            assert 0 <= pid.i_sum_q5 <= pid.i_max_q5
+            assert pid.ki_q24 * pid.i_sum_q5 <= 255 << I_SHIFT + OUT_FRAC_BITS
+        else:
+            assert pid.i_sum_q5 in (0, pid.i_max_q5) and pid.i_max_q5 < 0
+            assert pid.ki_q24 * pid.i_sum_q5 >= 0
 
 
 def _walk(start_q5, steps_q5):
@@ -76,7 +87,7 @@ def _walk(start_q5, steps_q5):
 
 
 @given(
-    realistic_gains_st,
+    st.one_of(realistic_gains_st, signed_gains_st),
     mode_st,
     st.integers(150 * 32, 260 * 32),
     st.lists(st.integers(-96, 96), min_size=1, max_size=150),

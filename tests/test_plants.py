@@ -175,7 +175,7 @@ def test_unknown_parameter_names_it_and_lists_the_valid_ones():
         make_plant("hotend", power=50)
     with pytest.raises(ValueError, match=r"unknown parameter 'power_w' .* valid: gain, input_full_scale, lag1_s"):
         make_plant("seed001_fopdt", power_w=50)
-    with pytest.raises(ValueError, match=r"unknown plant preset 'hotbed'; valid: hotend, hotend_cartridge, bed"):
+    with pytest.raises(ValueError, match=r"unknown plant preset 'hotbed'; valid: hotend, hotend_stock, hotend_cartridge, bed"):
         make_plant("hotbed")
 
 

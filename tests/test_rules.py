@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from firmware_port.marlin.autotune import relay_gains
-from tools.ident.fit import Fopdt
+from tools.ident.fopdt import Fopdt
 from tools.tuning.gains import Gains
 from tools.tuning.models import model_of
 from tools.tuning.rules import (

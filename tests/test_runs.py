@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from tools.ident.fit import zoh_response
+from tools.ident.response import zoh_response
 from tools.ident.runs import Run, run_response
 from tools.logs import hardware_logs_dir
 from tools.validation import compare

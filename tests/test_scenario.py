@@ -213,7 +213,8 @@ ERRORS = [
     ("duration_s = 60\nsetpoint = [1]", "setpoint[0]: expected a table, got 1"),
     ("duration_s = 60\n[[fan]]\nat_s = 0\nspeed = 1.5", "fan[0].speed: must be in 0..1, got 1.5"),
     ("duration_s = 60\n[[fan]]\nat_s = 0\nspeed = 1\nheater = 'hotend'", 'fan[0]: unknown field "heater"'),
-    ("duration_s = 60\n[[flow]]\nat_s = 0\nmm_s = -1", "flow[0].mm_s: must be >= 0, got -1"),
+    ("duration_s = 60\n[[flow]]\nat_s = 0\nmm_s = -1", "flow[0].mm_s: must be in 0..25, got -1"),
+    ("duration_s = 60\n[[flow]]\nat_s = 0\nmm_s = 1e20", "flow[0].mm_s: must be in 0..25, got 1e+20"),
     ("duration_s = 60\n[[ambient]]\nat_s = 0\ntemp_c = 298.15", "ambient[0].temp_c: must be in -40..120"),
     (fault("melted"), 'fault[0].kind: unknown fault "melted"; expected one of "thermistor_open"'),
     (fault("heater_stuck_on", None), "fault[0].heater: missing required field"),
@@ -364,7 +365,7 @@ VALID_EVENTS = {
                                   "ki": st.floats(0, 100), "kd": st.floats(0, 5000)}),
     "setpoint": st.fixed_dictionaries({"heater": st.sampled_from(HEATERS), "target_c": st.integers(0, 400)}),
     "fan": st.fixed_dictionaries({"speed": st.floats(0, 1)}),
-    "flow": st.fixed_dictionaries({"mm_s": st.floats(0, 50)}),
+    "flow": st.fixed_dictionaries({"mm_s": st.floats(0, 25)}),
     "ambient": st.fixed_dictionaries({"temp_c": st.floats(-40, 120)}),
     "fault": st.sampled_from(FAULT_KINDS).flatmap(lambda kind: st.just(
         {"kind": kind} if kind == "fan_failure" else {"kind": kind, "heater": "hotend"})),

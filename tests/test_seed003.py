@@ -2,6 +2,7 @@
 
 import pytest
 
+from tools.seeds import seed003
 from tools.seeds.seed003 import (
     DURATION_S,
     LEAD_S,
@@ -63,8 +64,13 @@ def test_zn_row_implies_an_ultimate_gain_the_model_does_not_have(report):
     assert 8 * zn.kd / zn.kp == pytest.approx(report.ultimate.tu_s, rel=0.1)
 
 
-def test_report_text_names_every_row_and_the_evidence(report):
-    text = report.text()
+def test_verdicts_name_every_printed_row_and_judge_the_diverging_ones_impossible(report):
+    rows = seed003.verdicts(report)
     for row in PAPER_TABLE:
-        assert row.method in text
-    assert "evidence:" in text and len(report.evidence) >= len(PAPER_TABLE)
+        judged = [r for r in rows if r.experiment == f"table 1, {row.method}"]
+        assert judged, row.method
+        responses = [r for r in judged if r.quantity in ("rise s", "overshoot %", "settling 5 % s")]
+        assert len(responses) == 3 and all(r.verdict == "impossible" for r in responses)  # every printed set diverges
+    assert len(report.evidence) >= len(PAPER_TABLE)
+    zn_period = next(r for r in rows if r.quantity.startswith("ultimate period"))
+    assert zn_period.verdict == "reproduced"  # 20.0 s from the ZN row against the model's 21.47 s: within 10 %

@@ -38,9 +38,10 @@ def test_each_firmware_reaches_the_target(capsys, tmp_path, firmware):
     assert abs(steady) < 3.0
 
 
-def test_protection_trip_is_reported(capsys, tmp_path):
+def test_protection_trip_is_reported_and_exits_1(capsys, tmp_path):
+    """A script can tell a halt from a pass: exit status 1 (--help lists the statuses)."""
     code, out, _ = run(capsys, "--scenario", "cartridge_falls_out", "--no-plot", "--out", str(tmp_path))
-    assert code == 0
+    assert code == 1
     assert re.search(r"^protection at \d+\.\d s: Thermal Runaway on E0; the board halted", out, re.M)
 
 
@@ -93,13 +94,14 @@ def test_gains_flags_set_the_pid_at_zero_and_are_printed(capsys, tmp_path):
 
 def test_default_gains_are_printed(capsys, tmp_path):
     code, out, _ = run(capsys, "--duration", "5", "--no-plot", "--out", str(tmp_path))
-    assert code == 0 and "gains: hotend Kp 22.2 Ki 1.08 Kd 114; bed Kp 10 Ki 0.023 Kd 305.4\n" in out
+    # the stock build's own M303 results (firmware_port/firmwares.py STOCK_HOTEND_GAINS, STOCK_BED_GAINS)
+    assert code == 0 and "gains: hotend Kp 19.96 Ki 2.06 Kd 48.23; bed Kp 86.92 Ki 10.4 Kd 484.2\n" in out
 
 
 def test_scenario_pid_timeline_changes_gains_like_m301(capsys, tmp_path):
     """A [[pid]] entry later in the run is M301 in the timeline: the run differs from then on only."""
     text = ('duration_s = 200\n[[setpoint]]\nat_s = 0\nheater = "hotend"\ntarget_c = 200\n'
-            '[[pid]]\nat_s = 150\nheater = "hotend"\nkp = 5\nki = 0.1\nkd = 10\n')
+            '[[pid]]\nat_s = 150\nheater = "hotend"\nkp = 12\nki = 1\nkd = 30\n')
     path = tmp_path / "gains.toml"
     path.write_text(text)
     csvs = []
@@ -159,3 +161,57 @@ def test_record_every_bounds_the_trace_and_keeps_the_run(capsys, tmp_path):
 def test_record_every_is_checked(capsys, tmp_path):
     code, _, err = run(capsys, "--record-every", "nan", "--out", str(tmp_path))
     assert code == 2 and "--record-every nan" in err
+
+
+def test_output_names_say_the_plant_and_gains_so_runs_do_not_overwrite_each_other(capsys, tmp_path):
+    common = ("--duration", "5", "--no-plot", "--out", str(tmp_path))
+    assert run(capsys, *common)[0] == 0
+    assert run(capsys, "--plant", "hotend_cartridge", "--gains", "12.6,0.39,103", *common)[0] == 0
+    assert run(capsys, "--no-bed", "--set", "power_w=50", *common)[0] == 0
+    assert sorted(path.name for path in tmp_path.iterdir()) == [
+        "heat_hold_pid.csv",  # the defaults keep the README's name
+        "heat_hold_pid_hotend_cartridge_gains-12.6-0.39-103.csv",
+        "heat_hold_pid_nobed_power_w-50.csv",
+    ]
+
+
+@pytest.mark.parametrize("option", ["--plot", "--csv", "--klipper-log"])
+def test_a_missing_output_folder_is_refused_as_twin_compare_refuses_it(capsys, tmp_path, option):
+    path = tmp_path / "missing" / ("x.png" if option == "--plot" else "x.txt")
+    code, out, err = run(capsys, option, str(path), "--out", str(tmp_path))
+    assert code == 2 and out == ""
+    assert err == f"twin-sim: error: {option} {str(path)!r}: the folder {str(path.parent)!r} does not exist\n"
+    assert not path.parent.exists()
+
+
+def test_progress_goes_to_a_terminal_only(tmp_path):
+    """tqdm on stderr when it is a terminal; nothing when it is a file or a pipe."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import subprocess
+    import sys
+    import termios
+
+    args = [sys.executable, "-m", "tools.cli.sim", "--duration", "60", "--no-plot", "--out", str(tmp_path)]
+    piped = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert piped.returncode == 0 and piped.stderr == ""
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))  # a terminal has a size
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=slave)
+    os.close(slave)
+    shown = b""
+    try:
+        while True:  # read while it runs: a closed terminal's unread output is lost
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # EIO: the program has exited and closed the terminal
+                break
+            if not chunk:
+                break
+            shown += chunk
+    finally:
+        os.close(master)
+        assert proc.wait(timeout=300) == 0
+    assert b"60/60 s virtual" in shown

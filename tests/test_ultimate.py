@@ -7,8 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tools.ident.fit import Fopdt, model_spec
-from tools.ident.fit import ultimate_point as fopdt_ultimate_point
+from tools.ident.fopdt import Fopdt
+from tools.ident.response import model_spec
+from tools.ident.fopdt import ultimate_point as fopdt_ultimate_point
 from tools.tuning.ideal import step_response
 from tools.tuning.models import LinearModel, model_of
 from tools.tuning.ultimate import (

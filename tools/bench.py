@@ -111,7 +111,7 @@ def bench_batch(n_lanes: int, duration_s: float, seed: int) -> list[str]:
 
 
 def bench_open_loop(duration_s: float) -> list[str]:
-    """A PWM input at 40 % on the default hotend: engine maps vs lsim on the tick grid."""
+    """A PWM input at 40 % on the MPC "hotend" preset: engine maps vs lsim on the tick grid."""
     n_ticks = int(round(duration_s / TICK_S))
     u = ((np.arange(n_ticks) % SOFT_PWM_PERIOD_TICKS) < 51).astype(float)
     plant = make_plant("hotend")
@@ -135,7 +135,7 @@ def bench_open_loop(duration_s: float) -> list[str]:
     lsim_at_chunks = result["out"][::TICKS_PER_READING]
     diff = np.max(np.abs(np.array(temps) - lsim_at_chunks[: len(temps)]))
     return [
-        f"open loop, default hotend, 40 % PWM for {duration_s:g} s ({n_ticks} ticks):",
+        f"open loop, MPC hotend, 40 % PWM for {duration_s:g} s ({n_ticks} ticks):",
         f"  engine {wall_engine:.3f} s, scipy.signal.lsim {wall_lsim:.3f} s, "
         f"lsim / engine {wall_lsim / wall_engine:.1f} x, largest difference {diff:.2e} C",
     ]

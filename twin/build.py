@@ -10,12 +10,12 @@ from firmware_port.controller import ControllerSpec
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
 from firmware_port.marlin.pid import PidGains
 from twin.engine import BOOT_S, Twin
-from twin.plants import make_plant
+from twin.plants import DEFAULT_BED, DEFAULT_HOTEND, make_plant
 from twin.scenario import Event, Scenario
 from twin.sensor import DETACHED, OPEN, SHORT
 
 CHANNELS = {"hotend": HOTEND_CHANNEL, "bed": BED_CHANNEL}
-DEFAULT_PRESETS = {"hotend": "hotend", "bed": "bed"}
+DEFAULT_PRESETS = {"hotend": DEFAULT_HOTEND, "bed": DEFAULT_BED}
 
 
 def build_twin(

@@ -13,17 +13,23 @@ Two engines drive the same state:
   soft-PWM amounts, the ADC samples the sensor at fixed ISR phases. So a whole control period
   is one linear map per plant and one bulk ADC conversion, and the board skips its ISRs in
   closed form. It feeds the firmware the same samples as the reference engine (tested).
+
+``avr`` is the fast engine with each heater's controller replaced by its AVR build, the compiled
+C law stepped in simavr (firmware_port/avr/controllers.py); its trace equals the fast engine's.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from firmware_port.controller import Controller, ControllerSpec
 from firmware_port.firmwares import build_controllers
+from firmware_port.fixed import wrap_s32
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL, MarlinBoard
+from firmware_port.marlin.constants import E_STEPS_PER_MM
 from firmware_port.marlin.pid import PidGains
 from firmware_port.marlin.serial import Console
 from firmware_port.thermistor import TEMP_ONE
@@ -33,7 +39,7 @@ from twin.result import RunResult
 from twin.sensor import SensorChain, seeded_chains
 from twin.trace import Trace
 
-ENGINES = ("fast", "reference")
+ENGINES = ("fast", "reference", "avr")  # avr: the fast engine with the controllers' compiled C in simavr
 HALTED_RUN_TICKS = 160  # record cadence while the board is dead
 NORMAL, DISCONNECTED, STUCK_ON = "normal", "heater_disconnected", "heater_stuck_on"
 HEATER_NAMES = ("hotend", "bed")  # by channel
@@ -110,10 +116,11 @@ class Twin:
         self.controllers = tuple(controllers)  # per channel: instance, factory or None (the firmware's)
         self.board_options = board_options or {}
         self.console = Console()
-        self.reset_board()
         self.tick = 0
+        self._flow_mm_s = 0.0  # filament feed now (mm/s): the plant's input, and what moves the E stepper
+        self._fed_mm, self._fed_tick = 0.0, 0  # filament fed since the board's reset, up to _fed_tick
+        self.reset_board()
         self.origin_tick = 0  # scenario time 0 (after boot)
-        self.flow_mm_s = 0.0
         self.ambient_c = float(plants[0].d[0])
         self.heater_mode = [NORMAL] * len(plants)
         self.fan_failed = False
@@ -129,13 +136,14 @@ class Twin:
         self._events = EventQueue()  # actions due at a tick
 
     @classmethod
-    def create(cls, firmware: str = "pid", hotend: str = "hotend", bed: str | None = None, *,
+    def create(cls, firmware: str = "pid", hotend: str | None = None, bed: str | None = None, *,
                controllers: Sequence[ControllerSpec | None] = (), ambient_c: float = 25.0,
                boot_s: float = BOOT_S, **options) -> Twin:
-        """A twin on plant presets (twin.plants.PRESETS), booted so that time 0 is a running board."""
-        from twin.plants import make_plant
+        """A twin on plant presets (twin.plants.PRESETS; the hotend by default twin.plants.DEFAULT_HOTEND,
+        no bed unless named), booted so that time 0 is a running board."""
+        from twin.plants import DEFAULT_HOTEND, make_plant
 
-        plants = [make_plant(hotend, ambient_c=ambient_c)]
+        plants = [make_plant(hotend or DEFAULT_HOTEND, ambient_c=ambient_c)]
         if bed is not None:
             plants.append(make_plant(bed, ambient_c=ambient_c))
         twin = cls(plants, firmware, controllers=controllers, **options)
@@ -148,6 +156,10 @@ class Twin:
         Injected controller instances survive (reset, with their gains, as if from EEPROM);
         factories are called again."""
         built = list(build_controllers(self.firmware))
+        if self.engine == "avr":
+            from firmware_port.avr.controllers import on_avr  # ctypes and the toolchain, only when asked
+
+            built = [on_avr(controller) for controller in built]
         for channel, spec in enumerate(self.controllers):
             if spec is None:
                 continue
@@ -159,6 +171,7 @@ class Twin:
         self.board = MarlinBoard(
             self, built[0], built[1], has_bed=len(self.plants) > 1, console=self.console, **self.board_options
         )
+        self._fed_mm, self._fed_tick = 0.0, self.tick  # the stepper counts from 0 after a reset
 
     # -- the user's view --------------------------------------------------------------------
     @property
@@ -199,6 +212,25 @@ class Twin:
         self.run_until(seconds)
         self.origin_tick = self.tick
         self.trace = Trace()
+
+    @property
+    def flow_mm_s(self) -> float:
+        """Filament feed into the hotend now, mm/s (negative: retraction)."""
+        return self._flow_mm_s
+
+    @flow_mm_s.setter
+    def flow_mm_s(self, value: float) -> None:
+        value = float(value)
+        if value != self._flow_mm_s:
+            self._fed_mm, self._fed_tick = self._fed_at(self.tick), self.tick
+            self._flow_mm_s = value
+
+    def _fed_at(self, tick: int) -> float:
+        return self._fed_mm + self._flow_mm_s * (tick - self._fed_tick) * TICK_S
+
+    def _set_e_stepper(self, tick: int) -> None:
+        """The E stepper's position when the main loop runs at ``tick``: the whole steps fed."""
+        self.board.e_position_steps = wrap_s32(math.floor(self._fed_at(tick) * E_STEPS_PER_MM))
 
     @property
     def fan(self) -> float:
@@ -280,6 +312,7 @@ class Twin:
             board.isr()
             reading = board.adc.raw_ready and not board.halted
             self._task_tick = self.tick + 1
+            self._set_e_stepper(self._task_tick)
             board.task()
             self._task_tick = None
             for channel, plant in enumerate(self.plants):
@@ -319,6 +352,7 @@ class Twin:
         board.skip(n, samples)
         reading = board.adc.raw_ready
         self._task_tick = self.tick + n
+        self._set_e_stepper(self._task_tick)
         board.task()
         self._task_tick = None
         for channel, plant in enumerate(self.plants):

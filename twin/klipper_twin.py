@@ -126,12 +126,15 @@ class HeaterSetup:
     pullup_ohm: float = PULLUP_OHM
     pwm_cycle_time_s: float = PWM_CYCLE_TIME_S
     verify: dict | None = field(default_factory=dict)  # VerifyHeater options; None: no check
+    noise_lsb: float = 0.0  # Gaussian noise of each ADC conversion, in LSB of the MCU's converter
 
     def __post_init__(self):
         if isinstance(self.sensor, str) and self.sensor not in KLIPPER_SENSORS:
             raise ValueError(f"unknown sensor_type {self.sensor!r}; valid: {', '.join(KLIPPER_SENSORS)}")
         if not 0.0 < self.pwm_cycle_time_s <= self.config.pwm_delay_s:
             raise ValueError(f"[{self.config.name}] pwm_cycle_time must be in (0, pwm_delay]")
+        if not self.noise_lsb >= 0:
+            raise ValueError(f"[{self.config.name}] noise_lsb must be >= 0, got {self.noise_lsb!r}")
 
     @property
     def part(self) -> SteinhartHart:
@@ -245,8 +248,9 @@ class PidCalibrateResult:
 class _Channel:
     """A heater's runtime: host heater, verify check, plant, ADC and pin state."""
 
-    def __init__(self, index: int, setup: HeaterSetup, mcu: Mcu):
+    def __init__(self, index: int, setup: HeaterSetup, mcu: Mcu, rng: np.random.Generator):
         self.heater = KlipperHeater(setup.config)
+        self.noise_lsb, self.rng = setup.noise_lsb, rng
         self.name = self.heater.short_name
         self.plant = setup.plant
         self.part = setup.part
@@ -304,7 +308,7 @@ class _LogList(logging.Handler):
 class KlipperTwin:
     """A Klipper printer's heaters on one clock: host control, MCU ADC and soft PWM, plants."""
 
-    def __init__(self, heaters: Sequence[HeaterSetup], mcu: Mcu = STM32F103):
+    def __init__(self, heaters: Sequence[HeaterSetup], mcu: Mcu = STM32F103, seed: int = 0):
         if SAMPLE_COUNT * mcu.adc_max >= ADC_SUM_LIMIT:
             raise ValueError(f"ADC sample_count={SAMPLE_COUNT} too large for MCU")
         self.mcu = mcu
@@ -317,8 +321,9 @@ class KlipperTwin:
         self._events = EventQueue()  # actions due at a time in seconds
         with self._klippy_logging():
             self.channels: dict[str, _Channel] = {}
+            streams = np.random.SeedSequence(seed).spawn(len(heaters))
             for index, setup in enumerate(heaters):
-                channel = _Channel(index, setup, mcu)
+                channel = _Channel(index, setup, mcu, np.random.default_rng(streams[index]))
                 if channel.name in self.channels:
                     raise ValueError(f"Heater {channel.name} already registered")
                 self.channels[channel.name] = channel
@@ -504,8 +509,10 @@ class KlipperTwin:
         u = channel.heater_input(channel.plant_tick, run + offsets[-1])
         channel.advance_plant(start, u[:run])
         temps = channel.plant.outputs(u[run:], offsets)
-        ratio = calc_adc(channel.part, channel.pullup_ohm, temps[:-1, SENSOR])
-        value = int(np.minimum(np.floor(ratio * channel.adc_scale), channel.adc_max).sum())  # ratio >= 0
+        analog = calc_adc(channel.part, channel.pullup_ohm, temps[:-1, SENSOR]) * channel.adc_scale
+        if channel.noise_lsb:
+            analog = analog + channel.noise_lsb * channel.rng.standard_normal(SAMPLE_COUNT)
+        value = int(np.clip(np.floor(analog), 0, channel.adc_max).sum())
         self._push(channel.first_sample_s + (k + 1) * REPORT_TIME, PRIO_ADC, self._adc_sample, channel, k + 1)
         if channel.min_sum <= value <= channel.max_sum:
             channel.invalid_count = 0

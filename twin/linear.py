@@ -10,6 +10,10 @@ Zero-order hold on the tick is exact for such an input, so ``x[k+1] = Phi x[k] +
 For a run of n ticks the engine needs the sensor at a few offsets and the state at the end:
 those are fixed linear maps of (x0, u[0..n), d), cached per (n, offsets) once per condition, so a
 160-tick control period costs two small matrix products however the PWM switches inside it.
+Both caches are bounded (least recently used out): MAX_CACHED_MODELS conditions per plant, and
+MAX_CACHED_RUNS run shapes per condition (a serial session's moves and host events cut runs at
+ever new lengths), so a plant's cache stays under about MAX_CACHED_MODELS x MAX_CACHED_RUNS x 42 kB
+(a 160-tick run sampled 16 times; tests/twin/test_model_cache.py).
 A dead time shifts ``u`` by whole ticks (1.024 ms resolution).
 """
 
@@ -25,7 +29,8 @@ import scipy.linalg
 
 from twin.clock import TICK_S
 
-MAX_CACHED_MODELS = 32  # discretisations a LinearPlant keeps (LRU): a few fan x flow x radiation-bin states
+MAX_CACHED_MODELS = 8  # discretisations a LinearPlant keeps (LRU): a few fan x flow x radiation-bin states
+MAX_CACHED_RUNS = 48  # run shapes (n_ticks, offsets) a TickModel keeps (LRU): the control period's few, and some
 SENSOR, BLOCK = 0, 1  # output rows
 
 
@@ -58,7 +63,7 @@ class TickModel:
         self._powers = [np.eye(n)]  # Phi^k
         self._u_resp = [np.zeros(n)]  # sum_{j<k} Phi^j g: response to u = 1 over k ticks
         self._d_resp = [np.zeros((n, m))]  # sum_{j<k} Phi^j H
-        self._runs: dict[tuple, Any] = {}  # (kind, n_ticks[, offsets]) -> cached maps
+        self._runs: OrderedDict[tuple, Any] = OrderedDict()  # (kind, n_ticks[, offsets]) -> cached maps, LRU
 
     def _extend(self, k: int) -> None:
         while len(self._powers) <= k:
@@ -73,10 +78,11 @@ class TickModel:
         A pulse u = 1 on ticks [a, b) adds ``S(s - a) - S(s - b)`` to the state at tick s >= b,
         which lets batch twins add up PWM pulses without a per-tick input array.
         """
-        table = self._runs.get(("u_steps", n_ticks))
+        key = ("u_steps", n_ticks)
+        table = self._cached(key)
         if table is None:
             self._extend(n_ticks)
-            table = self._runs[("u_steps", n_ticks)] = np.array(self._u_resp[: n_ticks + 1])
+            table = self._store(key, np.array(self._u_resp[: n_ticks + 1]))
         return table
 
     def run_maps(self, n_ticks: int, offsets: tuple[int, ...]) -> tuple:
@@ -86,10 +92,22 @@ class TickModel:
         ``y[j] = Px[j] x0 + Pu[j] u + (Pd[j] + F) d`` and ``x_end = Fx x0 + Fu u + Fd d``.
         """
         key = (n_ticks, offsets)
-        maps = self._runs.get(key)
+        maps = self._cached(key)
         if maps is None:
-            maps = self._runs[key] = self._build(n_ticks, offsets)
+            maps = self._store(key, self._build(n_ticks, offsets))
         return maps
+
+    def _cached(self, key: tuple) -> Any:
+        value = self._runs.get(key)
+        if value is not None:
+            self._runs.move_to_end(key)
+        return value
+
+    def _store(self, key: tuple, value: Any) -> Any:
+        self._runs[key] = value
+        if len(self._runs) > MAX_CACHED_RUNS:
+            self._runs.popitem(last=False)
+        return value
 
     def _build(self, n_ticks: int, offsets: tuple[int, ...]) -> tuple:
         self._extend(n_ticks)
@@ -114,9 +132,9 @@ class LinearPlant:
 
     ``model_for(conditions)`` builds the continuous model for a hashable conditions key (fan,
     flow); discretisations are cached per key, the MAX_CACHED_MODELS most recently used ones
-    (each holds its multi-tick maps, about 1 MB: a host streaming moves at ever new feed rates
-    must not grow the cache without end). An evicted key is rebuilt by the same deterministic
-    computation, so the bound changes no result. ``d`` holds the disturbances (ambient).
+    (each holds up to MAX_CACHED_RUNS multi-tick maps: a host streaming moves at ever new feed
+    rates must not grow the cache without end). An evicted key is rebuilt by the same
+    deterministic computation, so the bound changes no result. ``d`` holds the disturbances.
     """
 
     def __init__(self, model_for: Callable[[Hashable], Lti], conditions: Hashable, x0, d, delay_ticks: int = 0):

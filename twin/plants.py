@@ -20,7 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar, NamedTuple
+from typing import ClassVar, NamedTuple, Protocol
 
 import numpy as np
 import scipy.signal
@@ -70,6 +70,17 @@ ONION_RADIATING_PARAMS = {
     "ambient_xfer_w_k": 0.04172, "fan_ambient_xfer_w_k": 0.05129,  # fitted; F on both fan runs at fan = 1
     "emissivity": 1.0, "radiating_area_m2": 0.004089,  # fitted area: 2.8 V6 blocks (heat break, nozzle, convection)
 }
+
+# hotend_stock: the default, a stock printer's hotend (a 40 W cartridge in an aluminium block with a
+# brass nozzle). Marlin's MPC power, loss, fan and filament terms and sensor responsiveness (above),
+# the block's capacity from its size, and the cartridge node every real hotend has between heater and
+# block: the lag that sets the period and swing of M303's relay. Its conductance is chosen so that
+# `M303 E0 S210 C8` on a fresh twin-serial gives Tu 19.0 s and a 6.1 C swing (tests/protocol/test_stock_autotune.py),
+# within the hotend captures in hardware_logs (README section D: Tu 10.3..24 s, swings 4.7..9 C; the
+# Artillery Genius Pro's stock hotend, Tu 18.2 s and 7-9 C, is the closest).
+STOCK_BLOCK_HEAT_CAPACITY_J_K = 7.0  # V6-class block and nozzle: ~6.5 g aluminium x 0.9 + ~2.5 g brass x 0.38 J/(g K)
+STOCK_CARTRIDGE_HEAT_CAPACITY_J_K = 1.0  # 6 x 20 mm cartridge: ~2 g of sheath, MgO and coil x 0.5 J/(g K)
+STOCK_CARTRIDGE_XFER_W_K = 0.5  # chosen for the M303 period above
 
 # bed: fitted to the chesleavens heat-up (README section A, session 0, 660 s from the heater's
 # first line, the logged pwm replayed, ambient 25.2 C) by `python -m tools.validation.plant_check --fit`.
@@ -126,6 +137,8 @@ class Lumped:
     radiating_area_m2: float = 0.0
 
     delay_ticks: ClassVar[int] = 0
+    delay_s: ClassVar[float] = 0.0
+    world_inputs: ClassVar[bool] = True  # the part fan and the filament flow act on it
 
     def __post_init__(self):
         _check(self, positive=("block_heat_capacity_j_k", "sensor_responsiveness_per_s"),
@@ -139,6 +152,15 @@ class Lumped:
     @property
     def linear(self) -> bool:
         return not (self.emissivity and self.radiating_area_m2)
+
+    @property
+    def input_full_scale(self) -> float:
+        """The heater input at duty 1: power_w, in W."""
+        return self.power_w
+
+    def rest_lti(self, ambient_c: float) -> Lti:
+        """The model at rest: part fan off, no flow, linearised at ambient_c."""
+        return self.lti(self.conditions(0.0, 0.0, ambient_c, ambient_c))
 
     def conditions(self, fan: float, flow_mm_s: float, ambient_c: float, block_c: float) -> Conditions:
         """The cache key: fan and flow rounded; ambient and the block's 0.5 C bin if radiating."""
@@ -201,6 +223,7 @@ class TransferFunction:
     delay_s: float = 0.0
 
     linear: ClassVar[bool] = True
+    world_inputs: ClassVar[bool] = False  # no fan or flow terms: a disturbance is a load at the input
 
     def __post_init__(self):
         _check(self, positive=("input_full_scale", "damping"),
@@ -236,6 +259,10 @@ class TransferFunction:
         n = a.shape[0]
         return Lti(a, b[:, 0] * self.input_full_scale, np.zeros((n, 1)), np.vstack((c, c)), np.ones((2, 1)))
 
+    def rest_lti(self, ambient_c: float) -> Lti:
+        """The model (it has no operating point)."""
+        return self.lti()
+
     def initial_state(self, ambient_c: float, start_c: float) -> np.ndarray:
         """The equilibrium that holds start_c (the steady state under the input that would keep it there)."""
         lti = self.lti()
@@ -244,6 +271,34 @@ class TransferFunction:
 
 
 Spec = Lumped | TransferFunction
+
+
+class PlantSpec(Protocol):
+    """What the engines and the tuners ask of a plant spec; ``Lumped`` and ``TransferFunction`` follow it.
+    (Each also has ``conditions`` and ``lti``, whose operating-point key is its own.)"""
+
+    @property
+    def linear(self) -> bool:
+        """No radiating loss: one exact model per operating condition."""
+
+    @property
+    def delay_ticks(self) -> int:
+        """Dead time on the tick grid."""
+
+    @property
+    def delay_s(self) -> float: ...
+
+    @property
+    def world_inputs(self) -> bool:
+        """The part fan and filament flow act on it (else a disturbance is a load at its input)."""
+
+    @property
+    def input_full_scale(self) -> float:
+        """The plant input at duty 1 (W for a heater, the paper's unit for a transfer function)."""
+
+    def rest_lti(self, ambient_c: float) -> Lti: ...
+
+    def initial_state(self, ambient_c: float, start_c: float) -> np.ndarray: ...
 
 
 class Plant(LinearPlant):
@@ -296,6 +351,10 @@ SPECS: dict[str, Spec] = {
     "hotend": Lumped(MPC_HEATER_POWER_W, MPC_BLOCK_HEAT_CAPACITY_J_K, MPC_SENSOR_RESPONSIVENESS_PER_S,
                      MPC_AMBIENT_XFER_W_K, MPC_AMBIENT_XFER_FAN255_W_K, MPC_FILAMENT_HEAT_CAPACITY_J_K_MM,
                      radiating_area_m2=V6_BLOCK_AREA_M2),
+    "hotend_stock": Lumped(MPC_HEATER_POWER_W, STOCK_BLOCK_HEAT_CAPACITY_J_K, MPC_SENSOR_RESPONSIVENESS_PER_S,
+                           MPC_AMBIENT_XFER_W_K, MPC_AMBIENT_XFER_FAN255_W_K, MPC_FILAMENT_HEAT_CAPACITY_J_K_MM,
+                           STOCK_CARTRIDGE_HEAT_CAPACITY_J_K, STOCK_CARTRIDGE_XFER_W_K,
+                           radiating_area_m2=V6_BLOCK_AREA_M2),
     "hotend_cartridge": Lumped(ONION_POWER_W, ONION_BLOCK_HEAT_CAPACITY_J_K, ONION_SENSOR_RESPONSIVENESS_PER_S,
                                ONION_AMBIENT_XFER_W_K, ONION_FAN_XFER_W_K, MPC_FILAMENT_HEAT_CAPACITY_J_K_MM,
                                ONION_CARTRIDGE_HEAT_CAPACITY_J_K, ONION_CARTRIDGE_XFER_W_K,
@@ -314,11 +373,20 @@ SPECS: dict[str, Spec] = {
                                       lag2_s=61.5524, lag3_s=0.50895, delay_s=5.0),
 }
 
+DEFAULT_HOTEND = "hotend_stock"  # the plants a twin gets when none is named
+DEFAULT_BED = "bed"
+
 PRESETS: dict[str, PresetInfo] = {
     "hotend": PresetInfo(
         "hotend, two nodes (block, sensor): Marlin's MPC model with its defaults",
         _LUMPED_UNITS,
         "Marlin 2.1 MPC defaults (Configuration.h; reference/marlin_heater.md section 8)"),
+    "hotend_stock": PresetInfo(
+        "the default: a stock printer's 40 W hotend, three nodes (cartridge, block, sensor) whose M303 period "
+        "and swing fall among real hotends'",
+        _LUMPED_UNITS,
+        "Marlin 2.1 MPC loss and sensor terms; block from its size; cartridge lag chosen so that M303 E0 S210 C8 "
+        "gives Tu 19.0 s (hardware_logs README D: Tu 10-24 s)"),
     "hotend_cartridge": PresetInfo(
         "hotend, three nodes (cartridge, block, sensor) fitted to a real pulse test and its overshoot after cut-off",
         _LUMPED_UNITS,
@@ -356,7 +424,7 @@ PRESETS: dict[str, PresetInfo] = {
 }
 
 
-def make_plant(preset: str = "hotend", *, ambient_c: float = 25.0, initial_c: float | None = None, **params) -> Plant:
+def make_plant(preset: str = DEFAULT_HOTEND, *, ambient_c: float = 25.0, initial_c: float | None = None, **params) -> Plant:
     """A preset's plant at ambient_c, every node at initial_c (default: ambient); params override the preset's.
 
     ValueError names an unknown preset or parameter (listing the valid ones) or a value out of range.

@@ -36,6 +36,10 @@ AMBIENT_RANGE_C = (-40.0, 120.0)  # a cold garage to a heated industrial chamber
 INITIAL_RANGE_C = (-40.0, 400.0)
 DEFAULT_AMBIENT_C = 25.0
 DURATION_MAX_S = 2**32 / 1000  # Marlin's millis() is a uint32
+# Filament feed: at most Marlin's DEFAULT_MAX_FEEDRATE for E (Configuration.h), the fastest its
+# planner ever feeds (60 mm^3/s of 1.75 mm filament, beyond any hotend's melt rate); far beyond
+# it the lumped model's loss term dwarfs the rest and its discretisation loses all precision.
+FLOW_MAX_MM_S = 25.0
 OVERRIDES_SOURCE = "overrides"  # the "file" named in errors from with_overrides
 
 # TOML array of tables -> its fields; each entry becomes one Event (see _read_event).
@@ -253,7 +257,7 @@ def _read_event(table: str, entry: _Table, duration_s: float) -> Event:
         case "fan":
             return Event(at_s, "fan", None, entry.number("speed", 0.0, 1.0))
         case "flow":
-            return Event(at_s, "flow", "hotend", entry.number("mm_s", 0.0))
+            return Event(at_s, "flow", "hotend", entry.number("mm_s", 0.0, FLOW_MAX_MM_S))
         case "ambient":
             return Event(at_s, "ambient", None, entry.number("temp_c", *AMBIENT_RANGE_C))
     kind = entry.choice("kind", FAULT_KINDS, "fault")

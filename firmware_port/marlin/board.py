@@ -10,7 +10,9 @@ MIN/MAXTEMP checks, and runs each heater's controller and protection on fresh re
 
 from __future__ import annotations
 
-from firmware_port.controller import Controller, is_tunable
+from typing import Protocol
+
+from firmware_port.controller import BoardInputs, Controller, ReadsBoard, is_tunable
 from firmware_port.marlin.adc import AdcPort, AdcSequencer
 from firmware_port.marlin.autotune import Autotune
 from firmware_port.marlin.constants import ms_to_ticks, ticks_to_ms
@@ -33,6 +35,22 @@ from firmware_port.thermistor import B3950_TABLE, TEMP_ONE, TempTable
 
 HOTEND_CHANNEL = 0
 BED_CHANNEL = 1
+
+
+class BoardTune(Protocol):
+    """A blocking loop that takes over Marlin's main loop until ``done`` (M303, M306 T): one
+    pass per ``poll``; the board drives the tuned heater's soft PWM from ``amount``."""
+
+    amount: int  # the tuned heater's soft_pwm_amount, 0..127
+    done: bool
+    succeeded: bool
+    gains: tuple[float, float, float] | None  # PID gains M303 U1 applies (None: nothing to apply)
+
+    def poll(self, now_ms: int, temp_q5: int | None) -> None: ...
+
+    def next_deadline_ms(self) -> int: ...
+
+    def cancel(self) -> None: ...
 
 
 class Heater:
@@ -95,12 +113,16 @@ class MarlinBoard:
                 HeaterWatch.bed(),
             )
             self.heaters.append(bed)
+        # Configuration.h's DEFAULT_Kp... of this build (what M502 restores): the gains its controllers came with
+        self.default_gains = [heater.controller.gains if is_tunable(heater.controller) else None  # type: ignore[attr-defined]
+                              for heater in self.heaters]
         self.adc = AdcSequencer(len(self.heaters), adc_port)
         self.pwm = SoftPwm(len(self.heaters))
         self.ticks = 0  # ISRs run since reset
         self.halted = False
         self.fan_speed = 0  # part fan 0..255 (M106), driven by hardware PWM
-        self.autotune: Autotune | None = None  # M303 in progress
+        self.e_position_steps = 0  # stepper.position(E_AXIS), int32: the world moves it as filament feeds
+        self.autotune: BoardTune | None = None  # M303 or M306 T in progress
         self.autotune_channel = HOTEND_CHANNEL
         self.autotune_apply = False  # M303 U1
 
@@ -140,7 +162,7 @@ class MarlinBoard:
     def task(self) -> None:
         """Temperature::task(): act on a fresh reading, if there is one.
 
-        While M303 runs, Marlin's main loop is its autotune loop instead: it polls every pass,
+        While M303 or M306 T runs, Marlin's main loop is its autotune loop instead: it polls every pass,
         converts fresh readings (with the raw MIN/MAXTEMP checks) and runs no other control.
         """
         if self.halted:
@@ -244,12 +266,16 @@ class MarlinBoard:
         if tune.done:  # refused before disable_all_heaters()
             return tune
         self.disable_all_heaters()
-        self.autotune, self.autotune_channel, self.autotune_apply = tune, channel, apply
-        self.pwm.set_amount(channel, tune.amount)
+        self.begin_tune(tune, channel, apply)
         return tune
 
+    def begin_tune(self, tune: BoardTune, channel: int, apply: bool = False) -> None:
+        """Hand the main loop to a started tune on ``channel`` until it is done (``apply``: M303 U1)."""
+        self.autotune, self.autotune_channel, self.autotune_apply = tune, channel, apply
+        self.pwm.set_amount(channel, tune.amount)
+
     def cancel_autotune(self) -> None:
-        """M108 during M303: the loop ends and the heaters go off."""
+        """M108 during M303 or M306 T: the loop ends and the heaters go off."""
         if self.autotune is not None:
             self.autotune.cancel()
             self._end_autotune()
@@ -313,6 +339,14 @@ class MarlinBoard:
         """The bed's MINTEMP looks at the target only, in every version."""
         return MarlinVersion.V2_1 if heater.is_bed else self.version
 
+    def controller_output(self, channel: int, now_ms: int) -> int:
+        """get_pid_output_hotend() / _bed(): the heater's controller on its latest reading, 0..255.
+        A controller that reads the board (Marlin's MPC) is first given what it reads."""
+        heater = self.heaters[channel]
+        if isinstance(heater.controller, ReadsBoard):
+            heater.controller.read_board(BoardInputs(self.amount(channel), self.fan_speed, self.e_position_steps))
+        return heater.controller.update(heater.temp_q5, heater.target_c, now_ms)
+
     def _manage_hotend(self, heater: Heater, now_ms: int) -> None:
         """manage_hotends(): MAXTEMP, runaway, the controller, then the heating watch."""
         temp_q5 = heater.temp_q5
@@ -321,7 +355,7 @@ class MarlinBoard:
         if self.thermal_protection and heater.runaway.run(temp_q5, heater.target_c, now_ms):
             return self.temp_error(heater, TempError.THERMAL_RUNAWAY)
         in_range = heater.temp_range.mintemp_c * TEMP_ONE < temp_q5 < heater.temp_range.maxtemp_c * TEMP_ONE
-        amount = heater.controller.update(temp_q5, heater.target_c, now_ms) >> 1 if in_range else 0
+        amount = self.controller_output(HOTEND_CHANNEL, now_ms) >> 1 if in_range else 0
         self.pwm.set_amount(HOTEND_CHANNEL, amount)
         if self.thermal_protection and heater.watch.heating_failed(temp_q5, heater.target_c, now_ms):
             self.temp_error(heater, TempError.HEATING_FAILED)
@@ -342,7 +376,7 @@ class MarlinBoard:
             return self.temp_error(heater, TempError.THERMAL_RUNAWAY)
         limits = heater.temp_range
         if limits.mintemp_c * TEMP_ONE <= temp_q5 <= limits.maxtemp_c * TEMP_ONE:
-            self.pwm.set_amount(BED_CHANNEL, heater.controller.update(temp_q5, heater.target_c, now_ms) >> 1)
+            self.pwm.set_amount(BED_CHANNEL, self.controller_output(BED_CHANNEL, now_ms) >> 1)
         else:
             self.pwm.set_amount(BED_CHANNEL, 0)
             self.pwm.pins[BED_CHANNEL] = False  # WRITE_HEATER_BED(LOW)

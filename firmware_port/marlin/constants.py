@@ -54,6 +54,11 @@ MAX_CYCLE_TIME_PID_AUTOTUNE_MIN = 20
 PREHEAT_1_TEMP_HOTEND_C = 180
 PREHEAT_1_TEMP_BED_C = 70
 
+# The E axis (Marlin 2.1.x Configuration.h DEFAULT_AXIS_STEPS_PER_UNIT, DEFAULT_MAX_FEEDRATE): the
+# stepper position MPC's filament feed-forward reads, and the speed beyond which it takes a jump.
+E_STEPS_PER_MM = 500
+E_MAX_FEEDRATE_MM_S = 25
+
 
 def ticks_to_ms(ticks: int) -> int:
     """Arduino ``millis()`` after ``ticks`` Timer0 overflows: 1 ms + 3/125 ms per tick."""

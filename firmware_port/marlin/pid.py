@@ -95,9 +95,10 @@ class PidFixed:
         self.kp_q12 = q_scaled(gains.kp, Fraction(1), KP_FRAC_BITS)  # <= 2**22
         self.ki_q24 = q_scaled(gains.ki, PID_DT_S, KI_FRAC_BITS)  # <= 2**28
         self.kd_q16 = q_scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS)  # < 2**31
-        # Marlin: iState <= MAX_POW / Ki. In Q.5 with Ki in Q.24: floor(255 * 2**29 / ki_q24).
+        # Marlin: iState <= MAX_POW / Ki. In Q.5 with Ki in Q.24: floor(255 * 2**29 / ki_q24). A negative
+        # Ki gives a negative ceiling, which constrain() returns for any sum >= 0, as on the AVR.
         full_scale = PID_MAX << (KI_FRAC_BITS + TEMP_FRAC_BITS)
-        self.i_max_q5 = min(full_scale // self.ki_q24, I_SUM_CAP_Q5) if self.ki_q24 else I_SUM_CAP_Q5
+        self.i_max_q5 = clamp(full_scale // self.ki_q24, -I_SUM_CAP_Q5, I_SUM_CAP_Q5) if self.ki_q24 else I_SUM_CAP_Q5
         self.reset()
 
     def reset(self) -> None:
@@ -157,7 +158,8 @@ class PidFixed:
 def pid_space(default: PidGains = HOTEND_GAINS, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE) -> ParamSpace:
     """Marlin's fixed-point PID as a tunable family: Kp, Ki, Kd in M301 units."""
     return ParamSpace("pid", pid_params(default),
-                      lambda kp, ki, kd: PidFixed(PidGains(kp, ki, kd), prev_temp_mode), pid=True)
+                      lambda kp, ki, kd: PidFixed(PidGains(kp, ki, kd), prev_temp_mode), pid=True,
+                      autotune="M303")
 
 
 def float_error_bound_counts(gains: PidGains, max_dtemp_c: float) -> float:
@@ -169,6 +171,7 @@ def float_error_bound_counts(gains: PidGains, max_dtemp_c: float) -> float:
     """
     lsb = 2.0**-OUT_FRAC_BITS / 2  # half a Q.8 step: one rounding
     f32 = 2.0**-24  # float32 relative rounding
+    gains = PidGains(abs(gains.kp), abs(gains.ki), abs(gains.kd))  # the terms' magnitudes bound their errors
     ki_int = gains.ki * float(PID_DT_S)
     kd_int = gains.kd / float(PID_DT_S)
     # P: Kp quantised to Q.12 over |e| <= 10, one rounding; float32 rounds Kp and the product.

@@ -47,7 +47,9 @@ class PidFloat:
         """Store as Marlin does: Kp, Ki*PID_dT (scalePID_i), Kd/PID_dT (scalePID_d)."""
         self.gains = gains
         self.kp = F32(gains.kp)
-        self.ki = F32(F32(gains.ki) * PID_DT_F32)
+        # + 0.0: a negative Ki too small for float32 becomes +0.0 (PidGains' rule), not -0.0, whose
+        # integral ceiling of -inf would make the output NaN
+        self.ki = F32(F32(F32(gains.ki) * PID_DT_F32) + ZERO_F32)
         self.kd = F32(F32(gains.kd) / PID_DT_F32)
         self.reset()
 
@@ -77,14 +79,14 @@ class PidFloat:
                 self.reset_pending = False
                 self.i_state = ZERO_F32
                 self.d_term = ZERO_F32
-            with np.errstate(divide="ignore"):
-                i_max = F32(MAX_POW_F32 / self.ki)  # +inf when Ki == 0, as on the AVR
-            self.i_state = min(max(F32(self.i_state + error), ZERO_F32), i_max)
+            with np.errstate(divide="ignore", over="ignore"):
+                i_max = F32(MAX_POW_F32 / self.ki)  # +-inf when Ki is 0 or denormal, as on the AVR
+            self.i_state = _constrain(F32(self.i_state + error), ZERO_F32, i_max)
             p_term = F32(self.kp * error)
             i_term = F32(self.ki * self.i_state)
             raw_d = F32(self.kd * F32(self.prev_c - current))
             self.d_term = F32(self.d_term + F32(PID_K2_F32 * F32(raw_d - self.d_term)))
-            out = min(max(F32(F32(F32(p_term + i_term) + self.d_term) + ZERO_F32), ZERO_F32), MAX_POW_F32)
+            out = _constrain(F32(F32(F32(p_term + i_term) + self.d_term) + ZERO_F32), ZERO_F32, MAX_POW_F32)
             if self.prev_temp_mode == PREV_TEMP_IN_BAND:
                 self.prev_c = current
         if self.prev_temp_mode == PREV_TEMP_EVERY_SAMPLE:
@@ -94,4 +96,11 @@ class PidFloat:
 
 def pid_float_space(default: PidGains = HOTEND_GAINS) -> ParamSpace:
     """Marlin's float32 PID as a tunable family: Kp, Ki, Kd in M301 units."""
-    return ParamSpace("pid_float", pid_params(default), lambda kp, ki, kd: PidFloat(PidGains(kp, ki, kd)), pid=True)
+    return ParamSpace("pid_float", pid_params(default), lambda kp, ki, kd: PidFloat(PidGains(kp, ki, kd)), pid=True,
+                      autotune="M303")
+
+
+def _constrain(x: np.float32, low: np.float32, high: np.float32) -> np.float32:
+    """Marlin's constrain(): the low bound is tested first, so a high bound below it (a negative
+    Ki's integral ceiling) is what any value at or above the low bound becomes."""
+    return low if x < low else high if x > high else x

@@ -23,7 +23,9 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout, to_bytes
 
-from protocol.transport import HOST_BUFFER_BYTES, Pacer, build_printer, parse_idle_speed, parse_speed
+from protocol.build import build_printer
+from protocol.pacing import Pacer, parse_idle_speed, parse_speed
+from protocol.server import HOST_BUFFER_BYTES
 
 PARAMETERS = ("firmware", "plant", "bed_plant", "scenario", "speed", "idle_speed", "settings", "ok_after_resend")
 FLAGS = {"": True, "1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}
@@ -47,6 +49,8 @@ def parse_url(url: str) -> dict[str, str]:
 
 class Serial(SerialBase):
     """A VirtualPrinter (``.printer`` once open) with pyserial's Serial API; any baud rate goes."""
+
+    is_open: bool  # SerialBase's, set in its __init__
 
     def open(self) -> None:
         if self._port is None:
@@ -113,8 +117,8 @@ class Serial(SerialBase):
         data = to_bytes(data)
         if not self._pacer.host_driven:
             self._pump()
-        unread = len(self._received) + self.printer.output_waiting
-        self.printer.receive(data, loop_running=unread < HOST_BUFFER_BYTES)
+        self._note_tx()
+        self.printer.receive(data)
         return len(data)
 
     def reset_input_buffer(self) -> None:
@@ -170,11 +174,16 @@ class Serial(SerialBase):
 
         A paced clock catches up with the wall clock in full; a free one runs one step at most.
         """
+        self._note_tx()
         wait_s = self._pacer.advance()
         while wait_s == 0.0 and not self._pacer.runs_free:
             wait_s = self._pacer.advance()
         self._received += self.printer.take_output()
         return wait_s
+
+    def _note_tx(self) -> None:
+        """Output the caller leaves unread beyond HOST_BUFFER_BYTES stalls Marlin's main loop."""
+        self.printer.tx_blocked = len(self._received) + self.printer.output_waiting >= HOST_BUFFER_BYTES
 
     def _check_open(self) -> None:
         if not self.is_open:

@@ -1,71 +1,139 @@
-"""twin-compare LOG [--plot FILE]: the twin against one hardware log (tools/validation/compare.py).
+"""twin-compare LOG [--plot FILE]: the twin against one hardware log (tools/validation/compare.py,
+tools/validation/m303_compare.py); every row says whether it is in-sample (the data the plant was
+fitted to) or out-of-sample (data the plant never saw), and the summary counts out-of-sample rows only.
 
-A Klipper Stats log: the closed-loop replay and the PID_CALIBRATE cross-check for each heater
-with a heat-up. A Marlin M303 capture with a status trace: a plant fitted to it runs the twin's
-M303 at the same target and cycles; Tu, swing and gains, twin against log (tools/validation/m303_compare.py). An onionheater heattest (with its sibling runs in the same folder): the open-loop
-fan prediction. Prints the error table(s); --plot writes logged vs twin with matplotlib.
-A log that no check can use: one message on stderr, exit status 2.
+A Klipper Stats log: the closed-loop replay of a heat-up (held-out where the log has another one to
+fit) and the PID_CALIBRATE cross-check for each heater. A Marlin M303 capture: a plant fitted to it
+(its printed cycles and status trace) runs the twin's M303 at the same target; Tu and swing, twin
+against log; --fit-cycles K fits the first K printed cycles only and predicts the rest, --plant
+takes a preset or a plant fitted to another log instead. An onionheater heattest (with its sibling
+runs in the same folder): the open-loop fan prediction. Tables fit in 120 columns; --plot writes
+logged vs twin with matplotlib. A log that no check can use: one message on stderr, exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from tools.validation import compare, m303_compare
 from tools.cli.args import OneLineParser, plot_path, ranged_float
-from tools.ident.fit import NotFittable
-from tools.logs import HeattestLog, LogError, M303Log, StatsLog, load_log
+from tools.cli.progress import load_with_progress, progress_bar
+from tools.ident.lsq import MAX_EVALUATIONS
+from tools.ident.segments import NotFittable
+from tools.logs import HeattestLog, LogError, M303Log, StatsLog
+from tools.validation import compare, m303_compare
+from tools.validation.tables import WIDTH, markdown_cells, text_tables
 
 EXIT_UNUSABLE = 2
 
 
-def _stats(path: Path, log: StatsLog):
-    closed, tunes, lines = [], [], [compare.CLOSED_HEADER]
-    tune_lines = [compare.AUTOTUNE_HEADER]
+@dataclass
+class Report:
+    """What a check prints, what it plots, and its out-of-sample verdicts (the summary counts these)."""
+
+    lines: list[str] = field(default_factory=list)
+    traces: list[tuple[str, tuple]] = field(default_factory=list)
+    out_of_sample: list[bool] = field(default_factory=list)
+
+    def table(self, header: str, rows: list[str], keys: int = 1) -> None:
+        """A markdown table of tools/validation/compare.py as terminal text, without its log column."""
+        columns = markdown_cells(header.splitlines()[0])
+        self.lines += text_tables(columns, [markdown_cells(r) for r in rows], keys=keys, drop=("log",))
+
+    def summary(self) -> str:
+        n, ok = len(self.out_of_sample), sum(self.out_of_sample)
+        if not n:
+            return "summary: no out-of-sample row (in-sample rows are listed, not counted)"
+        return f"summary: {ok}/{n} out-of-sample rows within their goals (in-sample rows are listed, not counted)"
+
+
+# --- Klipper Stats -------------------------------------------------------------------------------
+
+
+def _stats_heater(path: Path, heater: str, report: Report, closed: list[str], tunes: list[str]) -> None:
+    """One heater's closed-loop replay and PID_CALIBRATE cross-check."""
+    try:
+        r = compare.closed_loop_check(path, heater)
+    except (compare.Unusable, NotFittable) as error:
+        closed.append(compare.unusable_row(path.name, heater, str(error), compare.CLOSED_COLUMNS))
+        return
+    closed.append(compare.closed_loop_row(r))
+    report.traces.append((f"{r.heater}: {r.replay_label}", r.trace))
+    if not r.same_segment:
+        report.out_of_sample.append(all(r.checks.values()))
+    try:
+        t = compare.autotune_check(path, heater, fit=r.fit)
+    except (compare.Unusable, ValueError) as error:
+        tunes.append(compare.unusable_row(path.name, heater, str(error), compare.AUTOTUNE_COLUMNS))
+        return
+    tunes.append(compare.autotune_row(t))
+    report.out_of_sample.append(t.passed)
+
+
+def _stats(path: Path, log: StatsLog) -> Report:
+    report, closed, tunes = Report(), list[str](), list[str]()
     for heater in compare.HEATERS:
-        if not any(heater in s for s in log.sessions):
-            continue
-        try:
-            r = compare.closed_loop_check(path, heater)
-        except (compare.Unusable, NotFittable) as error:
-            lines.append(compare.unusable_row(path.name, heater, str(error), compare.CLOSED_COLUMNS))
-            continue
-        closed.append(r)
-        lines.append(compare.closed_loop_row(r))
-        try:
-            t = compare.autotune_check(path, heater, fit=r.fit)
-        except (compare.Unusable, ValueError) as error:
-            tune_lines.append(compare.unusable_row(path.name, heater, str(error), compare.AUTOTUNE_COLUMNS))
-            continue
-        tunes.append(t)
-        tune_lines.append(compare.autotune_row(t))
-    if not closed:
+        if any(heater in s for s in log.sessions):
+            _stats_heater(path, heater, report, closed, tunes)
+    if not report.traces:
         raise compare.Unusable("no heater of this Klipper log has a heat-up to replay")
-    text = "Closed-loop replay\n\n" + "\n".join(lines) + "\n\nPID_CALIBRATE cross-check\n\n" + "\n".join(tune_lines)
-    return text, [(f"{r.heater}: {r.replay_label}", r.trace) for r in closed]
+    report.lines += ["Closed-loop replay (held-out: the plant fitted to another heat-up; in-sample: to this one)", ""]
+    report.table(compare.CLOSED_HEADER, closed)
+    report.lines += ["", "PID_CALIBRATE cross-check (out-of-sample: the log's saved calibration against the twin's)",
+                     ""]
+    report.table(compare.AUTOTUNE_HEADER, tunes)
+    return report
 
 
-def _heattest(path: Path):
+# --- heattests -------------------------------------------------------------------------------------
+
+
+def _heattest(path: Path) -> Report:
     if path.name not in compare.ONION_FILES or not all((path.parent / f).is_file() for f in compare.ONION_FILES[:3]):
         raise compare.Unusable("the open-loop check needs the onionheater no-fan and fan heattests side by side "
                                f"({', '.join(compare.ONION_FILES[:3])}); this heattest is not one of them")
     r = compare.open_loop_check(path.parent)
-    traces = [(name, (t, logged, twin, None, None)) for name, (t, logged, twin) in r.traces.items()]
-    return "Open-loop prediction (onionheater)\n\n" + compare.open_loop_table(r), traces
+    report = Report(["Open-loop prediction (onionheater; out-of-sample: each fan run predicted from the others)", ""])
+    text = compare.open_loop_table(r).splitlines()  # the fit, a blank line, the table, a blank line, a note
+    end = 4 + len(r.rows)
+    report.lines += textwrap.wrap(text[0], WIDTH) + [""]
+    report.table("\n".join(text[2:4]), text[4:end], keys=1)
+    report.lines += [wrapped for line in text[end:] for wrapped in textwrap.wrap(line, WIDTH) or [""]]
+    report.traces = [(name, (t, logged, twin, None, None)) for name, (t, logged, twin) in r.traces.items()]
+    report.out_of_sample = [row["passed"] for row in r.rows]
+    return report
 
 
-def _m303(path: Path, heater: str | None, ambient_c: float | None):
-    try:
-        r = m303_compare.m303_check(path, heater, ambient_c)
-    except m303_compare.NoRelay as error:
-        raise compare.Unusable(str(error)) from None
-    seg = r.segment
-    sim = r.fit.simulate(seg.t_s, seg.duty)
-    traces = [(f"{r.heater}: relay trace and the fitted {r.fit.model}", (seg.t_s, seg.temp_c, sim, seg.duty, seg.duty))]
-    return "M303: the twin's autotune on the plant fitted to the capture\n\n" + m303_compare.M303_HEADER + "\n" \
-        + m303_compare.m303_row(r), traces
+# --- M303 ------------------------------------------------------------------------------------------
+
+
+def _m303(args: argparse.Namespace) -> Report:
+    with progress_bar("fitting", MAX_EVALUATIONS * len(m303_compare.MODELS), "evaluations") as fits, \
+            progress_bar("twin M303", m303_compare.MAX_RUN_S, "s") as run:
+        try:
+            r = m303_compare.m303_check(args.log, args.heater, args.ambient, args.fit_cycles, args.plant,
+                                        on_evaluation=fits.update, on_progress=lambda s: run.update(s - run.n))
+        except m303_compare.NoRelay as error:
+            raise compare.Unusable(str(error)) from None
+    report = Report(["M303: the twin's autotune against the capture's printed cycles", ""])
+    report.lines += [wrapped for line in m303_compare.heading(r) for wrapped in textwrap.wrap(line, WIDTH,
+                                                                                            subsequent_indent="  ")]
+    report.lines.append("")
+    report.lines += text_tables(m303_compare.CYCLE_COLUMNS, [m303_compare.cycle_cells(row) for row in r.rows])
+    if r.trace_rows:
+        report.lines += ["", "the plant replaying the logged relay levels over the status trace:", ""]
+        report.lines += text_tables(m303_compare.TRACE_COLUMNS, [m303_compare.trace_cells(t) for t in r.trace_rows])
+    report.out_of_sample = [row.passed for row in r.out_of_sample()]
+    if r.trace is not None:
+        t, logged, sim, duty = r.trace
+        report.traces = [(f"{r.heater}: status trace and the plant ({r.plant})", (t, logged, sim, duty, None))]
+    return report
+
+
+# --- output --------------------------------------------------------------------------------------
 
 
 def _plot(file: str, traces) -> None:
@@ -80,13 +148,18 @@ def _plot(file: str, traces) -> None:
         ax.plot(t, twin, label="twin", lw=1.0)
         ax.set_title(title, fontsize=9)
         ax.set_ylabel("temp (C)")
+        handles, labels = ax.get_legend_handles_labels()
+        top = ax
         if log_pwm is not None:
             ax2 = ax.twinx()
             ax2.step(t, log_pwm, where="post", color="C2", lw=0.6, label="pwm log")
-            ax2.step(t, twin_pwm, where="post", color="C3", lw=0.6, label="pwm twin")
+            if twin_pwm is not None:
+                ax2.step(t, twin_pwm, where="post", color="C3", lw=0.6, label="pwm twin")
             ax2.set_ylim(0, 1.05)
             ax2.set_ylabel("pwm")
-        ax.legend(loc="lower right", fontsize=8)
+            more, more_labels = ax2.get_legend_handles_labels()
+            handles, labels, top = handles + more, labels + more_labels, ax2
+        top.legend(handles, labels, loc="lower right", fontsize=8, framealpha=0.9)  # on the top axes: not overdrawn
     axes[-1, 0].set_xlabel("t (s)")
     fig.tight_layout()
     fig.savefig(file)
@@ -98,6 +171,8 @@ EXAMPLES = """examples:
   twin-compare klippy_stats.csv --plot replay.png  the same, with logged vs twin plotted
   twin-compare heattest_200.csv                    the onionheater open-loop fan prediction
   twin-compare m303_capture.txt --ambient 24       an M303 capture: the twin's M303 at its target, Tu and swing
+  twin-compare m303_capture.txt --fit-cycles 2     fitted on the first two printed cycles, the rest predicted
+  twin-compare m303_capture.txt --plant hotend     against a preset (or --plant OTHER_LOG: a plant fitted to it)
   twin-compare m303_bed.txt --heater heater_bed    a capture that lacks its M303 E-1 line
 """
 
@@ -112,29 +187,43 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--ambient", type=ranged_float(-40.0, 100.0, "C"),
                         help="an M303 capture: the room temperature in C (default: the idle heater's reading, else "
                              "25 C)")
-    return parser.parse_args(argv)
+    sample = parser.add_mutually_exclusive_group()
+    sample.add_argument("--fit-cycles", type=int, metavar="K",
+                        help="an M303 capture: fit the first K printed cycles (and the trace up to them), predict "
+                             "the later ones (default: fit all of them, in-sample)")
+    sample.add_argument("--plant", metavar="PRESET_OR_LOG",
+                        help="an M303 capture: the twin's plant instead of a fit to it: a preset (twin/plants.py) or "
+                             "a log that twin-fit fits; every cycle is then out-of-sample")
+    args = parser.parse_args(argv)
+    if args.fit_cycles is not None and args.fit_cycles < 1:
+        parser.error(f"argument --fit-cycles: {args.fit_cycles}: at least one cycle")
+    return args
+
+
+def _report(args: argparse.Namespace) -> Report:
+    log = load_with_progress(args.log)
+    if (args.fit_cycles is not None or args.plant is not None) and not isinstance(log, M303Log):
+        raise compare.Unusable("--fit-cycles and --plant need an M303 capture")
+    if isinstance(log, StatsLog):
+        return _stats(args.log, log)
+    if isinstance(log, HeattestLog):
+        return _heattest(args.log)
+    if isinstance(log, M303Log):
+        return _m303(args)
+    raise compare.Unusable(f"a {type(log).__name__ if not isinstance(log, list) else 'PID results list'}: "
+                           "the checks need a Klipper Stats log, an M303 capture or the onionheater heattests")
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        log = load_log(args.log)
-        if isinstance(log, StatsLog):
-            text, traces = _stats(args.log, log)
-        elif isinstance(log, HeattestLog):
-            text, traces = _heattest(args.log)
-        elif isinstance(log, M303Log):
-            text, traces = _m303(args.log, args.heater, args.ambient)
-        else:
-            raise compare.Unusable(f"a {type(log).__name__ if not isinstance(log, list) else 'PID results list'}: "
-                                   "the checks need a Klipper Stats log, an M303 capture with a trace or the "
-                                   "onionheater heattests")
+        report = _report(args)
     except (LogError, compare.Unusable, NotFittable, OSError, ValueError) as error:
         print(f"twin-compare: {args.log}: not usable: {error}", file=sys.stderr)
         return EXIT_UNUSABLE
-    print(text)
+    print("\n".join(report.lines + ["", report.summary()]))
     if args.plot:
-        _plot(str(args.plot), traces)
+        _plot(str(args.plot), report.traces)
         print(f"plot written to {args.plot}")
     return 0
 

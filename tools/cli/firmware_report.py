@@ -2,14 +2,22 @@
 
 Prints the thermistor table size and its interpolation error, the RAM each controller's state
 takes on the ATmega328, and the worst difference between each integer controller and its float
-reference on seeded random input sequences, next to the bound derived for it. The numbers in
-docs/firmware.md come from this command.
+reference on seeded random input sequences, next to the bound derived for it. Then, with the AVR
+toolchain installed, each law's C compiled for the ATmega328P: flash and RAM from the ELF, peak
+stack and cycles per call measured in simavr (firmware_port/avr/footprint.py), and the worst
+call's share of one temperature-ISR period at 16 MHz. ``--doc docs/firmware.md`` rewrites that
+table in the page. The numbers in docs/firmware.md come from this command.
 """
 
 from __future__ import annotations
 
 import argparse
 import random
+import sys
+from pathlib import Path
+
+from firmware_port.avr.footprint import CYCLES_PER_ISR, Footprint, measure_all
+from firmware_port.avr.toolchain import AVR_CFLAGS, ToolchainMissing, find_toolchain
 
 from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat, ram_report
 from firmware_port.marlin.bangbang import BangBangBed
@@ -104,11 +112,57 @@ def fuzzy_report(rng: random.Random, sequences: int, steps: int) -> list[str]:
     return lines
 
 
+AVR_DOC_BEGIN = "<!-- avr-table: begin"
+AVR_DOC_END = "<!-- avr-table: end -->"
+AVR_COLUMNS = ("law", "flash B", "RAM B", "stack B", "cycles min / median / max", "max us", "ISR period",
+               "CPU at its rate")
+
+
+def avr_rows(footprints: list[Footprint]) -> list[tuple[str, ...]]:
+    """One row of cells per law, in AVR_COLUMNS order."""
+    return [(f.law, str(f.flash_bytes), str(f.ram_bytes), str(f.stack_bytes),
+             f"{f.cycles_min} / {f.cycles_median:g} / {f.cycles_max}", f"{f.max_us:.1f}", f"{f.isr_share:.2%}",
+             f"{f.cpu_share:.3%}") for f in footprints]
+
+
+def avr_header(seed: int, sequences: int, steps: int) -> str:
+    return (f"{find_toolchain().version}, {' '.join(AVR_CFLAGS)}; cycles in simavr at 16 MHz (one ISR period "
+            f"{CYCLES_PER_ISR} cycles), seed {seed}, {sequences} sequences x {steps} calls per law (the thermistor: "
+            "every raw value)")
+
+
+def avr_report(footprints: list[Footprint], header: str) -> list[str]:
+    widths = [max(len(cells[k]) for cells in [AVR_COLUMNS, *avr_rows(footprints)]) for k in range(len(AVR_COLUMNS))]
+    lines = [f"AVR build ({header}):"]
+    for cells in [AVR_COLUMNS, *avr_rows(footprints)]:
+        lines.append("  " + "  ".join(c.ljust(w) if k == 0 else c.rjust(w) for k, (c, w) in enumerate(zip(cells, widths))))
+    return lines
+
+
+def avr_markdown(footprints: list[Footprint], header: str, command: str) -> str:
+    """The table for docs/firmware.md, with the laws' titles and the command that wrote it."""
+    lines = [f"Written by `{command}`: {header}.", "",
+             "| " + " | ".join(AVR_COLUMNS) + " |", "|---|" + "---:|" * (len(AVR_COLUMNS) - 1)]
+    for f, cells in zip(footprints, avr_rows(footprints)):
+        lines.append(f"| {cells[0]}: {f.title} | " + " | ".join(cells[1:]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_avr_doc(path: Path, body: str) -> None:
+    from tools.tuning.benchfuncs import replace_section
+
+    new = replace_section(path.read_text(), body, AVR_DOC_BEGIN, AVR_DOC_END)
+    if new is None:
+        raise ValueError(f"{path} lacks the '{AVR_DOC_BEGIN} ... -->' / '{AVR_DOC_END}' markers")
+    path.write_text(new)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="twin-firmware-report", description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=1, help="seed of the random input sequences (default 1)")
     parser.add_argument("--sequences", type=int, default=40, help="sequences per case (default 40)")
     parser.add_argument("--steps", type=int, default=300, help="samples per sequence (default 300)")
+    parser.add_argument("--doc", type=Path, help="rewrite the AVR table in this page (docs/firmware.md)")
     args = parser.parse_args(argv)
     if args.sequences < 1 or args.steps < 1:
         parser.error("--sequences and --steps must be at least 1")
@@ -117,6 +171,21 @@ def main(argv: list[str] | None = None) -> int:
     lines += pid_report(rng, args.sequences, args.steps)
     lines.append(f"Bang-bang: hotend 0 bytes, bed {BangBangBed.STATE_BYTES} byte of state")
     lines += fuzzy_report(rng, args.sequences, args.steps)
+    try:
+        footprints = measure_all(args.seed, args.sequences, args.steps)
+        header = avr_header(args.seed, args.sequences, args.steps)
+        lines += avr_report(footprints, header)
+        if args.doc is not None:
+            command = " ".join(["twin-firmware-report", *(sys.argv[1:] if argv is None else argv)])
+            write_avr_doc(args.doc, avr_markdown(footprints, header, command))
+    except ToolchainMissing as exc:
+        if args.doc is not None:
+            print(f"twin-firmware-report: --doc needs the AVR build: {exc}", file=sys.stderr)
+            return 2
+        lines.append(f"AVR build: not measured: {exc}")
+    except (ValueError, OSError) as exc:
+        print(f"twin-firmware-report: {exc}", file=sys.stderr)
+        return 2
     print("\n".join(lines))
     return 0
 

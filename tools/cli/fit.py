@@ -1,88 +1,95 @@
-"""twin-fit: fit a thermal model to a heater log; print its parameters and ready-to-paste settings.
+"""twin-fit: fit a thermal model to a heater log; print its parameters, what the log cannot tell, and
+ready-to-paste settings.
 
-LOG is any log tools/logs/ reads (Klipper Stats CSV or klippy.log, Klipper heattest, Marlin
-M303 console text with status reports, a plain t,temp,duty CSV). The log's segments worth fitting
-are listed (tools/ident/fit.py log_segments: heat-ups with their hold, pulses, status runs); one is
-fitted (--segment, default the first with at least half the longest time at full power). The
-output gives each parameter with its standard error, the residuals, a FOPDT equivalent, and
-Marlin (M306 for two_node, M301/M304) and Klipper settings (PID gains by the AMIGO rule).
+LOG is any log tools/logs/ reads: Klipper Stats CSV or klippy.log, a Klipper heattest, a plain
+t,temp,duty CSV (one segment fitted: --segment, default the first with at least half the longest
+time at full power); Marlin M303 console text, with or without its 2 s status trace (the printed
+relay cycles, each a measured point of the loop, fitted with the trace where there is one); Klipper
+PID_CALIBRATE results (one entry's Tu and swing). tools/ident/log_fit.py does the fitting. The
+output gives each parameter with its standard error and whether the log identifies it, a
+plausible range with its source for those it does not, the residuals, a FOPDT equivalent, and
+Marlin (M306 for two_node, M301/M304) and Klipper settings: the PID gains twin-tune's tuner suggests
+(tools/tuning/problems.py quick_tune: the rules and the twin's M303 on the fitted plant's ensemble,
+never one that trips on a plant the log allows).
 --loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
+
+Exit status: 0 fitted; 2 the log or the options cannot be used (one line on stderr); 3 the fit is
+degenerate: it identifies none of the model's lags, and no gains are printed.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
+from pathlib import Path
 
 import numpy as np
 
 from tools.cli.args import OneLineParser, ranged_float
-from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_hint_c
-from tools.ident.fit import (
-    CONTROL_DELAY_S,
-    LOSSES,
-    LUMPED_MODELS,
-    MODELS,
-    RADIATING_BOUNDS_M2,
-    RADIATING_EMISSIVITY,
-    RADIATING_PARAM,
-    FitResult,
-    Fopdt,
-    NotFittable,
-    Segment,
-    aic,
-    default_segment,
-    fit_losses,
-    fit_model,
-    fopdt_equivalent,
-    log_segments,
-    relay_fopdt,
-    ultimate_point,
-)
-from tools.tuning.rules import amigo
-from tools.logs import MARLIN_POWER_MAX, HeattestLog, LogError, M303Log, PlainLog, StatsLog, load_log
+from tools.cli.progress import load_with_progress, progress_bar
+from tools.ident.fit import LOSSES, LUMPED_MODELS, MODELS, RADIATING_BOUNDS_M2, RADIATING_EMISSIVITY, RADIATING_PARAM
+from tools.ident.fopdt import CONTROL_DELAY_S, Fopdt, fopdt_equivalent, relay_fopdt, ultimate_point
+from tools.ident.log_fit import BED, HEATER_NAMES, LogFit, LogFitOptions, fit_log
+from tools.ident.lsq import MAX_EVALUATIONS
+from tools.ident.relay_points import CYCLE_SCATTER_SWING_REL, CYCLE_SCATTER_TU_REL, RelayPoint
+from tools.ident.relay_trace import AMBIENT_PRIOR_C
+from tools.ident.result import FitResult
+from tools.ident.segments import NotFittable
+from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog
+from tools.tuning.evaluate import Candidate
+from tools.tuning.problems import build_problem, fitted_source, quick_tune, safe_best
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
-BED = "heater_bed"
-HEATER_NAMES = ("extruder", BED)  # the heaters a log here can hold
+EXIT_UNUSABLE = 2
+EXIT_DEGENERATE = 3
+WIDTH = 120  # output lines are wrapped to this
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
-ASSUMED_POWER_W = {BED: BED_POWER_W}  # else MPC_HEATER_POWER_W; twin/plants.py says where both come from
 KINDS = {StatsLog: "Klipper Stats", HeattestLog: "Klipper heattest (open loop)", M303Log: "Marlin M303 console text",
-         PlainLog: "plain CSV (time, temperature, duty)"}
+         PlainLog: "plain CSV (time, temperature, duty)", list: "Klipper PID_CALIBRATE results"}
 STATS_NOTE = ("Klipper Stats: pwm is the last value sent to the MCU, once a second; Klipper holds back a change "
               "under 5 % of max_power for up to 2.1..3.75 s (by version). It is the input all the same.")
 ERRORS_NOTE = ("standard errors: from the Jacobian, for independent residuals; a log's residuals are correlated "
                "(model error, quantised readings), so take them as lower bounds")
 
-
 EXAMPLES = """examples:
   twin-fit klippy.log                                   the extruder's heat-up, two_node (gives M306)
   twin-fit klippy.log --heater heater_bed --power-w 250 the bed, with its real wattage
   twin-fit heattest.csv --model three_node --ambient 21.4
-  twin-fit m303_capture.txt --ambient 24                an M303 console capture (relay trace)
+  twin-fit m303_capture.txt --ambient 24                an M303 console capture (printed cycles, status trace)
+  twin-fit m303_results.txt                             the M303 result lines alone: fopdt from the cycles
+  twin-fit m303_capture.txt --fit-cycles 2              the first two printed cycles only
   twin-fit m303_bed.txt --heater heater_bed             a capture without its M303 E-1 line
+  twin-fit pid_results.txt --segment 3                  a PID_CALIBRATE result: Tu and swing, gain held
   twin-fit heattest.csv --model three_node --loss auto  with a radiation-like loss too, if AIC prefers it
 """
 AMBIENT_RANGE_C = (-40.0, 100.0)  # a room, a heated enclosure: a wider value is a typo
 POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
+TARGET_RANGE_C = (1.0, 500.0)  # a relay target: above freezing, below any hotend's limit
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = OneLineParser(prog="twin-fit", description=__doc__, epilog=EXAMPLES)
     parser.add_argument("log", metavar="LOG", help="the log file")
     parser.add_argument("--model", choices=MODELS,
-                        help="two_node (Marlin's MPC model, gives M306; the default), three_node (plus the heater "
-                             "cartridge: the default for an M303 capture, whose relay period needs the lag), fopdt or "
-                             "sopdt (first/second order plus dead time)")
+                        help="two_node (Marlin's MPC model, gives M306; the default for a trace), three_node (plus "
+                             "the heater cartridge: the default for an M303 capture with a status trace), fopdt (the "
+                             "default for relay results alone) or sopdt (first/second order plus dead time)")
     parser.add_argument("--heater", choices=HEATER_NAMES,
                         help="extruder or heater_bed (default: extruder, or the log's only heater; for an M303 "
                              "capture without its M303 line, which heater it tuned)")
     parser.add_argument("--session", type=int, help="only this session of a Klipper log (0-based, as listed)")
     parser.add_argument("--segment", type=int, help="the segment to fit (as listed; default: the first with at "
-                        "least half the longest time at full power)")
+                        "least half the longest time at full power); for PID_CALIBRATE results, the entry (default 0)")
+    parser.add_argument("--fit-cycles", type=int, metavar="K",
+                        help="an M303 capture: fit the first K printed cycles only (and the trace up to them)")
+    parser.add_argument("--target", type=ranged_float(*TARGET_RANGE_C, "C"),
+                        help="relay data: the relay's target in C where the capture does not state it (default: an "
+                             "M303 capture's command, else its switches or the middle of its cycles; PID_CALIBRATE "
+                             "results: 200 C for a hotend, 60 C for a bed, assumed)")
     parser.add_argument("--ambient", type=ranged_float(*AMBIENT_RANGE_C, "C"),
                         help="ambient temperature in C (default: fitted, at most the segment's lowest reading; for "
-                             "an M303 capture, whose readings all sit near the target, the idle bed's reading or "
+                             "relay data, whose readings all sit near the target, the idle bed's reading or "
                              f"{AMBIENT_PRIOR_C:g} C)")
     parser.add_argument("--power-w", type=ranged_float(*POWER_RANGE_W, "W"),
                         help="heater power in W for two_node/three_node (default: assumed "
@@ -95,23 +102,79 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.loss != "linear" and args.model not in (None, *LUMPED_MODELS):
         parser.error(f"--loss {args.loss} needs --model two_node or three_node: {args.model} has no heat-loss term")
+    if args.fit_cycles is not None and args.fit_cycles < 1:
+        parser.error(f"argument --fit-cycles: {args.fit_cycles}: at least one cycle")
     return args
 
 
-def _param_lines(result: FitResult) -> list[str]:
-    lines = []
-    for name, value in result.params.items():
-        error = result.std_errors[name]
-        spread = ("at its bound" if np.isnan(error) else "not determined by this segment" if np.isinf(error)
-                  else f"+- {error:.2g}")
-        lines.append(f"  {name:30} {value:12.5g}  {spread}")
-    lines += [f"  {name:30} {value:12.5g}  held" for name, value in result.fixed.items()]
+# --- the report, step by step --------------------------------------------------------------------
+
+
+def _wrap(text: str, indent: str = "  ") -> list[str]:
+    return textwrap.wrap(text, WIDTH, initial_indent=indent, subsequent_indent=indent + "  ")
+
+
+def _wrap_keeping_indent(line: str) -> list[str]:
+    indent = line[: len(line) - len(line.lstrip())]
+    return _wrap(line.lstrip(), indent) if len(line) > WIDTH else [line]
+
+
+def _log_lines(log: Log, fitted: LogFit) -> list[str]:
+    """What the log is and the segments it offers, the fitted one starred."""
+    kind = next((name for cls, name in KINDS.items() if isinstance(log, cls)), type(log).__name__)
+    lines = [f"{kind}; heater {fitted.heater}"]
+    if fitted.segments:
+        lines[0] += "; segments (open loop: full power or off; in between: the controller's duty):"
+        for i, seg in enumerate(fitted.segments):
+            seg = fitted.segment if i == fitted.chosen and fitted.segment is not None else seg
+            lines.append(f"  {'*' if i == fitted.chosen else ' '}{i:3d}  {seg.label}, {len(seg.t_s)} samples:")
+            lines += _wrap(seg.note, " " * 8)
     return lines
 
 
-def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str]:
-    """The FOPDT equivalent, its ultimate point and the settings to paste; tuned on a dead time of
-    at least the log's sample interval (a log cannot show a shorter one)."""
+def _point_lines(points: list[RelayPoint]) -> list[str]:
+    """The relay cycles fitted: their levels, what they printed, what the bias steps bracket."""
+    if not points:
+        return []
+    lines = ["relay cycles fitted (levels in duty 0..1; t_high - t_low from the bias update, where there is one):"]
+    for p in points:
+        extremes = f"min {p.min_c:.2f} max {p.max_c:.2f}" if p.min_c is not None else f"swing {p.swing_c:.2f} C"
+        asym = f", t_high - t_low {p.asymmetry_s[0]:+.2f}..{p.asymmetry_s[1]:+.2f} s" if p.asymmetry_s else ""
+        lines += _wrap(f"line {p.line_no}: target {p.relay.target_c:g} C, on {p.relay.on_duty:.3f} off "
+                       f"{p.relay.off_duty:.3f}: Tu {p.tu_s:.2f} s, {extremes}{asym}"
+                       + (f" ({p.levels_note})" if p.levels_note else ""))
+    return lines
+
+
+def _residual_lines(result: FitResult, fitted: LogFit) -> list[str]:
+    if result.evidence == "trace":
+        return [f"  RMSE {result.rmse_c:.2f} C, max |residual| {result.max_abs_residual_c:.2f} C"
+                f" over {result.n_samples} samples"]
+    what = "relay cycles and trace" if "trace" in result.evidence else "relay cycles"
+    lines = [f"  {what}: RMS residual {result.rmse_c:.2f} in units of the cycles' scatter (Tu "
+             f"{100 * CYCLE_SCATTER_TU_REL:g} %, swing {100 * CYCLE_SCATTER_SWING_REL:g} %)"]
+    trace = fitted.trace_residuals_c()
+    if trace.size:
+        lines.append(f"  trace: RMSE {float(np.sqrt(np.mean(trace ** 2))):.2f} C, max |residual| "
+                     f"{float(np.max(np.abs(trace))):.2f} C over {trace.size} readings")
+    return lines
+
+
+def _spread_lines(result: FitResult) -> list[str]:
+    """What the data cannot tell: each parameter left open, its range and where the range comes from."""
+    spread = result.spread()
+    if not spread:
+        return ["what the data cannot tell: nothing among the fitted parameters (all identified)"]
+    lines = ["what the data cannot tell (tools/ident/plausible.py; FitResult.spread() gives these to a tuner):"]
+    for r in spread:
+        lines += _wrap(f"{r.name} {r.low:.4g}..{r.high:.4g}: {r.source}")
+    return lines
+
+
+def _settings_lines(result: FitResult, heater: str, sample_s: float, suggestion: Candidate | None) -> list[str]:
+    """The FOPDT equivalent and its ultimate point (on a dead time of at least the log's sample interval: a
+    log cannot show a shorter one); the settings to paste: the M306 line of a two-node fit, and the PID
+    gains the tuner suggests (None: none holds on every plant the log allows)."""
     fopdt = fopdt_equivalent(result)
     how = "the fit itself" if result.model == "fopdt" else "seed 001's two-point method on the model's step response"
     lines = [f"FOPDT equivalent ({how}): gain {fopdt.gain_c:.4g} C at full power, time constant "
@@ -121,40 +184,35 @@ def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str
         lines.append(f"  tuned on a dead time of {sample_s:.3g} s, the log's sample interval: it cannot show less")
     delayed = fopdt._replace(delay_s=fopdt.delay_s + CONTROL_DELAY_S)
     ku, tu_s = ultimate_point(delayed)
-    gains = amigo(delayed)
-    kp, ki, kd = gains.kp, gains.ki, gains.kd
     lines += [f"  with the loop's {CONTROL_DELAY_S:g} s of delay: ultimate gain Ku {ku:.4g} duty per C (x255: Marlin's "
-              f"M303 Ku), period Tu {tu_s:.4g} s: what an ideal relay test would find",
-              "ready to paste (PID by the AMIGO rule on that FOPDT, gains on the 0..255 scale):"]
+              f"M303 Ku), period Tu {tu_s:.4g} s: what an ideal relay test would find"]
+    if heater != BED:
+        lines += ["ready to paste, MPC (the fitted model is its own tune):", *_mpc_lines(result)]
+    if suggestion is None:
+        return lines + ["no tuning rule's gains, nor the twin's M303, hold on every plant this log allows (each trips "
+                        "on some): `twin-tune --from-log` searches further and proves what it prints"]
+    kp, ki, kd = suggestion.gains.kp, suggestion.gains.ki, suggestion.gains.kd
+    command = "M304" if heater == BED else "M301"
+    return lines + [
+        f"ready to paste, PID ({suggestion.method}: the best of the tuning rules and the twin's M303 on the fitted plant "
+        "and the corners its data allow, with ADC noise, tripping on none; scored on Marlin's loop by twin-tune's "
+        "tuner; `twin-tune --from-log` searches further and proves it):",
+        f"  Marlin:  {command} P{kp:.4g} I{ki:.4g} D{kd:.4g}",
+        "  Klipper (scored on Marlin's loop; `twin-tune --from-log LOG --loop klipper` tunes Klipper's own):",
+        f"    [{heater}]", "    control: pid", f"    pid_Kp: {kp:.4g}", f"    pid_Ki: {ki:.4g}", f"    pid_Kd: {kd:.4g}"]
+
+
+def _mpc_lines(result: FitResult) -> list[str]:
+    """Marlin's M306 line where the model is Marlin's MPC model, else why not."""
     v = result.values
-    if heater == BED:
-        lines.append(f"  Marlin:  M304 P{kp:.4g} I{ki:.4g} D{kd:.4g}   (Marlin's MPC, M306, is for hotends only)")
-    else:
-        if result.model == "two_node" and result.loss == "radiating":
-            lines.append("  Marlin:  (M306 has no radiation term: --loss linear fits Marlin's MPC model)")
-        elif result.model == "two_node":
-            lines.append(f"  Marlin:  M306 P{v['power_w']:.2f} C{v['block_heat_capacity_j_k']:.2f} "
-                         f"R{v['sensor_responsiveness_per_s']:.4f} A{v['ambient_xfer_w_k']:.4f} "
-                         f"F{v['ambient_xfer_w_k']:.4f}")
-            lines.append("           (P as assumed: with your heater's P', scale C, A and F by P'/P; F = A, the log "
-                         "has no part-fan speed)")
-        else:
-            lines.append("  Marlin:  (M306 needs --model two_node: Marlin's MPC is that two-node model)")
-        lines.append(f"           M301 P{kp:.4g} I{ki:.4g} D{kd:.4g}")
-    lines += ["  Klipper:", f"    [{heater}]", "    control: pid", f"    pid_Kp: {kp:.4g}", f"    pid_Ki: {ki:.4g}",
-              f"    pid_Kd: {kd:.4g}"]
-    return lines
-
-
-def _fit(model: str, seg: Segment, ambient_c: float | None, power_w: float | None,
-         loss: str) -> tuple[FitResult, list[str]]:
-    """The fit --loss asks for; for auto also the line comparing both losses."""
-    series = (model, seg.t_s, seg.temp_c, seg.duty, ambient_c)
-    if loss != "auto":
-        return fit_model(*series, power_w=power_w, observed=seg.observed, loss=loss), []
-    choice = fit_losses(*series, power_w=power_w, observed=seg.observed)
-    compared = "; ".join(f"{name} RMSE {fit.rmse_c:.2f} C, AIC {aic(fit):.0f}" for name, fit in choice.fits.items())
-    return choice.fits[choice.kept], [f"loss (--loss auto): {compared}: kept {choice.kept} (lower AIC)"]
+    if result.model == "two_node" and result.loss == "radiating":
+        return ["  Marlin:  (M306 has no radiation term: --loss linear fits Marlin's MPC model)"]
+    if result.model != "two_node":
+        return ["  Marlin:  (M306 needs --model two_node: Marlin's MPC is that two-node model)"]
+    return [f"  Marlin:  M306 P{v['power_w']:.2f} C{v['block_heat_capacity_j_k']:.2f} "
+            f"R{v['sensor_responsiveness_per_s']:.4f} A{v['ambient_xfer_w_k']:.4f} F{v['ambient_xfer_w_k']:.4f}",
+            "           (P as assumed: with your heater's P', scale C, A and F by P'/P; F = A, the log "
+            "has no part-fan speed)"]
 
 
 def _radiation_line(result: FitResult) -> str:
@@ -166,49 +224,36 @@ def _radiation_line(result: FitResult) -> str:
             "(stands for every loss that grows faster than linearly with temperature)")
 
 
-def run(args: argparse.Namespace) -> int:
-    log = load_log(args.log)
-    heater, segments = log_segments(log, args.heater, args.session)
-    chosen = default_segment(segments) if args.segment is None else args.segment
-    if not 0 <= chosen < len(segments):
-        raise ValueError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
-    print(f"twin-fit: {args.log}")
-    print(f"{KINDS.get(type(log), type(log).__name__)}; heater {heater}; segments (open loop: full power or off;"
-          " in between: the controller's duty):")
-    for i, seg in enumerate(segments):
-        print(f"  {'*' if i == chosen else ' '}{i:3d}  {seg.label}, {len(seg.t_s)} samples: {seg.note}")
-    seg = segments[chosen]
-    model = args.model or ("three_node" if isinstance(log, M303Log) else "two_node")
-    power_w = args.power_w
-    if model in ("two_node", "three_node") and power_w is None:
-        power_w = ASSUMED_POWER_W.get(heater, MPC_HEATER_POWER_W)
-    ambient_c = args.ambient
-    if ambient_c is None and isinstance(log, M303Log):
-        ambient_c = ambient_hint_c(log)
-        print(f"ambient {ambient_c:g} C: {'the idle heater reads it' if log.idle_readings_c else 'a room, assumed'}"
-              " (a relay trace near its target cannot tell; --ambient sets it)")
-    result, compared = _fit(model, seg, ambient_c, power_w, args.loss)
-    for line in compared:
-        print(line)
-    print(f"fit: {model}{', radiating loss' if result.loss == 'radiating' else ''} on segment {chosen}"
-          + (f", power_w {power_w:g} W assumed (the log fixes P/C and P/A, not the wattage)"
-             if args.power_w is None and power_w else ""))
-    print("\n".join(_param_lines(result) + ([_radiation_line(result)] if result.loss == "radiating" else [])))
-    print(f"  RMSE {result.rmse_c:.2f} C, max |residual| {result.max_abs_residual_c:.2f} C"
-          f" over {result.n_samples} samples")
+def _fit_report(fitted: LogFit, log: Log) -> list[str]:
+    """Everything about the fit itself, before the settings."""
+    result = fitted.result
+    on = "segment" if fitted.chosen is not None else "the printed cycles"
+    where = f" on {on} {fitted.chosen}" if fitted.chosen is not None else f" on {on}"
+    lines = [f"loss (--loss auto): {'; '.join(fitted.compared)}: kept {result.loss} (lower AIC)"] if fitted.compared \
+        else []
+    lines += [f"fit: {result.model}{', radiating loss' if result.loss == 'radiating' else ''}{where} ({result.evidence})"]
+    lines += [f"  {note}" for note in fitted.notes]
+    lines += result.parameter_lines() + ([_radiation_line(result)] if result.loss == "radiating" else [])
+    lines += _residual_lines(result, fitted)
     if derived := result.derived():
-        print("  power-free: " + ", ".join(f"{name} {value:.4g}" for name, value in derived.items()))
-    print(f"  {ERRORS_NOTE}")
+        lines.append("  power-free: " + ", ".join(f"{name} {value:.4g}" for name, value in derived.items()))
+    lines += _wrap(ERRORS_NOTE)
     if isinstance(log, StatsLog):
-        print(STATS_NOTE)
-    print("\n".join(_settings_lines(result, heater, float(np.median(np.diff(seg.t_s))))))
-    if isinstance(log, StatsLog) and (config := log.meta["config"].get(heater, {})).get("pid_kp"):
-        print(f"the log's own gains: pid_Kp {config['pid_kp']}, pid_Ki {config.get('pid_ki')}, "
-              f"pid_Kd {config.get('pid_kd')}")
-    cycle = next((c for c in reversed(log.cycles) if c.ku and c.tu_s), None) if isinstance(log, M303Log) else None
-    if cycle and log.power_max == MARLIN_POWER_MAX:  # Repetier's Ku takes the full swing: not compared
-        print(_relay_line(cycle.ku / MARLIN_KU_SCALE, cycle.tu_s, fopdt_equivalent(result)))
-    return 0
+        lines.append(STATS_NOTE)
+    return lines + _spread_lines(result)
+
+
+def _log_notes(log: Log, fitted: LogFit) -> list[str]:
+    """The log's own gains or relay result next to the fit, where it has them."""
+    if isinstance(log, StatsLog) and (config := log.meta["config"].get(fitted.heater, {})).get("pid_kp"):
+        return [f"the log's own gains: pid_Kp {config['pid_kp']}, pid_Ki {config.get('pid_ki')}, "
+                f"pid_Kd {config.get('pid_kd')}"]
+    if not isinstance(log, M303Log) or log.power_max != MARLIN_POWER_MAX:  # Repetier's Ku takes the full swing
+        return []
+    cycle = next((c for c in reversed(log.cycles) if c.ku and c.tu_s), None)
+    if cycle is None or cycle.ku is None or cycle.tu_s is None:
+        return []
+    return [_relay_line(cycle.ku / MARLIN_KU_SCALE, cycle.tu_s, fopdt_equivalent(fitted.result))]
 
 
 def _relay_line(ku: float, tu_s: float, fitted: Fopdt) -> str:
@@ -220,6 +265,26 @@ def _relay_line(ku: float, tu_s: float, fitted: Fopdt) -> str:
     return (f"the log's last relay cycle, Ku {ku:.4g} duty per C, Tu {tu_s:.4g} s, through the fitted gain: time "
             f"constant {relay.time_constant_s:.4g} s, dead time {relay.delay_s:.3g} s (relay_fopdt; the fit: "
             f"{fitted.time_constant_s:.4g} s, {fitted.delay_s:.3g} s)")
+
+
+def _options(args: argparse.Namespace, on_evaluation) -> LogFitOptions:
+    return LogFitOptions(args.model, args.heater, args.session, args.segment, args.ambient, args.power_w, args.loss,
+                         args.fit_cycles, args.target, on_evaluation)
+
+
+def run(args: argparse.Namespace) -> int:
+    log = load_with_progress(args.log)
+    with progress_bar("fitting", MAX_EVALUATIONS, "evaluations") as bar:
+        fitted = fit_log(log, _options(args, bar.update))
+    print(f"twin-fit: {args.log}")
+    print("\n".join(_log_lines(log, fitted) + _point_lines(fitted.points) + _fit_report(fitted, log)))
+    if reason := fitted.degenerate:
+        print(f"twin-fit: {args.log}: degenerate fit, no gains: {reason}", file=sys.stderr)
+        return EXIT_DEGENERATE
+    suggestion = safe_best(quick_tune(build_problem(fitted_source(fitted, Path(args.log).name))))
+    settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s, suggestion) + _log_notes(log, fitted)
+    print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -237,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"twin-fit: error: {args.log}: {exc.strerror or exc}", file=sys.stderr)
     except ValueError as exc:
         print(f"twin-fit: error: {args.log}: {exc}", file=sys.stderr)
-    return 2
+    return EXIT_UNUSABLE
 
 
 if __name__ == "__main__":

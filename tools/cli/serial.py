@@ -15,17 +15,12 @@ import sys
 import textwrap
 
 from firmware_port.firmwares import FIRMWARES
-from protocol.transport import (
-    MAX,
-    Pacer,
-    PtyServer,
-    RxCorruptor,
-    TcpServer,
-    Transcript,
-    build_printer,
-    parse_idle_speed,
-    parse_speed,
-)
+from protocol.build import build_printer
+from protocol.corruption import RxCorruptor
+from protocol.pacing import MAX, Pacer, parse_idle_speed, parse_speed
+from protocol.pty_server import PtyServer
+from protocol.tcp_server import TcpServer
+from protocol.transcript import Transcript
 from twin.plants import PRESETS as PLANT_PRESETS
 
 DEFAULT_TCP_HOST = "127.0.0.1"

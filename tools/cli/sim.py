@@ -8,33 +8,51 @@ and a plot into ./twin-out/.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
+import re
 import sys
+import textwrap
+
+from tqdm import tqdm
 
 from firmware_port.firmwares import FIRMWARES
+from firmware_port.marlin.mpc import MpcConstants, MpcController
+from protocol.mpc_commands import hotend_mpc, mpc_constants_from_text
 from twin.build import build_twin
 from twin.engine import ENGINES
+from twin.plants import DEFAULT_BED, DEFAULT_HOTEND
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
 from twin.scenario import ScenarioError, scenario_for, with_overrides
 
-PROGRESS_SLICES = 20
+PROGRESS_STEP_S = 10.0  # virtual seconds between progress bar updates
 NOISE_MAX_LSB = 100.0  # ADC noise beyond this is no sensor, it is a broken wire
+EXIT_HALTED = 1
+EXIT_STATUS = """exit status:
+  0  the run completed and no protection fault tripped
+  1  the board halted: a thermal protection fault tripped (runaway, heating failed, MINTEMP,
+     MAXTEMP); the trace and plot are written all the same
+  2  bad input (an option, a scenario file, an output path), said in one line; nothing is run"""
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="twin-sim",
         description=__doc__.splitlines()[0],
-        epilog=(
-            "firmwares: " + "; ".join(f"{k}: {v[2]}" for k, v in FIRMWARES.items())
-            + ". plants: " + ", ".join(PLANT_PRESETS) + ". scenarios: " + ", ".join(SCENARIO_PRESETS) + "."
-        ),
+        epilog="\n\n".join([*(textwrap.fill(paragraph, 100) for paragraph in (
+            "firmwares: " + "; ".join(f"{k}: {v[2]}" for k, v in FIRMWARES.items()) + ".",
+            "plants: " + ", ".join(PLANT_PRESETS) + ". scenarios: " + ", ".join(SCENARIO_PRESETS) + ".",
+            "outputs: OUT/<scenario>_<firmware>[_<what differs from the defaults>].csv and .png: a non-default "
+            "plant, --set, --no-bed or gains go into the name, so runs of other plants or gains do not overwrite "
+            "each other. --out is created; --csv, --plot and --klipper-log must name a file in an existing folder.",
+        )), EXIT_STATUS]),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--firmware", choices=list(FIRMWARES), default="pid", help="firmware build (default pid)")
-    parser.add_argument("--plant", choices=list(PLANT_PRESETS), help="hotend plant preset (default: the scenario's, else hotend)")
-    parser.add_argument("--bed-plant", choices=list(PLANT_PRESETS), help="bed plant preset (default: the scenario's, else bed)")
+    parser.add_argument("--plant", choices=list(PLANT_PRESETS), help=f"hotend plant preset (default: the scenario's, else {DEFAULT_HOTEND})")
+    parser.add_argument("--bed-plant", choices=list(PLANT_PRESETS), help=f"bed plant preset (default: the scenario's, else {DEFAULT_BED})")
     parser.add_argument("--no-bed", action="store_true", help="a board with a hotend only")
     parser.add_argument("--scenario", default="heat_hold", help="preset name or TOML file (default heat_hold)")
     parser.add_argument("--target", type=int, help="hotend target in C (replaces the scenario's first setpoint)")
@@ -48,16 +66,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--bed-set", action="append", default=[], metavar="KEY=VALUE", help="bed plant parameter")
     parser.add_argument("--gains", metavar="KP,KI,KD", help="hotend PID gains at 0 s, M301 units (PID firmwares)")
     parser.add_argument("--bed-gains", metavar="KP,KI,KD", help="bed PID gains at 0 s, M304 units")
+    parser.add_argument("--mpc-from", metavar="FILE|LINE",
+                        help="MPC's model for --firmware mpc: an M306 line (as twin-fit, M306 or M503 print it) "
+                             "or a file holding one; letters it leaves out keep Configuration.h's values")
     parser.add_argument("--seed", type=int, help="seed of every random source (default: the scenario's, else 0)")
     parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default 0)")
-    parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default) or the tick-by-tick reference")
+    parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default), the tick-by-tick reference, or avr: fast with the "
+                        "controllers' C compiled for the ATmega328P and run in simavr")
     parser.add_argument("--record-every", type=float, default=0.0, metavar="SECONDS",
                         help="at most one trace row per SECONDS (default: every firmware reading, 0.164 s; "
                              "a row costs about 380 bytes: bound long runs with this)")
-    parser.add_argument("--out", default="twin-out", help="directory for the default trace and plot (default twin-out)")
-    parser.add_argument("--csv", help="trace CSV path (default OUT/<scenario>_<firmware>.csv)")
+    parser.add_argument("--out", default="twin-out",
+                        help="directory for the default trace and plot, created if missing (default twin-out)")
+    parser.add_argument("--csv", help="trace CSV path (default OUT/<run name>.csv, see outputs below)")
     parser.add_argument("--klipper-log", help="also write the trace as Klipper Stats lines to this path")
-    parser.add_argument("--plot", help="plot PNG path (default OUT/<scenario>_<firmware>.png; needs matplotlib)")
+    parser.add_argument("--plot", help="plot PNG path (default OUT/<run name>.png; needs matplotlib)")
     parser.add_argument("--no-plot", action="store_true", help="do not draw a plot")
     return parser.parse_args(argv)
 
@@ -90,20 +113,60 @@ def parse_gains(text: str | None, option: str) -> dict[str, float] | None:
     return dict(zip(("kp", "ki", "kd"), values, strict=True))
 
 
-def check_outputs(paths: list[str | None], plot_path: str | None) -> None:
-    """Before any work: each output's folder can be made and written, the plot is a PNG."""
+def read_mpc_constants(source: str) -> MpcConstants:
+    """--mpc-from: the constants of the first M306 line of a file, or of the argument itself."""
+    text = source
+    if os.path.isfile(source):
+        try:
+            with open(source, encoding="utf-8", errors="replace") as handle:
+                text = handle.read()
+        except OSError as exc:
+            raise ValueError(f"--mpc-from {source!r}: {exc.strerror or exc}") from None
+    try:
+        return mpc_constants_from_text(text)
+    except ValueError as exc:
+        raise ValueError(f"--mpc-from {source!r}: {exc}") from None
+
+
+def hotend_controllers(args: argparse.Namespace) -> list:
+    """--mpc-from: the hotend's MPC with those constants, as a factory (a board reset rebuilds it)."""
+    if args.mpc_from is None:
+        return []
+    if args.firmware != "mpc":
+        raise ValueError(f"--mpc-from sets MPC's model: it needs --firmware mpc, not {args.firmware}")
+    return [functools.partial(MpcController, read_mpc_constants(args.mpc_from))]
+
+
+def run_name(scenario_name: str, args: argparse.Namespace) -> str:
+    """<scenario>_<firmware>, then what differs from the defaults (plants, --set, --no-bed, gains),
+    so that a run of another plant or other gains does not overwrite this one's files."""
+    parts = [scenario_name, args.firmware]
+    parts += [args.plant] if args.plant else []
+    parts += [f"bed-{args.bed_plant}"] if args.bed_plant else []
+    parts += ["nobed"] if args.no_bed else []
+    parts += [item.replace("=", "-") for item in args.set] + [f"bed-{item.replace('=', '-')}" for item in args.bed_set]
+    parts += [f"gains-{args.gains.replace(',', '-')}"] if args.gains else []
+    parts += [f"bedgains-{args.bed_gains.replace(',', '-')}"] if args.bed_gains else []
+    return re.sub(r"[^A-Za-z0-9._+-]", "_", "_".join(parts))
+
+
+def check_outputs(out_dir: str, paths: list[tuple[str, str | None]], plot_path: str | None) -> None:
+    """Before any work: the --out folder is made; every other output names a file in an existing,
+    writable folder (as twin-compare asks of --plot); the plot is a PNG."""
     if plot_path is not None and not plot_path.lower().endswith(".png"):
         raise ValueError(f"--plot {plot_path!r}: the plot is written as PNG, give a .png path")
-    for path in paths:
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create the output folder {out_dir!r}: {exc.strerror or exc}") from None
+    for option, path in paths:
         if path is None:
             continue
         folder = os.path.dirname(os.path.abspath(path))
-        try:
-            os.makedirs(folder, exist_ok=True)
-        except OSError as exc:
-            raise ValueError(f"cannot create the output folder {folder!r}: {exc.strerror or exc}") from None
+        if not os.path.isdir(folder):
+            raise ValueError(f"{option} {path!r}: the folder {folder!r} does not exist")
         if not os.access(folder, os.W_OK) or os.path.isdir(path):
-            raise ValueError(f"cannot write {path!r}")
+            raise ValueError(f"{option}: cannot write {path!r}")
 
 
 def clamp_notes(twin, scenario) -> list[str]:
@@ -151,22 +214,28 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--record-every {args.record_every}: must be 0..duration_s ({scenario.duration_s:g}) seconds")
     if not (math.isfinite(args.noise) and 0.0 <= args.noise <= NOISE_MAX_LSB):
         raise ValueError(f"--noise {args.noise}: must be a number of LSB in 0..{NOISE_MAX_LSB:g}")
-    stem = f"{scenario.name}_{args.firmware}".replace(" ", "_")
+    stem = run_name(scenario.name, args)
     plot_path = None if args.no_plot else (args.plot or os.path.join(args.out, stem + ".png"))
     csv_path = args.csv or os.path.join(args.out, stem + ".csv")
-    check_outputs([csv_path, args.klipper_log, plot_path], plot_path)
-    twin = build_twin(scenario, args.firmware, with_bed=not args.no_bed, engine=args.engine, noise_lsb=args.noise)
+    controllers = hotend_controllers(args)
+    check_outputs(args.out, [("--csv", csv_path), ("--klipper-log", args.klipper_log), ("--plot", plot_path)],
+                  plot_path)
+    twin = build_twin(scenario, args.firmware, controllers=controllers, with_bed=not args.no_bed, engine=args.engine,
+                      noise_lsb=args.noise)
     twin.record_every_s = args.record_every
     twin.run_until(0.0)  # the scenario's 0 s events: targets and gains in force
     print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
     print(gains_line(twin))
+    if (mpc := hotend_mpc(twin.board)) is not None:
+        print(f"mpc: {mpc.constants.m306()}")
     for note in clamp_notes(twin, scenario):
         print(note)
     _run_with_progress(twin, scenario.duration_s)
 
     result = twin.result()
     print(result.report(_disturbances(scenario)))
-    for t, what, heater_id in result.protection_trips():
+    trips = result.protection_trips()
+    for t, what, heater_id in trips:
         print(f"protection at {t:.1f} s: {what} on {heater_id}; the board halted (heaters off until reset)")
 
     _write(csv_path, result.to_csv())
@@ -181,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"plot: {plot_path}")
         except ImportError as exc:
             print(f"plot skipped: {exc}")
-    return 0
+    return EXIT_HALTED if twin.board.halted else 0
 
 
 def _disturbances(scenario) -> list[tuple[float, str]]:
@@ -190,14 +259,12 @@ def _disturbances(scenario) -> list[tuple[float, str]]:
 
 
 def _run_with_progress(twin, duration_s: float) -> None:
-    """Run in slices, showing progress on a terminal."""
-    show = sys.stderr.isatty()
-    for k in range(1, PROGRESS_SLICES + 1):
-        twin.run_until(duration_s * k / PROGRESS_SLICES)
-        if show:
-            print(f"\r  {100 * k // PROGRESS_SLICES:3d}% ({twin.time_s:.0f}/{duration_s:g} s virtual)", end="", file=sys.stderr)
-    if show:
-        print(file=sys.stderr)
+    """Run in steps of virtual time, with a progress bar on stderr when it is a terminal."""
+    with tqdm(total=duration_s, unit="s virtual", file=sys.stderr, disable=not sys.stderr.isatty(),
+              bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s virtual [{elapsed}<{remaining}]") as bar:
+        while twin.time_s < duration_s:
+            twin.run_until(min(duration_s, twin.time_s + PROGRESS_STEP_S))
+            bar.update(min(twin.time_s, duration_s) - bar.n)
 
 
 def _write(path: str, text: str) -> None:

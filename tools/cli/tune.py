@@ -4,10 +4,13 @@ The plant is a preset (``--plant``) or fitted to a log as twin-fit does (``--fro
 controller is a firmware build with parameters (``--controller``, default Marlin's fixed-point
 PID) or your own ``module:attribute`` naming a firmware_port.params.ParamSpace. Every candidate
 (the tuning rules for a PID, an optimiser's search) runs the same scenario in the loop
-(tools/tuning/evaluate.py: heat-up, then disturbances) and is scored by the objective
-(tools/tuning/objectives.py). The best is printed first with its settings, then every candidate
-beside the references (the controller's defaults and, for a PID, the firmware's own autotune on
-the same twin: Marlin M303 C8 or Klipper PID_CALIBRATE), and a plot of the responses is written.
+(tools/tuning/evaluate.py: heat-up, then disturbances) on every plant of an ensemble (the nominal
+plant and the corners of its spread, each with ADC noise: tools/tuning/ensemble.py), scored by the
+objective (tools/tuning/objectives.py) and reduced to a robust statistic. The best is then proven
+on the reference engine over many noise seeds and the extreme plants, beside the firmware's own
+autotune (tools/tuning/proof.py); only a candidate that never trips is printed ready to paste.
+Every candidate follows beside the references (the controller's defaults and, for a PID, Marlin
+M303 C8 or Klipper PID_CALIBRATE on the same twin), and a plot of the responses is written.
 """
 
 from __future__ import annotations
@@ -21,65 +24,54 @@ import numpy as np
 
 from tools.cli.args import OneLineParser, finite_float, plot_path
 from tools.cli.entry import run_main
-from tools.tuning.controllers import controller_names, resolve_controller
-from tools.tuning.evaluate import AMBIENT_C, LOOPS, Candidate, Problem, default_scenario, heater_of
+from tools.tuning.controllers import controller_names
+from tools.ident.log_fit import LogFitOptions
+from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
+from tools.tuning.evaluate import LOOPS, Candidate, Problem
+from tools.tuning.problems import BED_TARGET_C, HOTEND_TARGET_C, Source, build_problem, log_source, preset_source
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, heater_terms
-from tools.tuning.tuner import DEFAULT_BUDGET, TuneResult, methods, tune
+from tools.tuning.proof import PROOF_SEEDS, ProofRow
+from tools.tuning.proof import table as proof_table
+from tools.tuning.tuner import DEFAULT_BUDGET, Proven, TuneResult, methods, proven, tune
 from twin.metrics import step_metrics
-from twin.plants import SPECS, Spec
+from twin.plants import SPECS
 
-BED_TARGET_C, HOTEND_TARGET_C = 60.0, 210.0
+BOTH = "both"  # --loop both: tune and prove on Marlin's loop, then on Klipper's
 MODELS = ("two_node", "three_node", "fopdt", "sopdt")
 EPILOG = """examples:
   twin-tune --plant hotend_cartridge --target 210            # rules, then DE, against M303 C8
   twin-tune --plant hotend_cartridge --method ocalo --budget 900 --seed 1
   twin-tune --controller fuzzy_pi --plant bed --target 60    # seed 004's fuzzy PI: its three ranges
   twin-tune --controller my_module:SPACE --plant hotend      # your own controller (a ParamSpace)
+  twin-tune --controller pid,mpc --plant hotend_cartridge --budget 100   # PID against Marlin's MPC
   twin-tune --from-log klippy.log --heater extruder --loop klipper
 """
 
 
 # -- the plant ---------------------------------------------------------------------------------
-def plant_from_log(args: argparse.Namespace) -> tuple[str, Spec, bool]:
-    """Fit the log as twin-fit does: (a name, the fitted spec, whether it is a bed)."""
-    from tools.cli.fit import ASSUMED_POWER_W, BED
-    from tools.ident.fit import default_segment, fit_model, log_segments
-    from tools.logs import load_log
-    from twin.plants import MPC_HEATER_POWER_W
-
-    log = load_log(args.from_log)
-    heater, segments = log_segments(log, args.heater, None)
-    chosen = default_segment(segments) if args.segment is None else args.segment
-    if not 0 <= chosen < len(segments):
-        raise ValueError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
-    seg = segments[chosen]
-    power_w = ASSUMED_POWER_W.get(heater, MPC_HEATER_POWER_W) if args.model in ("two_node", "three_node") else None
-    result = fit_model(args.model, seg.t_s, seg.temp_c, seg.duty, None, power_w=power_w)
-    name = f"{Path(args.from_log).name} ({args.model}, segment {chosen}, RMSE {result.rmse_c:.2f} C)"
-    return name, result.spec(), heater == BED
+def source(args: argparse.Namespace) -> Source:
+    """The plant: a preset, or the log fitted exactly as twin-fit fits it (tools/ident/log_fit.py)."""
+    if not args.from_log:
+        return preset_source(args.plant, args.spread)
+    options = LogFitOptions(model=args.model, heater=args.heater, segment=args.segment)
+    return log_source(args.from_log, options)
 
 
-def make_problem(args: argparse.Namespace) -> tuple[Problem, bool]:
-    """The problem the arguments describe, and whether its heater is a bed."""
-    if args.from_log:
-        name, spec, is_bed = plant_from_log(args)
-    else:
-        if args.plant not in SPECS:
-            raise ValueError(f"--plant {args.plant!r}: valid presets: {', '.join(SPECS)}")
-        name, spec, is_bed = args.plant, SPECS[args.plant], heater_of(args.plant) == "bed"
-    target_c = args.target if args.target is not None else (BED_TARGET_C if is_bed else HOTEND_TARGET_C)
-    if target_c <= AMBIENT_C:
-        raise ValueError(f"--target {target_c:g}: a heater tune needs a target above the ambient {AMBIENT_C:g} C")
-    try:
-        scenario = default_scenario(spec, target_c)
-    except ValueError as exc:
-        raise ValueError(f"--target {target_c:g}: {exc}") from None
-    controller = resolve_controller(args.controller, "bed" if is_bed else "hotend")
-    try:
-        problem = Problem(name, spec, scenario, args.loop, controller)
-    except ValueError as exc:
-        raise ValueError(f"--loop {args.loop}: {exc}") from None
-    return problem, is_bed
+def make_problem(args: argparse.Namespace, plant: Source, loop: str, controller_name: str) -> tuple[Problem, bool]:
+    """The problem the arguments describe on ``plant`` (with ``loop`` and ``controller_name``), and whether its
+    heater is a bed."""
+    problem = build_problem(plant, args.target, controller_name, loop, args.noise, args.statistic,
+                            spread=args.spread > 0)
+    return problem, plant.is_bed
+
+
+def plant_lines(plant: Source) -> list[str]:
+    """A fitted plant's parameters, exactly as twin-fit prints them."""
+    if plant.fitted is None:
+        return []
+    result = plant.fitted.result
+    return [f"plant: {result.model} fitted to {plant.name.split(' (')[0]} as twin-fit fits it:",
+            *result.parameter_lines()]
 
 
 # -- output -------------------------------------------------------------------------------------
@@ -104,62 +96,111 @@ def describe(problem: Problem, candidate: Candidate) -> str:
 
 
 def settings_lines(problem: Problem, best: Candidate, is_bed: bool) -> list[str]:
-    """Ready to paste: Marlin's M301/M304 and Configuration.h, Klipper's section; or the parameters."""
+    """Ready to paste, for the loop that proved it: Marlin's M301/M304 and Configuration.h, or Klipper's
+    section; for other controllers their parameters."""
     if not problem.controller.pid:
-        return [f"{problem.controller.name} parameters (the firmware's units):",
+        return [f"{problem.controller.name} parameters (the firmware's units), from the {problem.loop} loop:",
                 *(f"  {p.name} = {v:.6g} {p.unit}".rstrip() for p, v in zip(problem.controller.params, best.params))]
     gains, heater = best.gains, "heater_bed" if is_bed else "extruder"
-    return ["Marlin (send, then M500 to keep it):", f"  {gains.marlin_command(bed=is_bed)}", "  M500",
-            "Marlin Configuration.h:", *("  " + line for line in gains.marlin_defines(bed=is_bed).splitlines()),
-            "Klipper printer.cfg:", *("  " + line for line in gains.klipper_section(heater).splitlines())]
+    if problem.loop == "klipper":
+        return ["Klipper printer.cfg (proven on the Klipper loop):",
+                *("  " + line for line in gains.klipper_section(heater).splitlines())]
+    where = "proven on the Marlin loop" if problem.loop == "marlin" else "from the papers' idealised loop, unproven"
+    return [f"Marlin ({where}; send, then M500 to keep it):", f"  {gains.marlin_command(bed=is_bed)}", "  M500",
+            "Marlin Configuration.h:", *("  " + line for line in gains.marlin_defines(bed=is_bed).splitlines())]
 
 
-def report(result: TuneResult, is_bed: bool) -> None:
+def report_proof(problem: Problem, proof: Proven, seeds: int) -> None:
+    corners = len(problem.members()) - 1
+    print(f"proof on the {'reference engine' if problem.loop == 'marlin' else problem.loop + ' twin'}: "
+          f"{seeds} noise seeds on the nominal plant and {corners} corner plants, one run each:")
+
+    def named(row: ProofRow) -> str:
+        return problem.controller.describe(row.params) if not problem.controller.pid else \
+            f"Kp {row.params[0]:.4g} Ki {row.params[1]:.4g} Kd {row.params[2]:.4g}"
+
+    print("\n".join("  " + line for line in proof_table(proof.rows, named)))
+
+
+def report(result: TuneResult, proof: Proven | None, seeds: int, is_bed: bool) -> int:
+    """Print the tune; the exit status: 1 when no candidate passed the proof."""
     problem, best = result.problem, result.best
     print(f"twin-tune: {problem.name} at {problem.scenario.target_c:g} C, controller {problem.controller.name}, "
           f"objective {result.objective}, loop {problem.loop}")
+    if problem.ensemble is not None:
+        print(f"ensemble: {problem.ensemble.describe()}")
     versus = "; ".join(f"{'beats' if result.beats(r) else 'does not beat'} {r.method}: {describe(problem, r)}  "
-                       f"cost {r.cost:.4g}" for r in result.references)
+                       f"cost {r.cost:.4g}" for r in result.references if r is not best)
+    if best in result.references:
+        versus = f"no search beat this reference; {versus}" if versus else "no search beat this reference"
     print(f"best: {best.method}  {describe(problem, best)}  cost {best.cost:.4g}  ({versus})")
     by_rule = [c for c in result.candidates if c.history is None]
-    if by_rule and by_rule[0] is not best:
+    if by_rule and by_rule[0] is not best and problem.controller.pid:
         print(f"best rule: {by_rule[0].method}  {describe(problem, by_rule[0])}  cost {by_rule[0].cost:.4g}")
-    print("\n".join(settings_lines(problem, best, is_bed)))
-    print(f"candidates on the {problem.loop} loop (best first), then the references:")
+    answer: Candidate | None = best
+    if proof is not None:
+        report_proof(problem, proof, seeds)
+        answer = proof.answer
+    elif problem.loop != "ideal":
+        print("not proven (--proof 0)")
+    if answer is None:
+        print("no candidate passed the proof: every one tried trips in some run; nothing to paste")
+    else:
+        if answer is not best:
+            print(f"answer: {answer.method} (better candidates tripped in the proof)")
+        print("\n".join(settings_lines(problem, answer, is_bed)))
+    print(f"candidates on the {problem.loop} loop (best first), then the references; cost = {_statistic(problem)}:")
     shown = result.candidates + result.references
     width = max(len(c.method) for c in shown)
     texts = [describe(problem, c) for c in shown]
     text_width = max(len(t) for t in texts)
     for c, text in zip(shown, texts):
-        mark = "*" if c is best else " "
+        mark = "*" if c is answer else " "
         print(f" {mark}{c.method:{width}}  {text:{text_width}}  cost {c.cost:10.4g}  {metrics_line(c)}")
+    return 0 if answer is not None else 1
+
+
+def _statistic(problem: Problem) -> str:
+    if problem.ensemble is None:
+        return "the objective"
+    return f"the {problem.ensemble.statistic} over {problem.ensemble.size} members; metrics of the nominal member"
 
 
 def write_plot(path: Path, result: TuneResult, title: str) -> None:
-    """Responses of the best candidates and the references; the convergence of any optimiser."""
+    """Responses of the best candidates and the references (nominal plant): the whole run, the hold
+    zoomed to where they differ, the disturbances labelled; the convergence of any optimiser."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    candidates = result.candidates
+    candidates, events = result.candidates, result.problem.scenario.events
     shown = candidates[:4] + result.references
     searched = [c for c in candidates if c.history is not None]
-    fig, axes = plt.subplots(1 + bool(searched), 1, figsize=(10, 6 + 3 * bool(searched)), squeeze=False)
-    ax = axes[0, 0]
-    for c in shown:
-        ax.plot(c.run.t_s, c.run.temp_c[:, 0], lw=1.2 if c is candidates[0] else 0.8,
-                label=f"{c.method}: {describe(result.problem, c)} (cost {c.cost:.4g})")
-    ax.axhline(candidates[0].run.target_c, color="k", ls=":", lw=0.8)
-    for t_s in candidates[0].run.disturbances_s:
-        ax.axvline(t_s, color="grey", ls="--", lw=0.6)
-    ax.set(xlabel="time (s)", ylabel="measured temperature (C)", title=title)
-    ax.legend(fontsize=8)
+    fig, axes = plt.subplots(2 + bool(searched), 1, figsize=(10, 8 + 3 * bool(searched)), squeeze=False)
+    run0 = candidates[0].run
+    hold = run0.t_s >= run0.heatup_end_s - 20.0
+    for ax in axes[:2, 0]:
+        for c in shown:
+            ax.plot(c.run.t_s, c.run.temp_c[:, 0], lw=1.2 if c is candidates[0] else 0.8,
+                    label=f"{c.method}: {describe(result.problem, c)} (cost {c.cost:.4g})")
+        ax.axhline(run0.target_c, color="k", ls=":", lw=0.8)
+        for event in events:
+            ax.axvline(event.at_s, color="grey", ls="--", lw=0.6)
+            ax.annotate(f"{event.kind} {event.value:g}", (event.at_s, 1.0), xycoords=("data", "axes fraction"),
+                        xytext=(2, -10), textcoords="offset points", fontsize=7, color="grey")
+        ax.set(xlabel="time (s)", ylabel="measured temperature (C)")
+    axes[0, 0].set_title(title)
+    axes[0, 0].legend(fontsize=7)
+    deviation = max(float(np.max(np.abs(c.run.temp_c[hold, 0] - run0.target_c))) for c in shown)
+    axes[1, 0].set(xlim=(float(run0.t_s[hold][0]), float(run0.t_s[-1])),
+                   ylim=(run0.target_c - 1.1 * deviation, run0.target_c + 1.1 * deviation),
+                   title="holding, from the first disturbance on (zoomed)")
     if searched:
         for c in searched:
-            axes[1, 0].semilogy(c.history, label=c.method)
-        axes[1, 0].set(xlabel="iteration", ylabel="best cost")
-        axes[1, 0].legend(fontsize=8)
+            axes[2, 0].semilogy(c.history, label=c.method)
+        axes[2, 0].set(xlabel="iteration", ylabel="best cost")
+        axes[2, 0].legend(fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -174,12 +215,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     source.add_argument("--from-log", metavar="LOG", help="fit a plant to this log (as twin-fit), then tune it")
     parser.add_argument("--target", type=finite_float, help=f"setpoint in C (default {HOTEND_TARGET_C:g}, a bed "
                         f"{BED_TARGET_C:g})")
-    parser.add_argument("--controller", default="pid", metavar="NAME",
+    parser.add_argument("--controller", default="pid", metavar="NAME[,NAME]",
                         help=f"a firmware build with parameters ({', '.join(controller_names())}) or a "
-                             "module:attribute naming your ParamSpace (default: pid)")
-    parser.add_argument("--loop", default="marlin", choices=LOOPS,
-                        help="the loop the candidates run in: Marlin's board, Klipper's host PID, or the papers' "
-                             "idealised continuous loop (default: marlin)")
+                             "module:attribute naming your ParamSpace; several, comma-separated, are tuned on the "
+                             "same plant and compared, e.g. pid,mpc (default: pid)")
+    parser.add_argument("--loop", default="marlin", choices=LOOPS + (BOTH,),
+                        help="the loop the candidates run in: Marlin's board, Klipper's host PID, the papers' "
+                             "idealised continuous loop, or both firmware loops, each with its own answer "
+                             "(default: marlin)")
     parser.add_argument("--ideal", action="store_const", dest="loop", const="ideal", help="same as --loop ideal")
     parser.add_argument("--method", default="auto", metavar="METHOD",
                         help=f"one of: {', '.join(methods())}. 'all': every rule and optimiser; 'auto' (default): "
@@ -189,8 +232,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET,
                         help=f"objective evaluations per optimiser (default: {DEFAULT_BUDGET})")
     parser.add_argument("--seed", type=int, default=0, help="optimiser random seed (default: 0)")
-    parser.add_argument("--model", default="two_node", metavar="MODEL",
-                        help=f"--from-log: the model to fit, one of {', '.join(MODELS)} (default: two_node)")
+    parser.add_argument("--noise", type=finite_float, metavar="LSB",
+                        help=f"ADC noise of every ensemble member, in LSB of the loop's ADC (default: a log's own "
+                             f"reading noise where its trace shows it, else {DEFAULT_NOISE_LSB:g})")
+    parser.add_argument("--spread", type=finite_float, default=DEFAULT_SPREAD, metavar="FRACTION",
+                        help=f"a preset's lag and loss terms spread +-FRACTION: the ensemble's corner plants "
+                             f"(default: {DEFAULT_SPREAD:g}; 0: the nominal plant only)")
+    parser.add_argument("--statistic", default=DEFAULT_STATISTIC, choices=STATISTICS,
+                        help=f"how the members' costs reduce to one (default: {DEFAULT_STATISTIC})")
+    parser.add_argument("--proof", type=int, default=PROOF_SEEDS, metavar="SEEDS",
+                        help=f"prove the answer on the reference engine over SEEDS noise seeds and the corner plants "
+                             f"(default: {PROOF_SEEDS}; 0: skip)")
+    parser.add_argument("--model", metavar="MODEL",
+                        help=f"--from-log: the model to fit, one of {', '.join(MODELS)} (default: as twin-fit, "
+                             "two_node for a trace, three_node for an M303 capture)")
     parser.add_argument("--heater", help="--from-log: extruder or heater_bed (default: the log's first)")
     parser.add_argument("--segment", type=int, help="--from-log: the segment to fit (default: the longest heat-up)")
     parser.add_argument("--plot", help="plot file (default twin-out/twin-tune-<plant>.png); 'none' for no plot")
@@ -203,9 +258,15 @@ def check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--objective {args.objective!r}: choose one of: {', '.join(OBJECTIVES)}")
     if args.budget < 1:
         raise ValueError(f"--budget {args.budget}: must be at least 1")
+    if args.noise is not None and args.noise < 0:
+        raise ValueError(f"--noise {args.noise:g}: must be >= 0 LSB")
+    if not 0 <= args.spread < 1:
+        raise ValueError(f"--spread {args.spread:g}: must be within 0 .. 1 (a fraction)")
+    if args.proof < 0:
+        raise ValueError(f"--proof {args.proof}: must be >= 0 seeds")
     if args.method not in methods():
         raise ValueError(f"--method {args.method!r}: choose one of: {', '.join(methods())}")
-    if args.model not in MODELS:
+    if args.model is not None and args.model not in MODELS:
         raise ValueError(f"--model {args.model!r}: choose one of: {', '.join(MODELS)}")
     if args.plot not in (None, "none"):
         try:
@@ -216,25 +277,57 @@ def check_args(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_args(args)
-    problem, is_bed = make_problem(args)
+    loops = ("marlin", "klipper") if args.loop == BOTH else (args.loop,)
+    plant = source(args)
+    problems = [make_problem(args, plant, loop, name) for name in args.controller.split(",") for loop in loops]
+    print("\n".join(plant_lines(plant)))
     client = None
     if args.dask:
         from distributed import Client
 
         client = Client(args.dask)
+    outcomes = [tune_one(args, problem, is_bed, client) for problem, is_bed in problems]
+    if len(outcomes) > 1:
+        print("\n".join(comparison(outcomes)))
+    return max(status for status, _, _ in outcomes)
+
+
+def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client
+             ) -> tuple[int, TuneResult, Proven | None]:
+    """Tune, prove, report and plot one problem: (the exit status, 1 when nothing passed the proof; the
+    tune; its proof)."""
     started = time.perf_counter()
     result = tune(problem, args.objective, args.method, args.budget, args.seed, client, progress=True)
     for note in result.notes:
         print(f"twin-tune: {note}", file=sys.stderr)
-    report(result, is_bed)
+    proof = proven(result, args.proof) if args.proof and problem.loop != "ideal" else None
+    status = report(result, proof, args.proof, is_bed)
     if args.plot != "none":
-        stem = args.plant or Path(args.from_log).stem
-        path = Path(args.plot or f"twin-out/twin-tune-{stem}.png")
+        several = args.loop == BOTH or "," in args.controller
+        suffix = f"-{problem.controller.name}-{problem.loop}" if several else ""
+        path = Path(args.plot or f"twin-out/twin-tune-{args.plant or Path(args.from_log).stem}.png")
+        path = path.with_name(f"{path.stem}{suffix}{path.suffix}")
         write_plot(path, result, f"{problem.name}: {problem.controller.name}, {args.objective} on the "
                                  f"{problem.loop} loop")
         print(f"plot: {path}")
     print(f"({time.perf_counter() - started:.1f} s)", file=sys.stderr)
-    return 0
+    return status, result, proof
+
+
+def comparison(outcomes: list[tuple[int, TuneResult, Proven | None]]) -> list[str]:
+    """Controllers (and loops) side by side on the same plant and scenario: each one's answer, its
+    cost on the same ensemble and statistic, and its proof."""
+    lines = ["comparison on the same plant, scenario and ensemble (cost: the same statistic):"]
+    for _, result, proof in outcomes:
+        answer = result.best if proof is None else proof.answer
+        row = None if proof is None or answer is None else next(r for r in proof.rows if r.method == answer.method)
+        proved = "unproven" if proof is None else "nothing passed" if row is None else \
+            f"{row.trips} trips of {row.runs}, overshoot {row.overshoot_c[0]:.2f} / {row.overshoot_c[1]:.2f} C, " \
+            f"hold |e| {row.hold_error_c[0]:.2f} / {row.hold_error_c[1]:.2f} C (mean / worst)"
+        name = f"{result.problem.controller.name} ({result.problem.loop})"
+        cost = "-" if answer is None else f"{answer.method} cost {answer.cost:.4g}"
+        lines.append(f"  {name:<22} {cost:<26} {proved}")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

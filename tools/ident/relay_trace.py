@@ -64,8 +64,14 @@ def switch_instants(t_s: np.ndarray, temp_c: np.ndarray, duty: np.ndarray,
     return np.array(times), np.array(temps), np.array(duties), np.array(observed)
 
 
-def ambient_hint_c(log: M303Log) -> float:
+def ambient_reading_c(log: M303Log) -> float | None:
     """The untuned heater's reading where it is idle (no target, no power) and near room
-    temperature: a bed at rest reads the room; else AMBIENT_PRIOR_C."""
+    temperature (a bed at rest reads the room), or None where the capture shows none."""
     idle = [c for c in log.idle_readings_c if c <= AMBIENT_PRIOR_C + IDLE_MAX_ABOVE_PRIOR_C]
-    return float(np.median(idle)) if idle else AMBIENT_PRIOR_C
+    return float(np.median(idle)) if idle else None
+
+
+def ambient_hint_c(log: M303Log) -> float:
+    """``ambient_reading_c``, else AMBIENT_PRIOR_C."""
+    reading = ambient_reading_c(log)
+    return AMBIENT_PRIOR_C if reading is None else reading

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.ident.fit import zoh_response
+from tools.ident.response import zoh_response
 from twin.plants import Plant, Spec
 
 
@@ -54,7 +54,7 @@ class Run:
         """The runs of its session up to this one, first first."""
         chain = [self]
         while chain[-1].follows is not None:
-            chain.append(chain[-1].follows)  # type: ignore[arg-type]
+            chain.append(chain[-1].follows)
         return chain[::-1]
 
 

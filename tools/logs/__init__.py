@@ -1,7 +1,9 @@
 """Readers for captured heater logs, one module per format: Klipper Stats from klippy.log or CSV
 (klipper_stats), Klipper heattest (heattest), Marlin/Repetier M303 console text (m303), Klipper
 PID_CALIBRATE results (pid_calibrate), plain CSV of time, temperature and duty (plain_csv). The
-result types are in results, the shared line reading in lines, load_log's detection in detect.
+result types are in results, the shared line reading in lines. Each format's module declares its
+``Reader`` (tools/logs/registry.py); ``load_log`` (detect) asks the registered readers in turn, on
+the file's first lines only.
 
 The logs stay where they are: every reader takes a path (``hardware_logs_dir()`` finds the shared
 captures). All readers share one line reader, which keeps line numbers and skips comment lines:
@@ -17,9 +19,9 @@ session at gaps longer than STATS_GAP_S, where Klipper wrote no lines.
 from tools.logs.detect import load_log
 from tools.logs.heattest import parse_heattest
 from tools.logs.klipper_stats import parse_klipper_stats_csv, parse_klippy_log
-from tools.logs.lines import LogError, csv_rows
+from tools.logs.lines import LogError, csv_rows, read_progress
 from tools.logs.location import DEFAULT_LOGS, LOGS_ENV, hardware_logs_dir
-from tools.logs.m303 import BED_COMMAND_RE, MARLIN_POWER_MAX, REPETIER_POWER_MAX, parse_m303
+from tools.logs.m303 import BED_COMMAND_RE, MARLIN_POWER_MAX, REPETIER_POWER_MAX, parse_m303, results_only
 from tools.logs.pid_calibrate import parse_pid_calibrate_results
 from tools.logs.plain_csv import parse_plain_csv
 from tools.logs.results import (
@@ -39,5 +41,6 @@ __all__ = [
     "BED_COMMAND_RE", "DEFAULT_LOGS", "LOGS_ENV", "MARLIN_POWER_MAX", "REPETIER_POWER_MAX", "STATS_GAP_S",
     "HeaterSeries", "HeattestLog", "Log", "LogError", "M303Cycle", "M303Log", "M303Status", "PidCalibrateResult",
     "PlainLog", "StatsLog", "csv_rows", "hardware_logs_dir", "load_log", "parse_heattest", "parse_klipper_stats_csv",
-    "parse_klippy_log", "parse_m303", "parse_pid_calibrate_results", "parse_plain_csv",
+    "parse_klippy_log", "parse_m303", "parse_pid_calibrate_results", "parse_plain_csv", "read_progress",
+    "results_only",
 ]

@@ -7,7 +7,17 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.logs.lines import LogError, csv_rows, data_lines, parse_number, read_lines, require_increasing, time_series
+from tools.logs.lines import (
+    LogError,
+    data_lines,
+    head_lines,
+    iter_csv_rows,
+    parse_number,
+    read_lines,
+    require_increasing,
+    time_series,
+)
+from tools.logs.registry import Reader
 from tools.logs.results import HeattestLog
 
 HEATTEST_CSV_HEADER = "t_s,temp_c,pwm"  # the project's CSV form of a heattest (pwm in force per sample)
@@ -18,13 +28,13 @@ def parse_heattest(path: str | Path) -> HeattestLog:
     """A Klipper heater test: PID_CALIBRATE WRITE_FILE=1 output ("pwm: <t> <duty>" events and
     "<t> <temp>" samples; duty before the first event is 0), or the project's CSV of it
     (t_s,temp_c,pwm with the duty in force at each sample)."""
-    lines = read_lines(path, cut_last_line_ok=True)  # Klipper writes no newline after the last line
-    data = data_lines(path, lines)
-    if data[0][1] == HEATTEST_CSV_HEADER:  # the CSV ends every line: read it again as CSV, strictly
-        _, rows = csv_rows(path)
-        t_s, temp_c, pwm = time_series(path, rows[1:], ("t_s", "temp_c", "pwm"), 1.0)
+    if head_lines(path, 1)[0][1] == HEATTEST_CSV_HEADER:  # the CSV ends every line: read as CSV, strictly
+        rows = iter_csv_rows(path)
+        next(rows)
+        t_s, temp_c, pwm = time_series(path, rows, ("t_s", "temp_c", "pwm"), 1.0)
         changes = np.flatnonzero(np.diff(pwm, prepend=0.0))
         return HeattestLog(Path(path), t_s, temp_c, pwm, [(float(t_s[i]), float(pwm[i])) for i in changes])
+    data = data_lines(path, read_lines(path, cut_last_line_ok=True))  # Klipper writes no newline after the last line
     events, samples = [], []
     for no, text in data:
         if m := PWM_EVENT_RE.match(text):
@@ -44,3 +54,7 @@ def parse_heattest(path: str | Path) -> HeattestLog:
     pwm = event_pwm[np.searchsorted(event_t_s, t_s, side="right")]
     return HeattestLog(Path(path), t_s, np.array([c for _, _, c in samples]), pwm,
                        [(t, v) for _, t, v in events])
+
+
+READER = Reader("Klipper heattest", lambda head: head.first == HEATTEST_CSV_HEADER or head.first.startswith("pwm: "),
+                parse_heattest)

@@ -7,9 +7,14 @@ Comment lines are ``#`` alone or ``# ...``, the headers added to the captures (M
 
 from __future__ import annotations
 
+import array
+import contextvars
 import csv
+import itertools
 import math
 import re
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +23,22 @@ import numpy as np
 # "SENDING:", Printrun ">>> ", Repetier-Host "< 9:12:56 PM: " (and "> ..." for sent lines).
 HOST_PREFIX_RE = re.compile(r"^(?:Recv:|Send:|READ:|SENDING:|>>>|[<>] \d{1,2}:\d{2}:\d{2}(?: [AP]M)?:)\s*")
 GAIN_RE = re.compile(r"(?<!\w)(?:pid_)?K([pid])\s*[=:]\s*([^\s,]*)", re.IGNORECASE)  # Marlin and Klipper gains
+
+
+# Who is told how far a reading has got: a CLI's progress bar (``read_progress``), else nobody.
+_PROGRESS: contextvars.ContextVar[Callable[[int], None] | None] = contextvars.ContextVar("read_progress", default=None)
+PROGRESS_STEP_BYTES = 1 << 20  # reported every megabyte read
+
+
+@contextmanager
+def read_progress(on_bytes: Callable[[int], None]) -> Iterator[None]:
+    """Within the block, every reading of a log reports the bytes it has read (a megabyte at a time)
+    to on_bytes: how a CLI shows a progress bar for a long log."""
+    token = _PROGRESS.set(on_bytes)
+    try:
+        yield
+    finally:
+        _PROGRESS.reset(token)
 
 
 class LogError(ValueError):
@@ -29,26 +50,45 @@ class LogError(ValueError):
         self.line_no = line_no
 
 
-def read_lines(path: str | Path, cut_last_line_ok: bool = False) -> list[tuple[int, str]]:
-    """(line number, text) of each non-blank line, comments included.
+def iter_lines(path: str | Path, cut_last_line_ok: bool = False) -> Iterator[tuple[int, str]]:
+    """(line number, text) of each non-blank line, comments included, read one line at a time (a
+    long log costs its lines one by one, not all at once).
 
     A last line without a newline means the file was cut mid-line: LogError, unless the format's
     writer leaves the newline out (cut_last_line_ok).
     """
-    try:
-        with open(path, encoding="utf-8") as f:
-            text = f.read()
-    except UnicodeDecodeError as e:
-        with open(path, "rb") as f:
-            line_no = f.read()[: e.start].count(b"\n") + 1
-        raise LogError(path, line_no, "not UTF-8 text") from None
-    lines = text.split("\n")
-    if lines[-1] == "":
-        lines.pop()
-    elif not cut_last_line_ok:
-        raise LogError(path, len(lines), "the last line has no newline: the file was cut mid-line "
-                       "(end it with a newline if the line is complete)")
-    return [(no, line) for no, line in enumerate(lines, 1) if line.strip()]
+    report, unreported = _PROGRESS.get(), 0
+    with open(path, "rb") as f:
+        for no, raw in enumerate(f, 1):
+            unreported += len(raw)
+            if report is not None and unreported >= PROGRESS_STEP_BYTES:
+                report(unreported)
+                unreported = 0
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError:
+                raise LogError(path, no, "not UTF-8 text") from None
+            if not text.endswith("\n") and not cut_last_line_ok:
+                raise LogError(path, no, "the last line has no newline: the file was cut mid-line "
+                               "(end it with a newline if the line is complete)")
+            text = text.removesuffix("\n")
+            if text.strip():
+                yield no, text
+
+
+def read_lines(path: str | Path, cut_last_line_ok: bool = False) -> list[tuple[int, str]]:
+    """``iter_lines`` as a list."""
+    return list(iter_lines(path, cut_last_line_ok))
+
+
+def head_lines(path: str | Path, count: int) -> list[tuple[int, str]]:
+    """The first ``count`` data lines (comments left out), for telling formats apart without
+    reading a long log whole; none at all is an error."""
+    lines = iter_lines(path, cut_last_line_ok=True)
+    data = list(itertools.islice(((no, text) for no, text in lines if not is_comment(text)), count))
+    if not data:
+        raise LogError(path, 1, "no data lines")
+    return data
 
 
 def is_comment(text: str) -> bool:
@@ -99,31 +139,51 @@ def require_increasing(path: str | Path, line_nos: list[int], t_s: np.ndarray) -
         raise LogError(path, line_nos[i], f"time {t_s[i]:g} s does not increase (previous sample: {t_s[i - 1]:g} s)")
 
 
-def csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
-    """A CSV log's comment texts and its rows (header included) with line numbers; every row
-    must be as wide as the first."""
-    lines = read_lines(path)
-    comments = [text[2:] for no, text in lines if is_comment(text)]
-    rows = []
-    for no, text in data_lines(path, lines):
+def iter_csv_rows(path: str | Path, comments: list[str] | None = None) -> Iterator[tuple[int, list[str]]]:
+    """A CSV log's rows (header included) with line numbers, one at a time; every row must be as wide
+    as the first; the comment texts go to ``comments`` if given."""
+    width = None
+    for no, text in iter_lines(path):
+        if is_comment(text):
+            if comments is not None:
+                comments.append(text[2:])
+            continue
         try:
             fields = next(csv.reader([text], strict=True))
         except csv.Error as e:
             raise LogError(path, no, f"not a CSV line: {e}") from None
         fields = [cell.strip() for cell in fields]
-        if rows and len(fields) != len(rows[0][1]):
-            raise LogError(path, no, f"{len(fields)} columns where the header has {len(rows[0][1])}")
-        rows.append((no, fields))
+        if width is not None and len(fields) != width:
+            raise LogError(path, no, f"{len(fields)} columns where the header has {width}")
+        width = len(fields)
+        yield no, fields
+
+
+def csv_rows(path: str | Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    """A CSV log's comment texts and its rows (header included) with line numbers (``iter_csv_rows``)."""
+    comments: list[str] = []
+    rows = list(iter_csv_rows(path, comments))
+    if not rows:
+        raise LogError(path, 1, "no data lines")
     return comments, rows
 
 
-def time_series(path: str | Path, rows: list[tuple[int, list[str]]], names: tuple[str, str, str],
-                 duty_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Time, temperature and duty columns (duty within 0..duty_max); time must increase."""
-    values = [(parse_number(path, no, t, names[0]), parse_number(path, no, temp, names[1]),
-               parse_number(path, no, duty, names[2], 0.0, duty_max)) for no, (t, temp, duty) in rows]
-    t_s, temp_c, duty = np.array(values, dtype=float).reshape(-1, 3).T
-    require_increasing(path, [no for no, _ in rows], t_s)
+def time_series(path: str | Path, rows: Iterable[tuple[int, list[str]]], names: tuple[str, str, str],
+                duty_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Time, temperature and duty columns (duty within 0..duty_max), read row by row into packed
+    arrays (8 bytes a value); time must increase."""
+    values = array.array("d")
+    t_prev_s, no_prev = -math.inf, 0
+    for no, (t_text, temp_text, duty_text) in rows:
+        now_s = parse_number(path, no, t_text, names[0])
+        if now_s <= t_prev_s:
+            raise LogError(path, no, f"time {now_s:g} s does not increase (previous sample: {t_prev_s:g} s)")
+        values.extend((now_s, parse_number(path, no, temp_text, names[1]),
+                       parse_number(path, no, duty_text, names[2], 0.0, duty_max)))
+        t_prev_s, no_prev = now_s, no
+    if not values:
+        raise LogError(path, no_prev or 1, "no data rows")
+    t_s, temp_c, duty = np.frombuffer(values, dtype=float).reshape(-1, 3).T.copy()
     return t_s, temp_c, duty
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from firmware_port.marlin.autotune import STR_CLASSIC_PID, STR_NO_OVERSHOOT
 from tools.logs.lines import GAIN_RE, LogError, console_text, data_lines, parse_integer, parse_number, read_lines
+from tools.logs.registry import Reader
 from tools.logs.results import M303Cycle, M303Log, M303Status
 
 COMMAND_RE = re.compile(r"^(?:N\d+\s+)?(M30[36]\b[^*;]*)")
@@ -32,6 +33,8 @@ FIRMWARE_HINTS = (
     (re.compile(r"PID Autotune failed"), "an autotune failed"),
     (re.compile(r"MPC Autotune"), "Marlin MPC autotune (M306): no relay cycles"),
 )
+CONSOLE_RE = re.compile(r"^(?:bias:|Ku:|PID Autotune|MPC Autotune|#define\s+DEFAULT_|[TB]:\s*[-\d.])")
+UNKNOWN_HEATER = "?"  # a cycle printed before any M303 command or one-heater report says which heater it tunes
 INCOMPLETE_STATUS = "status line without the power of each heater it shows (cut or elided)"
 
 
@@ -73,7 +76,8 @@ class _M303Reader:
     idle_c: list[float] = field(default_factory=list)
     defines: dict[str, float] = field(default_factory=dict)
     finished: bool = False
-    heater: str = "T"
+    heater: str = "T"  # the tuned heater as far as known: a status line with both heaters reads this one's
+    heater_known: bool = False  # an M303 command or a one-heater report said which it is
 
     def read(self, no: int, text: str) -> None:
         for pattern, hint in FIRMWARE_HINTS:
@@ -83,6 +87,7 @@ class _M303Reader:
         if m := COMMAND_RE.match(text):
             self.commands.append((no, m[1].strip()))
             self.heater = "B" if BED_COMMAND_RE.search(m[1]) else "T"
+            self.heater_known = True
         elif m := DEFINE_RE.match(text):
             self.defines[m[2].lower()] = parse_number(self.path, no, m[3], f"DEFAULT_{m[1] or ''}K{m[2]}")
         else:
@@ -99,8 +104,11 @@ class _M303Reader:
     def _cycle(self, line_no: int, attr: str) -> M303Cycle:
         """The cycle a value belongs to: the last one, or a new one if the last has it already."""
         if not self.cycles or getattr(self.cycles[-1], attr) is not None:
-            self.cycles.append(M303Cycle(line_no, self.heater))
+            self.cycles.append(M303Cycle(line_no, self._cycle_heater()))
         return self.cycles[-1]
+
+    def _cycle_heater(self) -> str:
+        return self.heater if self.heater_known else UNKNOWN_HEATER
 
     def _relay_values(self, no: int, text: str) -> str:
         """Read the bias/d/min/max and Ku/Tu at the start of a line; the rest of the line."""
@@ -108,7 +116,7 @@ class _M303Reader:
         if "bias:" in rest:
             if not (m := BIAS_RE.search(rest)):
                 raise LogError(path, no, "a bias line without bias, d, min and max")
-            self.cycles.append(M303Cycle(no, self.heater, parse_integer(path, no, m[1], "bias"),
+            self.cycles.append(M303Cycle(no, self._cycle_heater(), parse_integer(path, no, m[1], "bias"),
                                          parse_integer(path, no, m[2], "d"), parse_number(path, no, m[3], "min"),
                                          parse_number(path, no, m[4], "max")))
             rest = rest[m.end() :].strip()
@@ -129,6 +137,7 @@ class _M303Reader:
                  for key, temp, target in TEMP_FIELD_RE.findall(rest)}
         if len(temps) == 1:
             self.heater = next(iter(temps))
+            self.heater_known = True
         elif (reading := _idle_reading(temps, rest, self.heater)) is not None:
             self.idle_c.append(reading)
         sample = _status_sample(self.path, no, temps, rest, self.heater)
@@ -147,6 +156,14 @@ class _M303Reader:
         return None
 
 
+def results_only(text: str) -> str:
+    """An M303 console capture without its status reports: the lines whose console text is a heater
+    report (T:/B: ... @:) deleted, everything else kept. What a user posts who copies only the
+    result lines."""
+    kept = [line for line in text.splitlines(keepends=True) if not STATUS_RE.match(console_text(line))]
+    return "".join(kept)
+
+
 def parse_m303(path: str | Path) -> M303Log:
     """Marlin's M303 output as a host console shows it: bias/d/min/max lines (status text may follow
     on the same line), Ku/Tu (same or next line), the rule, Kp/Ki/Kd (one line or three), the
@@ -163,3 +180,6 @@ def parse_m303(path: str | Path) -> M303Log:
     rule = next((c.rule for c in reversed(reader.cycles) if c.rule), None)
     return M303Log(Path(path), reader.commands, reader.cycles, reader.status, reader.final_gains(), rule, power_max,
                    hints, reader.skipped, reader.idle_c)
+
+
+READER = Reader("M303 console text", lambda head: any(CONSOLE_RE.match(text) for text in head.texts), parse_m303)

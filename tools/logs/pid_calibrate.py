@@ -7,11 +7,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tools.logs.lines import GAIN_RE, LogError, console_text, is_comment, parse_number, read_lines
+from tools.logs.registry import Reader
 from tools.logs.results import PidCalibrateResult
 
 PID_HEADING_RE = re.compile(r"^\[(\d+)\]\s+(https?://\S+)?")
 KLIPPER_HEATER_RE = re.compile(r"\b(extruder\d*|heater_bed)\b")
 MAX_POWER_RE = re.compile(r"\bmax_power ([\d.]+)")
+RESULT_RE = re.compile(r"^(?:Autotune: final:|// PID parameters:|pid_K[pid]\s*[=:])", re.IGNORECASE)
 INCOMPLETE_GAINS = "Kp, Ki and Kd are not all given in this entry"
 
 
@@ -83,3 +85,7 @@ def parse_pid_calibrate_results(path: str | Path) -> list[PidCalibrateResult]:
     if not reader.results:
         raise LogError(path, lines[-1][0] if lines else 1, "no PID gains")
     return reader.results
+
+
+READER = Reader("PID_CALIBRATE results", lambda head: any(RESULT_RE.match(text) for text in head.texts),
+                parse_pid_calibrate_results)

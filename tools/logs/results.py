@@ -66,7 +66,7 @@ class M303Cycle:
     """What Marlin printed for one relay cycle; a partial capture may lack any field."""
 
     line_no: int
-    heater: str  # "T" (hotend) or "B" (bed)
+    heater: str  # "T" (hotend), "B" (bed), or "?" where nothing before it in the capture says which
     bias: int | None = None  # on 0..255; Marlin's relay levels are (bias +- d) >> 1 on 0..127
     d: int | None = None
     min_c: float | None = None
@@ -107,6 +107,10 @@ class M303Log:
     firmware_hints: list[str]
     skipped: list[tuple[int, str]] = field(default_factory=list)
     idle_readings_c: list[float] = field(default_factory=list)  # the untuned heater's, where it has no target nor power
+
+    def cycles_of(self, key: str) -> list[M303Cycle]:
+        """The cycles of heater "T" or "B", with those the capture does not attribute ("?")."""
+        return [c for c in self.cycles if c.heater in (key, "?")]
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Seed 003 (PID tuning by the maximal stability degree method with iteration, MSDI, for third-order
 models with a zero and time delay, applied to a 3D printer's extruder): its printed model and
-table 1 beside our rerun. ``python -m tools.seeds.seed003`` prints the comparison.
+table 1 beside our rerun. ``python -m tools.seeds 003`` prints the comparison.
 
 What we rerun: the method of its section on materials and methods (tools/tuning/msdi.py) on its
 identified model, eq. (9); each of its table-1 gain sets and ours on the idealised loop (a
@@ -11,13 +11,28 @@ number cannot be right, ``evidence`` says why, from these computations.
 
 from __future__ import annotations
 
-import math
+import sys
+
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 import scipy.optimize
 
+from tools.seeds.report import (
+    DIFFERS,
+    IMPOSSIBLE,
+    REPRODUCED,
+    SMALL_BUDGET,
+    Budget,
+    Progress,
+    SeedReport,
+    Table,
+    Verdict,
+    no_progress,
+    num,
+    within,
+)
 from tools.tuning.gains import Gains
 from tools.tuning.ideal import LoopRun, step_response
 from tools.tuning.models import LinearModel, model_of
@@ -90,8 +105,6 @@ class Report:
     checks: list[LoopCheck]
     evidence: list[str]
 
-    def text(self) -> str:
-        return format_report(self)
 
 
 def paper_model() -> LinearModel:
@@ -161,7 +174,7 @@ def _evidence(up: UltimatePoint, checks: list[LoopCheck], quasi: Quasi,
     return lines
 
 
-def reproduce() -> Report:
+def reproduce(progress: Progress = no_progress) -> Report:
     """Seed 003's model, its MSDI gains and table 1 beside ours (see the module docstring)."""
     model = paper_model()
     quasi = Quasi.third_order_zero(GAIN, LEAD_S, LAGS_S, DELAY_S)
@@ -169,56 +182,129 @@ def reproduce() -> Report:
     relay = relay_experiment(model).point
     result = msdi(quasi)
     ours_at_j = [gains_at(quasi, row.j) for row in MSDI_ROWS if row.j is not None]
-    checks = [check(row.method, model, quasi, (row.kp, row.ki, row.kd)) for row in PAPER_TABLE]
-    checks.append(check(f"ours MSDI J = {result.j:.4f}", model, quasi, result.gains))
+    progress("ultimate point, relay, MSDI")
+    checks = []
+    for label, gains in [*((row.method, (row.kp, row.ki, row.kd)) for row in PAPER_TABLE),
+                         (f"ours MSDI J = {result.j:.4f}", result.gains)]:
+        checks.append(check(label, model, quasi, gains))
+        progress(label)
     return Report(model, (quasi.num, quasi.den), up, relay, result, _slow_root(quasi, result.gains), ours_at_j,
                   checks, _evidence(up, checks, quasi, ours_at_j))
 
 
-def _cell(value: float | None, fmt: str = ".1f") -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, fmt)
+# -- the command's and the page's report ----------------------------------------------------------
+
+LOOPS = (
+    "paper loop: eq. (9) under a continuous PID (unbounded output), a unit set-point step, as its figure 4; "
+    "no firmware and no firmware delay",
+    f"firmware twin: the `{PRESET}` preset (eq. 9, duty 1 = {INPUT_FULL_SCALE:g} input units), Marlin's integer PID "
+    f"every 0.164 s, 10-bit ADC, 7-bit soft PWM, {AMBIENT_C:g} -> {TARGET_C:g} C: the firmware's loop with its delays",
+)
+MODEL_REL_TOL = 1e-3  # the printed expansion's coefficients carry 4-7 digits: agree to 0.1 %
+PERIOD_REL_TOL = 0.10  # a period read off an oscillation: the model's relay experiment gives 21.38 s, the formula 21.47
 
 
-def format_report(report: Report) -> str:
-    num, den = report.ours_expanded
-    kp, ki, kd = report.msdi.gains
-    lines = [
-        "Seed 003 reproduction (MSDI PID tuning, third-order model with a zero and delay)",
-        f"model eq. (9) expanded, printed: ({PRINTED_NUM[0]} s + {PRINTED_NUM[1]}) / ({PRINTED_DEN[0]} s^3 + "
-        f"{PRINTED_DEN[1]} s^2 + {PRINTED_DEN[2]} s + {PRINTED_DEN[3]:g})",
-        f"  ours from the factored form: ({num[0]:.4f} s + {num[1]:.5f}) / ({den[0]:.2f} s^3 + {den[1]:.2f} s^2 + "
-        f"{den[2]:.3f} s + {den[3]:g})",
-        f"ultimate point (model): Ku {report.ultimate.ku:.2f} Tu {report.ultimate.tu_s:.2f} s; "
-        f"ideal relay: Ku {report.relay.ku:.2f} Tu {report.relay.tu_s:.2f} s",
-        f"our MSDI: J = {report.msdi.j:.4f} (first maximum of kp(J), common to ki and kd), Kp {kp:.3f} Ki {ki:.4f} "
-        f"Kd {kd:.3f}; roots right of -J: {report.msdi.roots_right} (real root at {report.slow_root:.5f} 1/s, "
-        f"next to the zero -1/{LEAD_S:g} = {-1 / LEAD_S:.5f})",
-        "  on the twin (duty = input / 550): " + str(Gains.from_duty(*(g / INPUT_FULL_SCALE for g in report.msdi.gains))),
-        "eqs. (5)-(8) at the table's J (ours):",
-    ]
-    for row, ours in zip(MSDI_ROWS, report.ours_at_table_j, strict=True):
-        lines.append(f"  J {row.j:<5g} printed Kp {row.kp:<7g} Ki {row.ki:<7g} Kd {row.kd:<7g}  ours Kp {ours[0]:<8.3f} "
-                     f"Ki {ours[1]:<8.4f} Kd {ours[2]:.3f}")
-    lines.append("step responses: printed (rise, overshoot %, settling 5 %) | idealised loop, unit step "
-                 "(RHP roots; rise, overshoot %, settling 5 %) | firmware twin 25->210 C (overshoot C, "
-                 f"settling 2 %, swing over the last {TAIL_S:g} s)")
-    for i, chk in enumerate(report.checks):
-        printed = PAPER_TABLE[i] if i < len(PAPER_TABLE) else None
-        head = (f"{printed.rise_s:g} s, {printed.overshoot_pct:g} %, {printed.settling_s:g} s" if printed else "-")
+def steps(budget: Budget) -> int:
+    """Progress calls of ``report``: the model's computations, then 5 gain sets in both loops."""
+    return 1 + len(PAPER_TABLE) + 1
+
+
+def _model_verdicts(rep: Report) -> list[Verdict]:
+    num_ours, den_ours = rep.ours_expanded
+    rows = []
+    for label, printed, ours in (("numerator", PRINTED_NUM, num_ours), ("denominator", PRINTED_DEN, den_ours)):
+        for power, (p, o) in enumerate(zip(printed, ours, strict=True)):
+            s_power = len(printed) - 1 - power
+            rel = abs(float(o) / p - 1)
+            agrees = rel <= MODEL_REL_TOL
+            rows.append(Verdict("eq. (9), expanded", f"{label}, s^{s_power}", f"{p}", f"{float(o):.6g}",
+                                REPRODUCED if agrees else DIFFERS,
+                                f"the product of the factored form; {num(100 * rel, 4)} % apart (tolerance "
+                                f"{100 * MODEL_REL_TOL:g} %)"))
+    return rows
+
+
+def _table_verdicts(rep: Report) -> list[Verdict]:
+    rows = []
+    for row, chk in zip(PAPER_TABLE, rep.checks[: len(PAPER_TABLE)], strict=True):
         m = chk.ideal_metrics
-        ideal = (f"diverges by {chk.ideal.t_s[-1]:.0f} s" if m is None else
-                 f"{_cell(m.rise_time_s)} s, {_cell(m.overshoot_pct)} %, {_cell(m.settling_time_5pct_s)} s")
-        t = chk.twin_metrics
-        lines.append(f"  {chk.label:<22} printed {head:<22} | ideal ({chk.unstable_roots}) {ideal:<26} | twin "
-                     f"{_cell(t.overshoot_c)} C, {_cell(t.settling_time_2pct_s)} s, swing {chk.twin_tail_swing_c:.2f} C")
-    lines.append("evidence:")
-    lines += [f"  - {line}" for line in report.evidence]
-    return "\n".join(lines)
+        for label, printed, name in (("rise s", row.rise_s, "rise_time_s"),
+                                     ("overshoot %", row.overshoot_pct, "overshoot_pct"),
+                                     ("settling 5 % s", row.settling_s, "settling_time_5pct_s")):
+            if m is None:
+                rows.append(Verdict(f"table 1, {row.method}", label, f"{printed:g}",
+                                    f"diverges by {num(chk.ideal.t_s[-1], 0)} s", IMPOSSIBLE,
+                                    f"Kp {row.kp:g} Ki {row.ki:g} Kd {row.kd:g} leave {chk.unstable_roots} roots of the "
+                                    "characteristic quasi-polynomial in the right half plane: the loop diverges"))
+            else:
+                ours = getattr(m, name)
+                agrees = within(ours, printed, 0.05 * abs(printed))
+                rows.append(Verdict(f"table 1, {row.method}", label, f"{printed:g}", num(ours, 1),
+                                    REPRODUCED if agrees else DIFFERS, "the printed gains in the paper's loop; +-5 %"))
+    return rows
 
 
-def main() -> None:
-    print(reproduce().text())
+def _gain_verdicts(rep: Report, quasi: Quasi) -> list[Verdict]:
+    rows = []
+    for row, ours in zip(MSDI_ROWS, rep.ours_at_table_j, strict=True):
+        assert row.j is not None  # MSDI rows carry their J
+        residual = _residual(quasi, (row.kp, row.ki, row.kd), row.j)
+        negative = min(ours) < 0
+        why = (f"eqs. (5)-(8) at J = {row.j:g} give all-negative gains: past the maximal stability degree "
+               f"(J = {num(rep.msdi.j, 4)}) the method has no positive gains" if negative else
+               f"with the printed gains D(-J) is {num(residual)} of its parts' size: -J is not a root, so they do "
+               "not come from eqs. (5)-(8) at that J")
+        rows.append(Verdict(f"table 1, {row.method}", f"Kp / Ki / Kd at J = {row.j:g}",
+                            f"{row.kp:g} / {row.ki:g} / {row.kd:g}",
+                            f"{num(ours[0], 2)} / {num(ours[1], 3)} / {num(ours[2], 2)}", IMPOSSIBLE, why))
+    zn, up = PAPER_TABLE[3], rep.ultimate
+    ku = zn.kp / 0.6
+    tu = 8 * zn.kd / zn.kp
+    rows.append(Verdict("table 1, ZN fig. 4d", "ultimate gain Ku (Kp = 0.6 Ku)", num(ku, 1), num(up.ku, 1), DIFFERS,
+                        f"the ZN gains are {num(ku / up.ku, 1)} x the model's ultimate gain: they do not fit eq. (9)"))
+    agrees = within(up.tu_s, tu, PERIOD_REL_TOL * tu)
+    rows.append(Verdict("table 1, ZN fig. 4d", "ultimate period Tu s (Td = Tu / 8)", num(tu, 1), num(up.tu_s, 2),
+                        REPRODUCED if agrees else DIFFERS,
+                        f"eq. (9)'s phase crossover; within {PERIOD_REL_TOL:.0%} (the ideal relay gives "
+                        f"{num(rep.relay.tu_s, 2)} s)"))
+    return rows
 
 
-if __name__ == "__main__":
-    main()
+def verdicts(rep: Report) -> list[Verdict]:
+    quasi = Quasi.third_order_zero(GAIN, LEAD_S, LAGS_S, DELAY_S)
+    return _model_verdicts(rep) + _gain_verdicts(rep, quasi) + _table_verdicts(rep)
+
+
+def report(budget: Budget = SMALL_BUDGET, progress: Progress = no_progress) -> SeedReport[Report]:
+    """Seed 003 re-run: eq. (9), table 1's gains and responses beside ours, every gain set on the twin."""
+    rep = reproduce(progress)
+    kp, ki, kd = rep.msdi.gains
+    checks = Table(
+        "Every gain set (paper units) in both loops:",
+        ("gains", "Kp / Ki / Kd", "RHP roots", "paper loop: rise s / overshoot % / settling 5 % s",
+         f"twin: overshoot C / settling 2 % s / swing over the last {TAIL_S:g} s C"),
+        tuple(_check_cells(chk) for chk in rep.checks))
+    notes = (f"ours: eq. (9)'s ultimate point Ku {num(rep.ultimate.ku, 2)}, Tu {num(rep.ultimate.tu_s, 2)} s; our MSDI "
+             f"at J = {num(rep.msdi.j, 4)} (the maximal stability degree): Kp {num(kp, 3)} Ki {num(ki, 4)} "
+             f"Kd {num(kd, 3)}",
+             "the twin differs from the paper's loop where the heater saturates (duty 0..1 against an unbounded input) "
+             "and where the paper's loop diverges: the twin's bounded heater turns that into a limit cycle (the swing)",
+             *(line for line in rep.evidence if line.startswith("Kp above")))
+    return SeedReport("003", "PID tuning by the maximal stability degree method with iteration (MSDI)",
+                      f"{budget}: no search (every budget runs the same experiment)", LOOPS, tuple(verdicts(rep)),
+                      rep, (checks,), notes)
+
+
+def _check_cells(chk: LoopCheck) -> tuple[str, ...]:
+    m, t = chk.ideal_metrics, chk.twin_metrics
+    kp, ki, kd = chk.gains
+    ideal = (f"diverges by {num(chk.ideal.t_s[-1], 0)} s" if m is None else
+             f"{num(m.rise_time_s, 1)} / {num(m.overshoot_pct, 1)} / {num(m.settling_time_5pct_s, 1)}")
+    return (chk.label, f"{num(kp, 3)} / {num(ki, 4)} / {num(kd, 3)}", str(chk.unstable_roots), ideal,
+            f"{num(t.overshoot_c, 1)} / {num(t.settling_time_2pct_s, 1)} / {num(chk.twin_tail_swing_c, 2)}")
+
+
+if __name__ == "__main__":  # python -m tools.seeds.seed003: the same as python -m tools.seeds 003
+    from tools.seeds.command import main_for
+
+    sys.exit(main_for("003", report, steps))

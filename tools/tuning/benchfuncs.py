@@ -1,4 +1,5 @@
-"""The 23 classical benchmark functions F1-F23, as seed 002 (the OCALO paper) uses them.
+"""The 23 classical benchmark functions F1-F23, as seed 002 (the OCALO paper) uses them, and their
+shifted and rotated forms.
 
 Definitions follow Yao, Liu and Lin, "Evolutionary programming made faster", IEEE Trans.
 Evolutionary Computation 3(2), 1999 (functions f1-f23), the set seed 002 benchmarks on (its
@@ -12,20 +13,29 @@ from the caller's Generator, so its minimum 0 is an infimum.
 
 Every function maps a population (rows) to costs, the optimisers' batch contract.
 
-``python -m tools.tuning.benchfuncs --runs 30 --out FILE`` runs every optimiser on all 23 (seed
-002's population 50 and 300 iterations) and writes the markdown report of
-tools/tuning/optim/benchmark.py; ``--quick`` is a seconds-long smoke run.
+Shifted and rotated forms (``variant``), as the CEC suites build them (Suganthan et al., "Problem
+definitions and evaluation criteria for the CEC 2005 special session on real-parameter
+optimization", 2005): F(x) = f(a + M (x - m)), with a the function's own minimiser, m the new
+minimiser drawn uniformly in SHIFT_SPAN x the box (CEC 2005: o_i in [-80, 80] on [-100, 100]),
+and M the identity (shifted) or a random rotation (rotated: the Q of a QR decomposition of a
+standard normal matrix, its columns' signs fixed by R's diagonal, a uniform draw from the
+orthogonal group). Same box, same minimum value, the minimum no longer at the origin or on the
+box's diagonal. m and M come from ``numpy.random.default_rng([FORM_SEED, form, function])``.
+Defined for the scalable F1-F7 and F9-F13, whose minimum over all of R^n is the box's (so a
+point of the box that maps outside it cannot beat the minimum); not for F8, whose Schwefel
+landscape falls below its stated minimum outside [-500, 500], nor for the fixed-dimension
+F14-F23 (their data fix the landscape, as in the CEC suites, which shift only scalable functions).
+
+``python -m tools.cli.benchfuncs`` runs every optimiser on them and writes the report.
 """
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import math
-import sys
-import time
 from collections.abc import Callable
-from pathlib import Path
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
@@ -44,6 +54,7 @@ class Benchmark:
     minimum: float
     argmin: tuple[float, ...]
     costs: Costs
+    form: str = "plain"
 
     @property
     def bounds(self) -> list[tuple[float, float]]:
@@ -245,133 +256,37 @@ BENCHMARKS: tuple[Benchmark, ...] = (
 BY_NAME = {bench.name: bench for bench in BENCHMARKS}
 
 
-QUICK = {"runs": 2, "population": 10, "iterations": 10}  # --quick: a smoke run of every pair
+
+PLAIN, SHIFTED, ROTATED = "plain", "shifted", "rotated"
+FORMS = (PLAIN, SHIFTED, ROTATED)
+FORM_SEED = 0  # root seed of every shift and rotation (module docstring)
+SHIFT_SPAN = 0.8  # the new minimiser uniform in 0.8 x the box, as CEC 2005's [-80, 80] on [-100, 100]
+MOVABLE = ("F1", "F2", "F3", "F4", "F5", "F6", "F7", "F9", "F10", "F11", "F12", "F13")  # forms defined
 
 
-def _arguments(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="benchfuncs", description="Every optimiser on F1-F23, as a markdown table.")
-    parser.add_argument("--runs", type=int, default=30, help="runs per function and optimiser (30)")
-    parser.add_argument("--population", type=int, default=50, help="population (seed 002: 50)")
-    parser.add_argument("--iterations", type=int, default=300, help="iterations; budget = population x this (300)")
-    parser.add_argument("--seed", type=int, default=0, help="root seed of every run's Generator (0)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (2)")
-    parser.add_argument("--methods", default="nm,de,pso,alo,ocalo", help="comma-separated optimisers")
-    parser.add_argument("--functions", default=",".join(b.name for b in BENCHMARKS), help="e.g. F1,F9,F21")
-    parser.add_argument("--shift", type=float, default=0.0, help="move origin minimisers to SHIFT x upper bound (0)")
-    parser.add_argument("--quick", action="store_true", help="2 runs, population 10, 10 iterations")
-    parser.add_argument("--out", type=Path, help="write the markdown report here (default: stdout)")
-    parser.add_argument("--doc", type=Path, help="rewrite the report's section of this markdown file (docs/tuning.md)")
-    args = parser.parse_args(argv)
-    if args.quick:
-        vars(args).update(QUICK)
-    return args
+def rotation(dims: int, rng: np.random.Generator) -> np.ndarray:
+    """A random rotation (uniform on the orthogonal group): Q of QR(normal), signs from R's diagonal."""
+    q, r = np.linalg.qr(rng.standard_normal((dims, dims)))
+    return q * np.sign(np.diag(r))
 
 
-def _problem(args: argparse.Namespace) -> str | None:
-    """The first bad flag, as a one-line message, or None."""
-    from tools.tuning.optim import METHODS
+@cache
+def variant(name: str, form: str) -> Benchmark:
+    """F<name> in ``form`` (plain, shifted, rotated): same box and minimum value, the minimiser moved
+    (and the landscape rotated about it); ValueError where the form is not defined (module docstring)."""
+    bench = BY_NAME[name]
+    if form == PLAIN:
+        return bench
+    if form not in FORMS:
+        raise ValueError(f"form must be one of {', '.join(FORMS)}, not {form!r}")
+    if name not in MOVABLE:
+        raise ValueError(f"{name} has no {form} form (defined for {', '.join(MOVABLE)})")
+    rng = np.random.default_rng([FORM_SEED, FORMS.index(form), BENCHMARKS.index(bench)])
+    home = bench.at_argmin()
+    moved = rng.uniform(SHIFT_SPAN * bench.low, SHIFT_SPAN * bench.high, bench.dims)
+    matrix = rotation(bench.dims, rng) if form == ROTATED else np.eye(bench.dims)
 
-    unknown_methods = [m for m in args.methods.split(",") if m not in METHODS]
-    unknown_functions = [f for f in args.functions.split(",") if f not in BY_NAME]
-    checks = [
-        (args.runs < 1, "--runs must be >= 1"),
-        (args.population < 5, "--population must be >= 5 (DE needs 5)"),
-        (args.iterations < 3, "--iterations must be >= 3 (OCALO's start costs 2 populations)"),
-        (args.workers < 1, "--workers must be >= 1"),
-        (not 0.0 <= args.shift < 1.0, "--shift must be within [0, 1)"),
-        (bool(unknown_methods), f"--methods: unknown {unknown_methods}, choose from {sorted(METHODS)}"),
-        (bool(unknown_functions), f"--functions: unknown {unknown_functions}, choose from F1..F23"),
-    ]
-    return next((message for bad, message in checks if bad), None)
+    def costs(x: np.ndarray, noise: np.random.Generator) -> np.ndarray:
+        return bench.costs(home + (x - moved) @ matrix.T, noise)
 
-
-DOC_BEGIN, DOC_END = "<!-- benchfuncs: begin", "<!-- benchfuncs: end -->"
-
-
-def _write_out(path: Path, report: str, _command: str) -> str | None:
-    try:
-        path.write_text(report)
-    except OSError as error:
-        return str(error.strerror)
-    return None
-
-
-def replace_section(text: str, body: str, begin: str, end: str) -> str | None:
-    """``text`` with the lines between the markers ``begin...``/``end`` replaced, or None if absent."""
-    start, stop = text.find(begin), text.find(end)
-    if start < 0 or stop < start:
-        return None
-    head = text[: text.index("\n", start) + 1]
-    return head + body.rstrip("\n") + "\n" + text[stop:]
-
-
-def _write_doc(path: Path, report: str, command: str) -> str | None:
-    """Rewrite the section between the benchfuncs markers, stating the command that wrote it."""
-    try:
-        text = path.read_text()
-    except OSError as error:
-        return str(error.strerror)
-    body = f"Written by `python -m tools.tuning.benchfuncs {command}`.\n\n{report}"
-    new = replace_section(text, body, DOC_BEGIN, DOC_END)
-    if new is None:
-        return f"no '{DOC_BEGIN} ... -->' / '{DOC_END}' markers"
-    return _write_out(path, new, command)
-
-
-def ordering_differences(results: dict[tuple[str, str], np.ndarray]) -> list[str]:
-    """Functions where our ALO/OCALO ordering (by mean) differs from seed 002's table 2."""
-    from tools.seeds import seed002
-
-    lines = []
-    for bench in BENCHMARKS:
-        if (bench.name, "alo") not in results or (bench.name, "ocalo") not in results:
-            continue
-        ours = results[bench.name, "ocalo"].mean() < results[bench.name, "alo"].mean()
-        printed = seed002.PRINTED_MEAN[bench.name]
-        seed = float(printed["OCALO"]) < float(printed["ALO"])
-        if ours != seed:
-            winner = {True: "OCALO", False: "ALO"}
-            lines.append(f"{bench.name}: ours {winner[ours]} better, seed 002 {winner[seed]} better")
-    return lines
-
-
-def main(argv: list[str] | None = None) -> int:
-    from tools.tuning.optim.benchmark import format_report, run_all
-
-    args = _arguments(argv)
-    problem = _problem(args)
-    if problem:
-        print(f"benchfuncs: {problem}", file=sys.stderr)
-        return 2
-    methods, functions = args.methods.split(","), args.functions.split(",")
-    start_s = time.perf_counter()
-    results = run_all(
-        functions, methods, args.runs, seed=args.seed, population=args.population,
-        iterations=args.iterations, workers=args.workers, shift=args.shift,
-    )  # fmt: skip
-    report = format_report(
-        results, methods, runs=args.runs, population=args.population, iterations=args.iterations,
-        wall_s=time.perf_counter() - start_s, workers=args.workers, shift=args.shift,
-    )  # fmt: skip
-    differences = ordering_differences(results)
-    if differences:
-        report += "\nWhere our ALO/OCALO ordering (mean) differs from seed 002's table 2:\n\n"
-        report += "".join(f"- {line}\n" for line in differences)
-    if args.out is None and args.doc is None:
-        print(report, end="")
-        return 0
-    for flag, path, write in (("--out", args.out, _write_out), ("--doc", args.doc, _write_doc)):
-        if path is None:
-            continue
-        problem = write(path, report, " ".join(sys.argv[1:] if argv is None else argv))
-        if problem:
-            print(f"benchfuncs: {flag} {path}: {problem}", file=sys.stderr)
-            return 2
-        print(f"report written to {path}")
-    print(report.split("\n\n")[0])
-    print(next(line for line in report.splitlines() if line.startswith("OCALO beats ALO")))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    return dataclasses.replace(bench, title=f"{bench.title}, {form}", argmin=tuple(moved), costs=costs, form=form)

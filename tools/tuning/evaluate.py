@@ -41,10 +41,12 @@ import scipy.signal
 from firmware_port.klipper import CommandError
 from twin import batch_kernel
 from firmware_port.marlin.board import HOTEND_CHANNEL
+from firmware_port.marlin.mpc_autotune import MpcAutotune
 from firmware_port.firmwares import param_space
 from firmware_port.marlin.pid import pid_space
 from firmware_port.params import ParamSpace
-from tools.ident.fit import CONTROL_DELAY_S
+from tools.ident.fopdt import CONTROL_DELAY_S
+from tools.tuning.ensemble import Ensemble
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of
 from tools.tuning.objectives import Run, needs_trace, score_spec
@@ -56,7 +58,7 @@ from twin.engine import Twin
 from twin.klipper_batch import KlipperBatch, gains_setups
 from twin.klipper_twin import KlipperTwin, extruder_setup, tick_near
 from twin.linear import SENSOR, Lti
-from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
+from twin.plants import SPECS, Plant, Spec, TransferFunction
 from twin.scenario import Event
 from twin.streaming import ScoreTotals
 
@@ -102,8 +104,10 @@ class Problem:
     scenario: TuneScenario
     loop: str = "marlin"
     controller: ParamSpace = field(default_factory=pid_space)
-    noise_lsb: float = 0.0  # the ADC's noise on the Marlin loop (Twin's noise_lsb)
-    seed: int = 0  # the noise's seed: every candidate sees this one draw (common random numbers)
+    ensemble: Ensemble | None = None  # None: this plant only, with the sensor below
+    noise_lsb: float = 0.0  # the ADC's noise (an ensemble's members set their own)
+    seed: int = 0  # the noise's seed
+    engine: str = "fast"  # the scalar twins' engine (twin/engine.py ENGINES): "reference" for a proof
 
     def __post_init__(self) -> None:
         if self.loop not in LOOPS:
@@ -115,14 +119,28 @@ class Problem:
     @property
     def input_full_scale(self) -> float:
         """The plant input at duty 1: W for a lumped heater, the paper's unit for a transfer function."""
-        return self.spec.power_w if isinstance(self.spec, Lumped) else self.spec.input_full_scale
+        return self.spec.input_full_scale
+
+    def members(self) -> list[Problem]:
+        """One problem per ensemble member (its plant, noise and seed); [self] without an ensemble."""
+        if self.ensemble is None:
+            return [self]
+        return [replace(self, spec=m.spec(self.spec), noise_lsb=m.noise_lsb, seed=m.seed, ensemble=None)
+                for m in self.ensemble.members]
+
+    def reduce(self, costs: np.ndarray) -> np.ndarray:
+        """Costs of every member's lanes (members x N, member-major) -> one cost per candidate (N,)."""
+        return np.ravel(costs) if self.ensemble is None else self.ensemble.reduce(costs)
 
     @property
     def batched(self) -> bool:
-        """Whether candidates run as lanes of one batch (else one twin each). Without numba, only the
-        numpy lanes' cases: the Marlin loop on a linear plant without dead time."""
+        """Whether candidates run as lanes of one batch (else one twin each, as always on the reference
+        engine). Without numba, only the numpy lanes' cases: the Marlin loop on a linear plant without
+        dead time."""
         if self.loop == "ideal":
             return True
+        if self.engine == "reference":
+            return False
         if not batch_kernel.compiled() and (self.loop == "klipper" or not self.spec.linear or self.spec.delay_ticks):
             return False
         return self.loop == "klipper" or BatchTwin.accepts(self.controller.make(self.controller.defaults))
@@ -166,7 +184,7 @@ class _LoadedSpec(TransferFunction):
 
 def make_problem_plant(problem: Problem) -> Plant:
     """A fresh plant at the scenario's ambient, every node there."""
-    if isinstance(problem.spec, TransferFunction):
+    if isinstance(problem.spec, TransferFunction):  # no fan or flow: its disturbance is a load at the input
         return LoadedPlant(problem.name, problem.spec, problem.scenario.ambient_c)
     return Plant(problem.name, problem.spec, problem.scenario.ambient_c)
 
@@ -184,14 +202,13 @@ def full_power_time_s(spec: Spec, ambient_c: float, target_c: float) -> float:
     """The open-loop time from ambient to target_c at full power (dead time included).
 
     ValueError when full power cannot hold the target."""
-    lti = spec.lti() if isinstance(spec, TransferFunction) else spec.lti(spec.conditions(0.0, 0.0, ambient_c, ambient_c))
+    lti = spec.rest_lti(ambient_c)
     t, rise = _sensor_step(lti)
     need = target_c - ambient_c
     if need <= 0 or rise[-1] <= need:
         raise ValueError(f"target {target_c:g} C is not reachable: full power holds {ambient_c + rise[-1]:.4g} C "
                          f"at ambient {ambient_c:g} C")
-    delay_s = getattr(spec, "delay_s", 0.0)
-    return float(t[np.argmax(rise >= need)]) + delay_s
+    return float(t[np.argmax(rise >= need)]) + spec.delay_s
 
 
 def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C) -> TuneScenario:
@@ -200,7 +217,7 @@ def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C) 
     heat_s = math.ceil(heat_s / PHASE_ROUND_S) * PHASE_ROUND_S
     phase_s = math.ceil(max(MIN_PHASE_S, heat_s / 2) / PHASE_ROUND_S) * PHASE_ROUND_S
     events: tuple[Event, ...]
-    if isinstance(spec, TransferFunction):
+    if not spec.world_inputs:
         events = (Event(heat_s, "load", None, -LOAD_FRACTION),)
     else:
         events = (Event(heat_s, "fan", None, FAN_KICK), Event(heat_s + phase_s, "flow", "hotend", FLOW_MM_S),
@@ -296,7 +313,7 @@ def _marlin_twin(problem: Problem, row: np.ndarray | None) -> Twin:
     own PID when None), the scenario scheduled (target not yet set)."""
     plant = make_problem_plant(problem)
     twin = Twin([plant], "pid", controllers=[None if row is None else problem.controller.make(row)],
-                seed=problem.seed, noise_lsb=problem.noise_lsb)
+                seed=problem.seed, noise_lsb=problem.noise_lsb, engine=problem.engine)
     twin.set_ambient(problem.scenario.ambient_c)
     for event in problem.scenario.events:
         twin.schedule(event.at_s, functools.partial(_twin_load if event.kind == "load" else apply_event, event=event))
@@ -314,7 +331,8 @@ def _run_scalar_marlin(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, n
 def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     plant = make_problem_plant(problem)
     kp, ki, kd = (float(v) for v in row)
-    twin = KlipperTwin([extruder_setup(plant, pid_kp=kp, pid_ki=ki, pid_kd=kd, max_temp_c=KLIPPER_MAX_TEMP_C)])
+    setup = extruder_setup(plant, pid_kp=kp, pid_ki=ki, pid_kd=kd, max_temp_c=KLIPPER_MAX_TEMP_C)
+    twin = KlipperTwin([replace(setup, noise_lsb=problem.noise_lsb)], seed=problem.seed)
     for event in problem.scenario.events:
         twin.schedule(event.at_s, functools.partial(_klipper_event, event=event))
     twin.set_target("extruder", problem.scenario.target_c)
@@ -354,7 +372,7 @@ def _run_ideal(problem: Problem, gains: np.ndarray) -> Traces:
     plant = make_problem_plant(problem)
     kp, ki, kd = (np.asarray(gains, float) / COUNTS_PER_DUTY).T  # duty per degC
     n_steps = int(round(scenario.duration_s / dt))
-    delay = int(round(getattr(problem.spec, "delay_s", 0.0) / dt))
+    delay = int(round(problem.spec.delay_s / dt))
     pending = np.zeros((delay, len(gains)))
     x = np.repeat(plant.x[:, None], len(gains), axis=1)
     integral = np.zeros(len(gains))
@@ -420,23 +438,26 @@ def _join(parts: list[Traces]) -> Traces:
 
 def simulate(problem: Problem, params, client=None, record: bool = True) -> Run:
     """Run candidates (N, d): rows of the problem's controller parameters (a PID's Kp, Ki, Kd on the
-    0..255 scale); a dask.distributed client runs the chunks. ``record=False``: batches stream the
-    heater objective's inputs (``Run.streamed``) instead of keeping traces."""
+    0..255 scale) on every member of its ensemble; the run's lanes are member-major (members x N).
+    A dask.distributed client runs the chunks. ``record=False``: batches stream the heater objective's
+    inputs (``Run.streamed``) instead of keeping traces."""
     params = np.atleast_2d(np.asarray(params, float))
     space = problem.controller
     if params.ndim != 2 or params.shape[1] != space.dims:
         raise ValueError(f"parameters must be an (N, {space.dims}) array of {', '.join(space.names)}, "
                          f"got shape {params.shape}")
-    chunks = list(_chunks(params))
+    tasks = [(member, chunk) for member in problem.members() for chunk in _chunks(params)]
     if client is None:
-        parts = [run_chunk(problem, chunk, record) for chunk in chunks]
+        parts = [run_chunk(member, chunk, record) for member, chunk in tasks]
     else:
-        parts = client.gather(client.map(run_chunk, [problem] * len(chunks), chunks, [record] * len(chunks),
-                                         pure=False))
+        members, chunks = zip(*tasks)
+        parts = client.gather(client.map(run_chunk, members, chunks, [record] * len(tasks), pure=False))
     traces = _join(parts)
+    gains = problem.plant_gains(params)
     return Run(traces.t_s, traces.temp_c, traces.duty, problem.scenario.target_c,
                problem.scenario.ambient_c, problem.scenario.disturbances_s, traces.tripped,
-               problem.plant_gains(params), problem.input_full_scale, traces.streamed)
+               None if gains is None else np.tile(gains, (len(problem.members()), 1)), problem.input_full_scale,
+               traces.streamed)
 
 
 class Evaluator:
@@ -456,7 +477,8 @@ class Evaluator:
         valid = self.problem.controller.inside(params)
         costs = np.full(len(params), OUT_OF_RANGE_COST)
         if valid.any():
-            costs[valid] = self.cost(simulate(self.problem, params[valid], self.client, needs_trace(self.cost)))
+            costs[valid] = self.problem.reduce(self.cost(simulate(self.problem, params[valid], self.client,
+                                                                  needs_trace(self.cost))))
         self.evaluations += len(params)
         if self.on_batch is not None:
             self.on_batch(costs)
@@ -490,11 +512,36 @@ def klipper_autotune(problem: Problem) -> Gains:
     return Gains(result.kp, result.ki, result.kd)
 
 
-def firmware_autotune(problem: Problem) -> tuple[str, Gains]:
-    """The firmware's own autotune on the problem's plant: (its name, its gains)."""
-    if problem.loop == "klipper":
-        return "PID_CALIBRATE", klipper_autotune(problem)
-    return f"M303 C{M303_CYCLES}", marlin_autotune(problem)
+def mpc_autotune(problem: Problem) -> np.ndarray:
+    """M306 T on a Marlin twin of the problem's plant running the problem's MPC (at ambient, no
+    disturbances): the constants it finds, as the family's parameters (C, R, A, F). ValueError if it fails."""
+    quiet = replace(problem, scenario=replace(problem.scenario, events=()))
+    twin = _marlin_twin(quiet, problem.controller.defaults)
+    tune = MpcAutotune(twin.board)
+    tune.start(twin.board.now_ms)
+    twin.board.begin_tune(tune, HOTEND_CHANNEL)
+    while twin.board.autotune is not None and not twin.board.halted and twin.time_s < AUTOTUNE_TIMEOUT_S:
+        twin.run_until(twin.time_s + AUTOTUNE_POLL_S)
+    if not tune.succeeded:
+        raise ValueError(f"M306 T failed on {problem.name}: " + " | ".join(twin.console.lines()[-2:]))
+    constants = twin.board.hotend.controller.constants
+    return np.array([constants.block_heat_capacity_j_k, constants.sensor_responsiveness_per_s,
+                     constants.ambient_xfer_w_k, constants.fan_ambient_xfer_w_k])
+
+
+def firmware_autotune(problem: Problem) -> tuple[str, np.ndarray]:
+    """The firmware's own autotune of the problem's controller family on its plant: (its name, the
+    parameters it gives). ValueError when it fails or the family has none."""
+    kind = problem.controller.autotune
+    if kind == "M303":
+        if problem.loop == "klipper":
+            gains = klipper_autotune(problem)
+            return "PID_CALIBRATE", np.array([gains.kp, gains.ki, gains.kd])
+        gains = marlin_autotune(problem)
+        return f"M303 C{M303_CYCLES}", np.array([gains.kp, gains.ki, gains.kd])
+    if kind == "M306 T":
+        return kind, mpc_autotune(problem)
+    raise ValueError(f"controller {problem.controller.name} has no firmware autotune")
 
 
 # -- candidates: the rules' gains, scored together ---------------------------------------------------
@@ -504,9 +551,10 @@ class Candidate:
 
     method: str
     params: np.ndarray
-    cost: float
-    run: Run
+    cost: float  # the ensemble's statistic (the cost itself without an ensemble)
+    run: Run  # one lane per ensemble member, the nominal plant first
     history: np.ndarray | None = None  # an optimiser's best cost per iteration
+    member_costs: np.ndarray | None = None  # (members,)
 
     @property
     def gains(self) -> Gains:
@@ -548,7 +596,16 @@ def score(problem: Problem, cost: Callable[[Run], np.ndarray], candidates: dict[
     table = np.array([[c.kp, c.ki, c.kd] if isinstance(c, Gains) else np.ravel(c) for c in candidates.values()],
                      float)
     table = np.array([problem.controller.hold(row) for row in np.clip(table, bounds[:, 0], bounds[:, 1])])
+    return sorted(runs(problem, cost, table, names, client), key=lambda c: c.cost)
+
+
+def runs(problem: Problem, cost: Callable[[Run], np.ndarray], table: np.ndarray, names: list[str],
+         client=None, histories: list[np.ndarray | None] | None = None) -> list[Candidate]:
+    """Candidates (rows of ``table``, named) run on every member and scored, in the given order."""
     run = simulate(problem, table, client)
-    costs = cost(run)
-    scored = [Candidate(name, table[i], float(costs[i]), run.lanes([i])) for i, name in enumerate(names)]
-    return sorted(scored, key=lambda c: c.cost)
+    n = len(table)
+    member_costs = cost(run).reshape(-1, n)
+    reduced = problem.reduce(member_costs)
+    histories = histories or [None] * n
+    return [Candidate(name, table[i], float(reduced[i]), run.lanes(list(range(i, run.n, n))), histories[i],
+                      member_costs[:, i]) for i, name in enumerate(names)]

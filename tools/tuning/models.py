@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-from tools.ident.fit import Fopdt, two_point_fopdt
+from tools.ident.fopdt import Fopdt, two_point_fopdt
 from twin.linear import SENSOR, Lti, TickModel
 from twin.plants import Conditions, Lumped, Plant, Spec
 

@@ -34,7 +34,7 @@ OVERSHOOT_BOUND_C = float(TEMP_HYSTERESIS_C)  # Marlin's M109 hysteresis (Config
 OVERSHOOT_S_PER_C = 30.0  # each degC of overshoot beyond the bound costs as much as 30 s of heat-up
 HOLD_S_PER_C = 100.0  # each degC of mean |error| while holding costs 100 s
 CHATTER_BOUND = 0.02  # mean |duty change| per reading allowed while holding: about 2.5 soft-PWM counts of 127
-CHATTER_S = 1000.0  # cost per unit of mean |duty change| beyond the bound
+CHATTER_S = 10_000.0  # cost per unit of mean |duty change| beyond the bound: 0.01 costs as 1 C of hold error
 UNREACHED_S = 1000.0  # added to the heat-up time when the band is never reached
 TRIP_S = 10_000.0  # a protection trip (MAXTEMP, runaway, heating failed): worse than any working run
 
@@ -304,7 +304,7 @@ def heater_cost(run: Run) -> np.ndarray:
     """The heater objective in seconds:
 
     reach_s + 30 s/C x max(0, overshoot_c - 3 C) + 100 s/C x hold_error_c
-    + 1000 s x max(0, chatter - 0.02) + 10000 s x tripped.
+    + 10000 s x max(0, chatter - 0.02) + 10000 s x tripped.
     """
     return heater_terms(run).cost_s
 

@@ -17,25 +17,28 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from tools.cli.tune import make_problem, parse_args
+from tools.ident.log_fit import LogFitOptions
 from tools.logs import hardware_logs_dir
 from tools.tuning.evaluate import Candidate, rule_gains, rule_names, score
 from tools.tuning.objectives import heater_cost
 from tools.tuning.table import cost_verdict
+from tools.tuning.evaluate import Problem
+from tools.tuning.problems import build_problem, log_source, preset_source
 from tools.tuning.tuner import optimise, references, search_bounds
+from twin.plants import SPECS
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "tuning.md"
 BEGIN, END = "<!-- optim-table: begin", "<!-- optim-table: end -->"
 OPTIMISERS = ("de", "pso", "ocalo")
 BUDGET = 900  # evaluations per optimiser: twin-tune's default (20 generations of DE's 45)
 SEED = 0
-# (label, twin-tune arguments): the presets fitted to logs, then two printers' Klipper Stats logs
-# fitted as twin-fit does (two-node model, the default segment).
-PLANTS: dict[str, list[str]] = {
-    "hotend_cartridge": ["--plant", "hotend_cartridge"],
-    "bed": ["--plant", "bed"],
-    "ender5 extruder": ["--from-log", "klippy_stats_icodextrin_ender5_creality427.csv", "--heater", "extruder"],
-    "kp3s extruder": ["--from-log", "klippy_stats_pdegrazia_kingroon_kp3s_a.csv", "--heater", "extruder"],
+# (label, plant): the presets fitted to logs, then two printers' Klipper Stats logs fitted as twin-fit
+# fits them (tools/ident/log_fit.py: two-node model, the default segment), the extruder's.
+PLANTS: dict[str, str] = {
+    "hotend_cartridge": "hotend_cartridge",
+    "bed": "bed",
+    "ender5 extruder": "klippy_stats_icodextrin_ender5_creality427.csv",
+    "kp3s extruder": "klippy_stats_pdegrazia_kingroon_kp3s_a.csv",
 }
 
 
@@ -61,16 +64,17 @@ class PlantResult:
         return vs_rule != "loses" and vs_m303 == "beats"
 
 
-def _argv(label: str) -> list[str]:
-    argv = list(PLANTS[label])
-    if argv[0] == "--from-log":
-        argv[1] = str(hardware_logs_dir() / argv[1])
-    return argv
+def problem_of(label: str) -> Problem:
+    """The plant as twin-tune builds it, on its nominal model with a noiseless sensor: this table compares
+    optimisers, not robustness (docs/tuning.md's robust tuning section does that)."""
+    plant = PLANTS[label]
+    source = preset_source(plant, spread=0.0) if plant in SPECS else \
+        log_source(hardware_logs_dir() / plant, LogFitOptions(heater="extruder"))
+    return build_problem(source, noise_lsb=0.0, spread=False)
 
 
 def run_plant(label: str, budget: int, seed: int, methods: tuple[str, ...] = OPTIMISERS) -> PlantResult:
-    args = parse_args(_argv(label))
-    problem, _ = make_problem(args)
+    problem = problem_of(label)
     refs, _ = references(problem, heater_cost)
     gains, _ = rule_gains(problem, rule_names())
     best_rule = score(problem, heater_cost, gains)[0]
@@ -103,12 +107,9 @@ def markdown(results: list[PlantResult], budget: int, seed: int) -> str:
 
 
 def write_doc(path: Path, body: str, command: str) -> None:
-    from tools.tuning.benchfuncs import replace_section
+    from tools.validation.doc_compare import write_section
 
-    new = replace_section(path.read_text(), f"Written by `{command}`.\n\n{body}", BEGIN, END)
-    if new is None:
-        raise ValueError(f"{path} lacks the '{BEGIN} ... -->' / '{END}' markers")
-    path.write_text(new)
+    write_section(path, f"Written by `{command}`.\n\n{body}", BEGIN, END)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,7 +19,7 @@ import numpy as np
 
 from firmware_port.klipper.pid_calibrate import zn_from_relay
 from firmware_port.marlin.autotune import pid_from_relay
-from tools.ident.fit import Fopdt
+from tools.ident.fopdt import Fopdt
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import LinearModel
 from tools.tuning.msdi import msdi_gains

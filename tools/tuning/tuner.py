@@ -12,7 +12,8 @@ Every candidate runs the problem's scenario in its loop (tools/tuning/evaluate.p
 the objective (tools/tuning/objectives.py). The references are the controller's own defaults (the
 build's hand-set values) and, for a PID family, the firmware's own autotune on the same twin
 (M303 C8, or PID_CALIBRATE on the Klipper loop). A PID family also gets the tuning rules as
-candidates, and its search box is 0 .. ``SEARCH_FACTOR`` x the best rule's gains; other families
+candidates, and its search box is 0 .. ``SEARCH_FACTOR`` x the best rule's gains; a family with its own autotune (MPC's
+M306 T) searches around that result (/ and x ``SEARCH_FACTOR``); other families
 search their declared bounds (on a log scale where a parameter says so).
 """
 
@@ -34,19 +35,22 @@ from tools.tuning.evaluate import (
     preset_problem,
     rule_gains,
     rule_names,
+    runs,
     score,
     simulate,
 )
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, Run, objective
 from tools.tuning.optim import METHODS
+from tools.tuning.proof import PROOF_SEEDS, ProofRow, prove
 
 __all__ = ["Candidate", "Param", "ParamSpace", "Problem", "TuneResult", "preset_problem", "simulate", "tune"]
 
 DEFAULT_OPTIMISER = "de"
 DEFAULT_BUDGET = 900  # optimiser evaluations: 20 generations of DE's default population of 45
-SEARCH_FACTOR = 4.0  # a PID family's search box: 0 .. 4 x the best rule's gains (within the declared bounds)
+SEARCH_FACTOR = 4.0  # a PID family's box: 0 .. 4 x the best rule's gains; others: the autotune's result / 4 .. x 4
 MIN_BOUND = np.array([1.0, 0.05, 1.0])  # so a rule's zero Ki or Kd still leaves room to search
 DEFAULTS = "defaults"  # the reference candidate of the controller's own default parameters
+PROOF_TRIES = 3  # candidates proven, best first, before the tune gives up on an answer
 
 
 @dataclass(frozen=True)
@@ -60,11 +64,47 @@ class TuneResult:
     notes: list[str] = field(default_factory=list)
 
     @property
+    def ranked(self) -> list[Candidate]:
+        """Every candidate and reference, best first: a reference that no search beat stays the best."""
+        return sorted(self.candidates + self.references, key=lambda c: c.cost)
+
+    @property
     def best(self) -> Candidate:
-        return self.candidates[0]
+        return self.ranked[0]
 
     def beats(self, reference: Candidate) -> bool:
         return self.best.cost < reference.cost
+
+    @property
+    def autotune(self) -> Candidate | None:
+        """The firmware's own autotune among the references, if it ran."""
+        return next((r for r in self.references if r.method != DEFAULTS), None)
+
+
+@dataclass(frozen=True)
+class Proven:
+    """The answer a proof allows (None: every candidate tried tripped) and the proof's rows."""
+
+    answer: Candidate | None
+    rows: list[ProofRow]
+
+
+def proven(result: TuneResult, seeds: int = PROOF_SEEDS, tries: int = PROOF_TRIES,
+           workers: int | None = None) -> Proven:
+    """Prove the best candidates in turn (tools/tuning/proof.py) until one passes, beside the firmware's
+    autotune; a candidate that trips in any run is never the answer."""
+    problem = result.problem
+    best, autotune = result.best, result.autotune
+    extra = [autotune] if autotune is not None and autotune is not best else []
+    first = prove(problem, [best] + extra, seeds, workers)
+    rows, answer = first[:1], best if first[0].passed else None
+    for candidate in result.ranked[1:tries]:
+        if answer is not None:
+            break
+        row = prove(problem, [candidate], seeds, workers)[0]
+        rows.append(row)
+        answer = candidate if row.passed else None
+    return Proven(answer, rows + first[1:])
 
 
 def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
@@ -74,6 +114,8 @@ def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
         return rules, optimisers
     if method == "auto":
         return rules, [DEFAULT_OPTIMISER]
+    if method == "rules":
+        return rules, []
     if method in optimisers:
         return [], [method]
     if method in rule_names():
@@ -85,16 +127,24 @@ def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
 
 def methods() -> list[str]:
     """Every value ``--method`` takes."""
-    return rule_names() + optimiser_names() + ["all", "auto"]
+    return rule_names() + optimiser_names() + ["all", "auto", "rules"]
 
 
-def search_bounds(problem: Problem, start: np.ndarray) -> np.ndarray:
-    """(d, 2) box an optimiser searches: a PID family's 0 .. SEARCH_FACTOR x start, else the declared bounds."""
+def search_bounds(problem: Problem, start: np.ndarray | None) -> np.ndarray:
+    """(d, 2) box an optimiser searches: a PID family's 0 .. SEARCH_FACTOR x start; another family with a
+    start (its firmware autotune's result) start / SEARCH_FACTOR .. start x SEARCH_FACTOR; else the
+    declared bounds; always within the declared bounds."""
     declared = problem.controller.bounds
-    if not problem.controller.pid:
+    if start is None:
         return declared
-    top = np.minimum(np.maximum(SEARCH_FACTOR * np.asarray(start, float), MIN_BOUND), declared[:, 1])
-    return np.column_stack([declared[:, 0], top])
+    start = np.asarray(start, float)
+    if problem.controller.pid:
+        top = np.minimum(np.maximum(SEARCH_FACTOR * start, MIN_BOUND), declared[:, 1])
+        return np.column_stack([declared[:, 0], top])
+    low = np.clip(start / SEARCH_FACTOR, declared[:, 0], declared[:, 1])
+    high = np.clip(start * SEARCH_FACTOR, declared[:, 0], declared[:, 1])
+    ok = low < high
+    return np.column_stack([np.where(ok, low, declared[:, 0]), np.where(ok, high, declared[:, 1])])
 
 
 def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, bounds: np.ndarray, budget: int,
@@ -113,8 +163,7 @@ def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, b
         except ValueError as exc:  # e.g. a budget below two of the optimiser's generations
             raise ValueError(f"--method {method} --budget {budget}: {exc}") from None
     best = space.hold(np.clip(space.from_search(result.x), bounds[:, 0], bounds[:, 1]))
-    run = simulate(problem, best[None, :], client)
-    return Candidate(method, best, float(cost(run)[0]), run, np.asarray(result.history, float))
+    return runs(problem, cost, best[None, :], [method], client, [np.asarray(result.history, float)])[0]
 
 
 def references(problem: Problem, cost: Callable[[Run], np.ndarray], client=None) -> tuple[list[Candidate], list[str]]:
@@ -122,10 +171,10 @@ def references(problem: Problem, cost: Callable[[Run], np.ndarray], client=None)
     and why any reference could not be had."""
     table: dict[str, np.ndarray] = {}
     notes = []
-    if problem.controller.pid:
+    if problem.controller.autotune:
         try:
-            name, gains = firmware_autotune(replace(problem, loop="klipper" if problem.loop == "klipper" else "marlin"))
-            table[name] = np.array([gains.kp, gains.ki, gains.kd])
+            name, params = firmware_autotune(replace(problem, loop="klipper" if problem.loop == "klipper" else "marlin"))
+            table[name] = params
         except ValueError as exc:
             notes.append(str(exc))
     table[DEFAULTS] = problem.controller.defaults
@@ -142,7 +191,8 @@ def tune(problem: Problem, objective_name: str = DEFAULT_OBJECTIVE, method: str 
     gains, failures = rule_gains(problem, rules)
     notes += [f"rule {rule} gives no gains here: {why}" for rule, why in failures.items()]
     candidates = score(problem, cost, dict(gains), client) if gains else []
-    start = (candidates or refs)[0].params if problem.controller.pid else problem.controller.defaults
+    autotune = next((r.params for r in refs if r.method != DEFAULTS), None)
+    start = (candidates[0].params if candidates else autotune) if problem.controller.pid else autotune
     for name in optimisers:
         candidates.append(optimise(problem, cost, name, search_bounds(problem, start), budget, seed, client,
                                    progress))

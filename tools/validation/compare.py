@@ -30,13 +30,9 @@ from firmware_port.klipper.heater import (
     PWM_RESEND_BEFORE_2025_04,
 )
 from firmware_port.thermistor import KLIPPER_SENSORS
-from tools.ident.fit import (
-    MIN_HEATUP_S,
-    FitResult,
-    Segment,
-    fit_model,
-    log_segments,
-)
+from tools.ident.fit import fit_model
+from tools.ident.result import FitResult
+from tools.ident.segments import MIN_HEATUP_S, Segment, log_segments
 from tools.logs import (
     HeattestLog,
     StatsLog,
@@ -46,7 +42,7 @@ from tools.logs import (
 )
 from tools.ident.runs import Run, run_response
 from twin.klipper_twin import PULLUP_OHM, PWM_CYCLE_TIME_S, HeaterSetup, KlipperTwin
-from twin.plants import Plant
+from twin.plants import Lumped, Plant
 
 ONION_AMBIENT_C = 21.4  # the author's room temperature (README B)
 ONION_FAN = 1.0  # "part fan on" (README B): its speed is not logged; taken as full
@@ -131,7 +127,9 @@ class OpenLoopResult:
 
 def _response(fit: FitResult, fan_xfer_w_k: float, run: Run) -> np.ndarray:
     """The fitted plant with fan loss F at the run's samples, from the state the run declares."""
-    spec = replace(fit.spec(), fan_ambient_xfer_w_k=float(fan_xfer_w_k))
+    lumped = fit.spec()
+    assert isinstance(lumped, Lumped)  # a fan loss needs the lumped models
+    spec = replace(lumped, fan_ambient_xfer_w_k=float(fan_xfer_w_k))
     return run_response(spec, fit.model, fit.values["ambient_c"], run)
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 NUMBER_RE = re.compile(r"(?<![\w.])[-+]?\d+\.\d+(?![\w.])")  # a decimal number standing on its own
 # Klipper sends a pwm change only when it exceeds 5 % of max_power (or at the resend interval), so a
@@ -58,3 +59,21 @@ def compare_docs(new: str, old: str, rel_tol: float = REL_TOL, units: float = UN
             if not _close(x, y, rel_tol, units):
                 out.append(Mismatch(no, f"{x} against {y}"))
     return out
+
+
+def replace_section(text: str, body: str, begin: str, end: str) -> str | None:
+    """``text`` with the lines between the markers ``begin...``/``end`` replaced, or None if absent
+    (a generated section of a hand-written page: docs/tuning.md's tables)."""
+    start, stop = text.find(begin), text.find(end)
+    if start < 0 or stop < start:
+        return None
+    head = text[: text.index("\n", start) + 1]
+    return head + body.rstrip("\n") + "\n" + text[stop:]
+
+
+def write_section(path: Path, body: str, begin: str, end: str) -> None:
+    """Rewrite the file's generated section between the markers; ValueError if they are missing."""
+    new = replace_section(path.read_text(), body, begin, end)
+    if new is None:
+        raise ValueError(f"{path} lacks the '{begin} ... -->' / '{end}' markers")
+    path.write_text(new)

@@ -8,6 +8,7 @@ after a deliberate change of behaviour, and review the diff.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
 from protocol.lines import with_checksum
@@ -50,17 +51,23 @@ def record_session() -> list[str]:
     return transcript
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.validation.golden", description=__doc__.splitlines()[0])
-    parser.add_argument("--write", action="store_true", help=f"rewrite {GOLDEN_PATH}")
+def golden_cli(prog: str, description: str, path: Path, record: Callable[[], list[str]],
+               argv: list[str] | None) -> int:
+    """A golden transcript's command: print what ``record`` gives, or with --write keep it in ``path``."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    parser.add_argument("--write", action="store_true", help=f"rewrite {path}")
     args = parser.parse_args(argv)
-    text = "\n".join(record_session()) + "\n"
+    text = "\n".join(record()) + "\n"
     if args.write:
-        GOLDEN_PATH.write_text(text)
-        print(f"wrote {GOLDEN_PATH} ({text.count(chr(10))} lines)")
+        path.write_text(text)
+        print(f"wrote {path} ({text.count(chr(10))} lines)")
     else:
         print(text, end="")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return golden_cli("python -m tools.validation.golden", __doc__.splitlines()[0], GOLDEN_PATH, record_session, argv)
 
 
 if __name__ == "__main__":

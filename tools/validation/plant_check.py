@@ -15,16 +15,19 @@ The numbers in docs/plants.md come from this command.
 from __future__ import annotations
 
 import argparse
-from functools import partial
+from collections.abc import Callable
 
 import numpy as np
 import scipy.optimize
 
-from tools.ident.fit import FitResult, Segment, aic, fit_losses, fit_model, fit_plants, zoh_response
+from tools.ident.fit import fit_losses, fit_model, fit_plants
+from tools.ident.response import zoh_response
+from tools.ident.result import FitResult, aic
+from tools.ident.segments import Segment
 from tools.logs import csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
-from twin.plants import MK3_POWER_W, SPECS, make_plant
+from twin.plants import MK3_POWER_W, SPECS, Lumped, Plant, make_plant
 
 # Onionheater pulse tests (README section B; the author's notes in the files' headers).
 ONION_LOG = "klipper_heattest_onionheater_{}.csv"
@@ -136,7 +139,8 @@ def onion_plant(run: Segment, preset: str = "hotend_cartridge", **params):
 def hotend_report() -> list[str]:
     """Both hotend presets on the first no-fan pulse, cut at 200.5 C by their own sensor."""
     run = onion_run("heattest_200", t_max_s=ONION_PULSE_END_S)
-    rows = {"log": (pulse_numbers(run.t_s, run.temp_c, ONION_CUT_C), None)}
+    rows: dict[str, tuple[dict[str, float], np.ndarray | None]] = {
+        "log": (pulse_numbers(run.t_s, run.temp_c, ONION_CUT_C), None)}
     for preset in ("hotend", "hotend_cartridge"):
         model_c = replay(onion_plant(run, preset), run.t_s, cut_c=ONION_CUT_C)
         rows[preset] = (pulse_numbers(run.t_s, model_c, ONION_CUT_C), model_c - run.temp_c)
@@ -155,7 +159,8 @@ def hotend_report() -> list[str]:
     ):
         lines.append(f"  {label:36}" + "".join(f"{fmt.format(numbers[key]):>18}" for numbers, _ in rows.values()))
     for label, stat in (("RMSE over the run, C", rms), ("max |error| over the run, C", lambda e: np.max(np.abs(e)))):
-        lines.append(f"  {label:36}{'-':>18}" + "".join(f"{stat(err):>18.2f}" for _, err in list(rows.values())[1:]))
+        errors = [err for _, err in rows.values() if err is not None]
+        lines.append(f"  {label:36}{'-':>18}" + "".join(f"{stat(err):>18.2f}" for err in errors))
     lines.append("  hotend_cartridge with each run's logged heater input (ambient 21.4 C, fan runs at fan = 1):")
     for note, run in onion_runs():
         err = replay(onion_plant(run), run.t_s, run.duty) - run.temp_c
@@ -214,6 +219,7 @@ def bed_report() -> list[str]:
     lines.append(f"  {'RMSE with the logged pwm over the window, C':56}{'-':>10}{rms(err):10.2f}")
     lines.append(f"  {'max |error|, C':56}{'-':>10}{np.max(np.abs(err)):10.2f}")
     mk3 = make_plant("bed_mk3", ambient_c=MK3_AMBIENT_C)
+    assert isinstance(mk3.spec, Lumped)
     t_s, temp_c = heat_up(mk3, MK3_DUTY)
     lines += [
         f"Bed MK3 (seed 004): ambient {MK3_AMBIENT_C} C (assumed), duty 220/255 = {MK3_DUTY:.3f}",
@@ -240,10 +246,17 @@ def _preset_params(fit: FitResult) -> dict[str, float]:
     return {**fit.params, "emissivity": fit.values.get("emissivity", 0.0)}
 
 
+def _onion_maker(fixed: dict[str, float]) -> Callable[..., Plant]:
+    """hotend_cartridge with these parameters and, per run, the fitted ones (fit_plants' maker)."""
+    def make(run: Segment, **fitted: float) -> Plant:
+        return onion_plant(run, "hotend_cartridge", **{**fixed, **fitted})
+    return make
+
+
 def _fit_lines(name: str, fit: FitResult, held_out: Segment) -> list[str]:
     """A fit's values +- standard errors, RMSE, AIC, and its RMSE on the held-out run."""
     params = _preset_params(fit)
-    err = zoh_response(onion_plant(held_out, **params), held_out.t_s, held_out.duty) - held_out.temp_c
+    err = zoh_response(onion_plant(held_out, "hotend_cartridge", **params), held_out.t_s, held_out.duty) - held_out.temp_c
     return ([f"  {name} (emissivity {params['emissivity']:g}):"]
             + [f"    {k} = {v:.4g} +- {fit.std_errors[k]:.2g}" for k, v in fit.params.items()]
             + [f"    RMSE {fit.rmse_c:.2f} C, AIC {aic(fit):.0f}; held out ({held_out.label}): RMSE {rms(err):.2f} C"])
@@ -256,7 +269,7 @@ def fit_report() -> list[str]:
     profile = {capacity: fit_model(**onion_fit_options(cartridge_heat_capacity_j_k=capacity)).rmse_c
                for capacity in ONION_CARTRIDGE_PROFILE_J_K}
     fan_runs = [run for run in runs if run.fan]
-    fan_fits = {name: fit_plants(partial(onion_plant, **_preset_params(fit)), {"fan_ambient_xfer_w_k": 0.09}, fan_runs)
+    fan_fits = {name: fit_plants(_onion_maker(_preset_params(fit)), {"fan_ambient_xfer_w_k": 0.09}, fan_runs)
                 for name, fit in fits.items()}
     bed_fit = fit_plants(bed_plant, BED_FIT_START, [bed_run()])
     bed, bed_rms = bed_fit.values, bed_fit.rmse_c

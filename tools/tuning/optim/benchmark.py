@@ -1,36 +1,36 @@
-"""Every optimiser on F1-F23, the way seed 002 benchmarks ALO and OCALO, as a markdown report.
+"""Every optimiser on F1-F23 (tools/tuning/benchfuncs.py), in their plain, shifted and rotated forms,
+and the markdown tables of what they found.
 
 Seed 002 (the OCALO paper, section 3) runs each algorithm with a population of 50 for 300
 iterations and prints the mean, best and worst over its runs. Here every optimiser gets the same
-budget, population x iterations objective evaluations (15 000), so Nelder-Mead (no population)
-and OCALO (whose start evaluates 2 populations) are compared at equal cost. The report puts the
-seed's printed ALO/OCALO values beside ours, flags printed values below a function's known
-global minimum and printed best/mean/worst triples out of order, and counts the functions on
-which OCALO's mean beats ALO's.
+budget, population x iterations objective evaluations, so Nelder-Mead (no population) and OCALO
+(whose start evaluates 2 populations) are compared at equal cost.
 
-``shift`` moves the minimiser of the functions whose minimum is at the origin (F1-F4, F6, F7,
-F9-F11) to ``shift`` x the upper bound, same box, same minimum value: a check of an optimiser's
-pull towards the origin (seed 002's cosine factors have one; see ocalo.py).
+The shifted and rotated forms move each scalable function's minimum away from the origin and
+off the box's diagonal (``benchfuncs.variant``): an optimiser that is pulled towards the origin
+(OCALO's cosine factors, see ocalo.py) finds the plain F1-F4, F6, F7, F9-F11 minima by that pull
+and not by searching; the other forms show what it finds when the pull leads nowhere.
 
-Each run draws from its own Generator seeded by (seed, function, method, run), so the numbers do
-not depend on how runs are spread over worker processes.
+Each run draws from its own Generator seeded by (seed, function, method, run): the numbers do not
+depend on how runs are spread over worker processes, and a function's forms share the search's
+random numbers.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
-from tools.seeds import seed002
-from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME
+from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME, MOVABLE, PLAIN, variant
 from tools.tuning.optim import METHODS
 
 SEED_POPULATION, SEED_ITERATIONS = 50, 300  # seed 002, section 3.1
 POPULATION_METHODS = ("de", "pso", "alo", "ocalo")  # take a ``population`` option
-ORIGIN_CENTRED = ("F1", "F2", "F3", "F4", "F6", "F7", "F9", "F10", "F11")  # minimiser at x = 0
+
+Results = dict[tuple[str, str, str], np.ndarray]  # (function, method, form) -> best cost of each run
 
 
 @dataclass(frozen=True)
@@ -41,18 +41,17 @@ class Task:
     seed: int
     population: int
     iterations: int
-    shift: float = 0.0
+    form: str = PLAIN
 
 
 def run_task(task: Task) -> float:
-    """Best cost of one run of one optimiser on one function."""
-    bench = BY_NAME[task.function]
-    keys = [task.seed, BENCHMARKS.index(bench), sorted(METHODS).index(task.method), task.run]
+    """Best cost of one run of one optimiser on one function in one form."""
+    bench = variant(task.function, task.form)
+    keys = [task.seed, BENCHMARKS.index(BY_NAME[task.function]), sorted(METHODS).index(task.method), task.run]
     search_rng, noise_rng = np.random.default_rng(keys).spawn(2)
     options = {"population": task.population} if task.method in POPULATION_METHODS else {}
-    offset = task.shift * bench.high if task.function in ORIGIN_CENTRED else 0.0
     result = METHODS[task.method](
-        lambda points: bench.costs(points - offset, noise_rng),
+        lambda points: bench.costs(points, noise_rng),
         bench.bounds,
         rng=search_rng,
         budget=task.population * task.iterations,
@@ -61,109 +60,123 @@ def run_task(task: Task) -> float:
     return result.cost
 
 
+def tasks_for(functions: Sequence[str], methods: Sequence[str], runs: int, *, seed: int, population: int,
+              iterations: int, forms: Sequence[str] = (PLAIN,)) -> list[Task]:
+    """Every run of the benchmark, each function in each of ``forms`` where that form is defined."""
+    return [Task(f, m, r, seed, population, iterations, form) for form in forms for f in functions
+            if form == PLAIN or f in MOVABLE for m in methods for r in range(runs)]
+
+
 def run_all(
     functions: Sequence[str], methods: Sequence[str], runs: int, *, seed: int, population: int,
-    iterations: int, workers: int, shift: float = 0.0,
-) -> dict[tuple[str, str], np.ndarray]:  # fmt: skip
-    """Best cost of each run, keyed by (function, method)."""
-    tasks = [
-        Task(f, m, r, seed, population, iterations, shift) for f in functions for m in methods for r in range(runs)
-    ]
+    iterations: int, workers: int, forms: Sequence[str] = (PLAIN,), progress: Callable[[int], None] | None = None,
+) -> Results:  # fmt: skip
+    """Best cost of each run, keyed by (function, method, form); ``progress(n)`` after each n runs done."""
+    tasks = tasks_for(functions, methods, runs, seed=seed, population=population, iterations=iterations, forms=forms)
     if workers > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            costs = list(pool.map(run_task, tasks, chunksize=max(1, len(tasks) // (8 * workers))))
+            costs = []
+            for cost in pool.map(run_task, tasks, chunksize=max(1, len(tasks) // (8 * workers))):
+                costs.append(cost)
+                if progress:
+                    progress(1)
     else:
-        costs = [run_task(task) for task in tasks]
-    table: dict[tuple[str, str], list[float]] = {}
+        costs = []
+        for task in tasks:
+            costs.append(run_task(task))
+            if progress:
+                progress(1)
+    table: dict[tuple[str, str, str], list[float]] = {}
     for task, cost in zip(tasks, costs, strict=True):
-        table.setdefault((task.function, task.method), []).append(cost)
+        table.setdefault((task.function, task.method, task.form), []).append(cost)
     return {key: np.array(values) for key, values in table.items()}
 
 
-def _g(value: float) -> str:
+def fmt_g(value: float) -> str:
+    """A cost for a table: 4 significant digits, scientific below 1e-3."""
     return f"{value:.4g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.3e}"
 
 
-def _printed(text: str, minimum: float) -> str:
-    return f"{text} (!)" if seed002.below_minimum(text, minimum) else text
+def forms_of(results: Results) -> list[str]:
+    return list(dict.fromkeys(form for _, _, form in results))
 
 
-def ours_table(results: dict[tuple[str, str], np.ndarray], methods: Sequence[str]) -> list[str]:
+def ours_table(results: Results, methods: Sequence[str], form: str = PLAIN) -> list[str]:
+    """Markdown rows: each function in ``form``, best / mean / std of each method over its runs."""
     header = "| F | dims | range | known min | " + " | ".join(f"{m} best / mean / std" for m in methods) + " |"
     lines = [header, "|" + "---|" * (4 + len(methods))]
     for bench in BENCHMARKS:
-        if (bench.name, methods[0]) not in results:
+        if (bench.name, methods[0], form) not in results:
             continue
         cells = []
         for method in methods:
-            costs = results[bench.name, method]
-            cells.append(f"{_g(costs.min())} / {_g(costs.mean())} / {_g(costs.std(ddof=1) if costs.size > 1 else 0.0)}")
+            costs = results[bench.name, method, form]
+            spread = costs.std(ddof=1) if costs.size > 1 else 0.0
+            cells.append(f"{fmt_g(costs.min())} / {fmt_g(costs.mean())} / {fmt_g(spread)}")
         span = f"[{bench.low:g}, {bench.high:g}]"
-        lines.append(f"| {bench.name} {bench.title} | {bench.dims} | {span} | {_g(bench.minimum)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {bench.name} {bench.title} | {bench.dims} | {span} | {fmt_g(bench.minimum)} | "
+                     + " | ".join(cells) + " |")
     return lines
 
 
-def seed_table(results: dict[tuple[str, str], np.ndarray]) -> tuple[list[str], int, int, int, int]:
-    """ALO vs OCALO, ours beside the seed's; returns the lines and (ours, seed's) wins and totals."""
-    lines = [
-        "| F | ALO mean (ours) | OCALO mean (ours) | ALO best (ours) | OCALO best (ours) "
-        "| ALO mean (seed) | OCALO mean (seed) | ALO best (seed) | OCALO best (seed) |",
-        "|" + "---|" * 9,
-    ]
-    ours_wins = seed_wins = ours_total = 0
-    for bench in BENCHMARKS:
-        if (bench.name, "alo") not in results or (bench.name, "ocalo") not in results:
+def means_by_form(results: Results, methods: Sequence[str]) -> list[str]:
+    """Markdown rows: the functions that have other forms, each method's mean in every form side by side."""
+    forms = forms_of(results)
+    header = "| F | " + " | ".join(f"{m} {form}" for m in methods for form in forms) + " |"
+    lines = [header, "|" + "---|" * (1 + len(methods) * len(forms))]
+    for name in MOVABLE:
+        if not all((name, m, form) in results for m in methods for form in forms):
             continue
-        alo, ocalo = results[bench.name, "alo"], results[bench.name, "ocalo"]
-        ours_total += 1
-        ours_wins += int(ocalo.mean() < alo.mean())
-        mean, best = seed002.PRINTED_MEAN[bench.name], seed002.PRINTED_BEST[bench.name]
-        seed_wins += int(float(mean["OCALO"]) < float(mean["ALO"]))
-        printed = [_printed(t[a], bench.minimum) for t in (mean, best) for a in ("ALO", "OCALO")]
-        ours = [_g(alo.mean()), _g(ocalo.mean()), _g(alo.min()), _g(ocalo.min())]
-        lines.append(f"| {bench.name} | " + " | ".join(ours + printed) + " |")
-    return lines, ours_wins, ours_total, seed_wins, len(seed002.PRINTED_MEAN)
+        cells = [fmt_g(results[name, m, form].mean()) for m in methods for form in forms]
+        lines.append(f"| {name} {BY_NAME[name].title} | " + " | ".join(cells) + " |")
+    return lines
 
 
-def impossible_printed() -> list[str]:
-    """Every printed value of seed 002's tables 2-4 below its function's known global minimum."""
-    found = []
-    tables = (("mean", seed002.PRINTED_MEAN), ("best", seed002.PRINTED_BEST), ("worst", seed002.PRINTED_WORST))
-    for bench in BENCHMARKS:
-        for label, table in tables:
-            for algorithm, text in table[bench.name].items():
-                if seed002.below_minimum(text, bench.minimum):
-                    found.append(f"{bench.name} {algorithm} {label} {text} < known minimum {bench.minimum:.10g}")
-    return found
+def wins(results: Results, method: str, other: str, form: str) -> tuple[int, int]:
+    """On how many functions (of those run in ``form``) ``method``'s mean is below ``other``'s."""
+    names = [b.name for b in BENCHMARKS if (b.name, method, form) in results and (b.name, other, form) in results]
+    won = sum(results[n, method, form].mean() < results[n, other, form].mean() for n in names)
+    return int(won), len(names)
+
+
+def best_by_mean(results: Results, methods: Sequence[str], function: str, form: str) -> str:
+    """The method with the lowest mean on one function in one form."""
+    return min(methods, key=lambda m: results[function, m, form].mean())
+
+
+def pull_summary(results: Results, methods: Sequence[str]) -> list[str]:
+    """Sentences, from the numbers: how each method's means move when the minima leave the origin."""
+    forms = forms_of(results)
+    moved = [form for form in forms if form != PLAIN]
+    if PLAIN not in forms or not moved:
+        return []
+    lines = []
+    if "F1" in {f for f, _, _ in results}:
+        for method in methods:
+            path = " -> ".join(f"{fmt_g(results['F1', method, form].mean())} ({form})" for form in forms)
+            lines.append(f"F1 (Sphere), {method} mean: {path}")
+    movable = [n for n in MOVABLE if all((n, m, form) in results for m in methods for form in forms)]
+    for form in forms:
+        leaders = [best_by_mean(results, methods, n, form) for n in movable]
+        counts = ", ".join(f"{m} {leaders.count(m)}" for m in methods if leaders.count(m))
+        lines.append(f"lowest mean on the {len(movable)} functions that have every form, {form}: {counts}")
+    return lines
 
 
 def format_report(
-    results: dict[tuple[str, str], np.ndarray], methods: Sequence[str], *, runs: int, population: int,
-    iterations: int, wall_s: float, workers: int, shift: float = 0.0,
+    results: Results, methods: Sequence[str], *, runs: int, population: int, iterations: int, wall_s: float,
+    workers: int,
 ) -> str:  # fmt: skip
-    """The markdown report: our table, ALO/OCALO beside the seed's, the seed's impossible values."""
-    seed_lines, wins, total, seed_wins, seed_total = seed_table(results)
+    """Our tables: each form's best / mean / std, the means side by side, and what moves with the minima."""
+    forms = forms_of(results)
     out = [
         f"Every optimiser on F1-F23: population {population}, {iterations} iterations, budget "
-        f"{population * iterations} evaluations per run, {runs} runs; {wall_s:.0f} s wall on {workers} worker(s)."
-        + (f" Minimisers of {', '.join(ORIGIN_CENTRED)} moved to x_i = {shift:g} x upper bound." if shift else ""),
-        "",
-        *ours_table(results, methods),
-        "",
-        f"ALO and OCALO, ours (mean and best over {runs} runs) beside seed 002's tables 2 and 3; "
-        "(!) marks a printed value below the function's known global minimum.",
-        "",
-        *seed_lines,
-        "",
-        f"OCALO beats ALO on {wins} of {total} (mean over {runs} runs); "
-        f"in seed 002's table 2, OCALO beats ALO on {seed_wins} of {seed_total}.",
-        "",
-        "Printed values of seed 002's tables 2-4 below the known global minimum (impossible, allowing for rounding):",
-        "",
-        *[f"- {line}" for line in impossible_printed()],
-        "",
-        "Printed best/mean/worst triples out of order (best <= mean <= worst must hold):",
-        "",
-        *[f"- {line}" for line in seed002.ordering_errors()],
+        f"{population * iterations} evaluations per run, {runs} runs; {wall_s:.0f} s wall on {workers} worker(s). "
+        f"Forms: {', '.join(forms)}.",
     ]
+    for form in forms:
+        out += ["", f"{form.capitalize()} form:", "", *ours_table(results, methods, form)]
+    if len(forms) > 1:
+        out += ["", "Means of the functions that have every form, side by side:", "", *means_by_form(results, methods)]
+        out += ["", *[f"- {line}" for line in pull_summary(results, methods)]]
     return "\n".join(out) + "\n"

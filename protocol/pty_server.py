@@ -1,0 +1,162 @@
+"""The printer on a pseudo-terminal: a host opens its path (or a symlink to it) like a USB port."""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import os
+import select
+import struct
+import tty
+
+from protocol.corruption import RxCorruptor
+from protocol.pacing import Pacer
+from protocol.printer import VirtualPrinter
+from protocol.server import READ_SIZE, Server, poll_ms
+from protocol.transcript import Transcript
+
+
+class PtyServer(Server):
+    """The printer on a pseudo-terminal: a host opens ``path`` (or ``link``) like a USB port.
+
+    Who holds the port open is counted from inotify's open and close events on the slave
+    device. They queue up, so a host closing and at once reopening is still seen; the
+    master's POLLHUP (EIO on read) only shows a hang-up that lasts until the loop looks.
+    """
+
+    def __init__(self, printer: VirtualPrinter, pacer: Pacer | None = None, *, link: str | None = None,
+                 transcript: Transcript | None = None, corruptor: RxCorruptor | None = None):
+        super().__init__(printer, pacer, transcript, corruptor)
+        self._master, slave = os.openpty()
+        try:
+            tty.setraw(slave)  # no echo, no CR/LF translation, 8 bits; the setting outlives the fd
+            self.path = os.ttyname(slave)
+        finally:
+            os.close(slave)  # before the watch starts: from now on only hosts hold it
+        os.set_blocking(self._master, False)
+        self._watch: _OpenWatch | None = None
+        self.link = None
+        try:
+            self._watch = _OpenWatch(self.path)
+            if link:
+                _make_link(self.path, link)
+                self.link = link
+        except OSError:
+            self.close()
+            raise
+        self._poller = select.poll()
+        self._poller.register(self._watch.fd, select.POLLIN)
+        self._holders = 0  # open file descriptions of the slave: hosts (usually one)
+
+    @property
+    def address(self) -> str:
+        return self.path
+
+    def close(self) -> None:
+        """Close the pty and the watch; remove the link if it still points at the pty."""
+        if self.link and os.path.islink(self.link) and os.readlink(self.link) == self.path:
+            os.remove(self.link)
+        self.link = None
+        if self._watch is not None:
+            self._watch.close()
+            self._watch = None
+        if self._master >= 0:
+            os.close(self._master)
+            self._master = -1
+
+    def _write(self, data: bytes | bytearray) -> int:
+        return os.write(self._master, data)
+
+    def _wait(self, wait_s: float | None) -> None:
+        if self._holders:
+            self._poller.modify(self._master, select.POLLIN | (select.POLLOUT if self._unsent else 0))
+        watch = self._watch
+        if watch is None:
+            raise OSError(errno.EBADF, "the pty server is closed")
+        events = dict(self._poller.poll(poll_ms(wait_s)))
+        if watch.fd in events:  # first: after a close and a reopen, the data is the new host's
+            changes = watch.changes()
+            for k, change in enumerate(changes):
+                self._holders += change
+                if change > 0 and self._holders == 1:
+                    self._poller.register(self._master, select.POLLIN)
+                    self._host_came()
+                elif change < 0 and self._holders == 0:
+                    if 1 not in changes[k + 1 :]:  # else a host already reopened it: the bytes are its
+                        self._read()  # the last bytes it sent are still there
+                    self._drop_host()
+        revents = events.get(self._master, 0) if self._holders else 0
+        if revents & select.POLLOUT:
+            self._flush()
+        if revents & (select.POLLIN | select.POLLHUP | select.POLLERR):
+            self._read()
+
+    def _read(self) -> None:
+        """Everything the host sent, until EAGAIN (or EIO once nobody holds the port)."""
+        while True:
+            try:
+                data = os.read(self._master, READ_SIZE)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                if exc.errno == errno.EIO:
+                    return
+                raise
+            self._from_host(data)
+
+    def _drop_host(self) -> None:
+        """The last holder closed the port (the master would report POLLHUP at every poll)."""
+        self._poller.unregister(self._master)
+        self._host_left()
+
+
+class _OpenWatch:
+    """Open and close events of one file, from Linux's inotify (via libc: no stdlib binding)."""
+
+    IN_OPEN, IN_CLOSE_WRITE, IN_CLOSE_NOWRITE = 0x20, 0x08, 0x10  # <sys/inotify.h>
+    EVENT = struct.Struct("iIII")  # struct inotify_event: wd, mask, cookie, len (+ name, empty here)
+
+    def __init__(self, path: str):
+        libc = ctypes.CDLL(None, use_errno=True)
+        if not hasattr(libc, "inotify_init1"):
+            raise OSError(errno.ENOSYS, "the pty transport needs Linux (inotify); use --tcp")
+        self.fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+        if self.fd < 0:
+            raise OSError(ctypes.get_errno(), "inotify_init1: " + os.strerror(ctypes.get_errno()))
+        mask = self.IN_OPEN | self.IN_CLOSE_WRITE | self.IN_CLOSE_NOWRITE
+        if libc.inotify_add_watch(self.fd, os.fsencode(path), mask) < 0:
+            err = ctypes.get_errno()
+            os.close(self.fd)
+            raise OSError(err, "inotify_add_watch: " + os.strerror(err), path)
+
+    def changes(self) -> list[int]:
+        """+1 per open and -1 per close since the last call, in the order they happened."""
+        changes: list[int] = []
+        while True:
+            try:
+                data = os.read(self.fd, READ_SIZE)
+            except BlockingIOError:
+                return changes
+            offset = 0
+            while offset < len(data):
+                _, mask, _, name_len = self.EVENT.unpack_from(data, offset)
+                offset += self.EVENT.size + name_len
+                if mask & self.IN_OPEN:
+                    changes.append(1)
+                elif mask & (self.IN_CLOSE_WRITE | self.IN_CLOSE_NOWRITE):
+                    changes.append(-1)
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+def _make_link(target: str, link: str) -> None:
+    """Point ``link`` at ``target``, replacing an older symlink but never any other file."""
+    if os.path.lexists(link) and not os.path.islink(link):
+        raise FileExistsError(errno.EEXIST, "exists and is not a symlink; not replacing it", link)
+    temporary = f"{link}.{os.getpid()}.tmp"
+    try:
+        os.symlink(target, temporary)
+        os.replace(temporary, link)
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot make the link: {exc.strerror}", link) from None

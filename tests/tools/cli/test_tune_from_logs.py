@@ -1,0 +1,33 @@
+"""twin-tune --from-log on every capture: where twin-fit fits a log, twin-tune tunes it (rules and the
+twin's M303 on the fitted plant's ensemble) and prints the very parameters twin-fit prints; where
+twin-fit refuses a log, twin-tune refuses it too, with one line."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from tools.cli import fit as fit_cli
+from tools.cli import tune as tune_cli
+from tools.logs import hardware_logs_dir
+
+LOGS = sorted(p.name for p in hardware_logs_dir().iterdir() if p.name != "README.md")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", LOGS)
+def test_twin_tune_tunes_what_twin_fit_fits(capsys, name):
+    path = str(hardware_logs_dir() / name)
+    fitted = fit_cli.main([path])
+    fit_out = capsys.readouterr().out
+    tuned = tune_cli.main(["--from-log", path, "--method", "rules", "--proof", "0", "--plot", "none"])
+    captured = capsys.readouterr()
+    if fitted != 0:
+        assert tuned == 2 and captured.err.count("\n") == 1, (fitted, captured.err)
+        return
+    assert tuned in (0, 1), captured.err  # 1: nothing passed a proof (none asked here)
+    lines = captured.out.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("plant: ")) + 1
+    params = list(itertools.takewhile(lambda line: line.startswith("  "), lines[start:]))
+    assert params and set(params) <= set(fit_out.splitlines()), (params, fit_out)

@@ -1,0 +1,89 @@
+"""Plant ensembles and the proof: a preset's stated spread, the corner plants, the robust statistics,
+member-major lanes equal to single-member runs, and a proof that counts trips on the reference engine."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tools.tuning.ensemble import DEFAULT_SPREAD, NOMINAL, Ensemble, Member, Uncertain, corner_ensemble, preset_spread
+from tools.tuning.evaluate import Evaluator, TuneScenario, preset_problem, run_scalars, simulate
+from tools.tuning.objectives import heater_cost
+from tools.tuning.proof import cases, prove
+from tools.tuning.tuner import runs
+from twin.plants import SPECS
+
+CARTRIDGE = preset_problem("hotend_cartridge", 210)
+GAINS = np.array([[12.0, 0.37, 100.0], [30.0, 2.0, 50.0]])
+
+
+def test_a_preset_spreads_its_lag_and_loss_terms_by_the_stated_default():
+    spec = SPECS["hotend_cartridge"]
+    spread = {u.name: u for u in preset_spread(spec)}
+    assert set(spread) == {"sensor_responsiveness_per_s", "ambient_xfer_w_k", "fan_ambient_xfer_w_k",
+                           "cartridge_heat_capacity_j_k", "cartridge_xfer_w_k"}  # no radiation: area inert
+    r = spread["sensor_responsiveness_per_s"]
+    assert (r.low, r.high) == pytest.approx((spec.sensor_responsiveness_per_s * (1 - DEFAULT_SPREAD),
+                                            spec.sensor_responsiveness_per_s * (1 + DEFAULT_SPREAD)))
+    assert "block_heat_capacity_j_k" not in spread and "power_w" not in spread
+
+
+def test_corners_move_each_group_to_its_ends():
+    spec = SPECS["hotend_cartridge"]
+    ensemble = corner_ensemble(preset_spread(spec), noise_lsb=1.0)
+    assert [m.label for m in ensemble.members] == ["nominal", "lag+ loss+", "lag+ loss-", "lag- loss+", "lag- loss-"]
+    assert len({m.seed for m in ensemble.members}) == ensemble.size and {m.noise_lsb for m in ensemble.members} == {1.0}
+    more_lag = ensemble.members[1].spec(spec)
+    assert more_lag.sensor_responsiveness_per_s < spec.sensor_responsiveness_per_s  # less responsive: more lag
+    assert more_lag.cartridge_heat_capacity_j_k > spec.cartridge_heat_capacity_j_k
+    assert more_lag.cartridge_xfer_w_k < spec.cartridge_xfer_w_k
+    assert more_lag.ambient_xfer_w_k > spec.ambient_xfer_w_k  # loss+
+    assert ensemble.members[4].spec(spec).ambient_xfer_w_k < spec.ambient_xfer_w_k
+    assert corner_ensemble(()).size == 1  # no spread: the nominal plant only
+
+
+def test_statistics():
+    costs = np.array([[1.0, 10.0], [3.0, 10.0], [5.0, 10.0]])
+    members = tuple(Member(str(k), (), 0.0, k) for k in range(3))
+    assert Ensemble(members, "worst").reduce(costs).tolist() == [5.0, 10.0]
+    assert Ensemble(members, "mean").reduce(costs).tolist() == [3.0, 10.0]
+    assert Ensemble(members, "mean_std").reduce(costs) == pytest.approx([3.0 + np.std([1, 3, 5]), 10.0])
+    with pytest.raises(ValueError, match="unknown statistic"):
+        Ensemble(members, "median")
+    with pytest.raises(ValueError, match="not a plant parameter"):
+        Uncertain("colour", 0, 1, "")
+
+
+def test_member_lanes_are_the_members_own_runs():
+    """simulate runs every member, member-major; each member's lanes equal that member run alone."""
+    ensemble = corner_ensemble(preset_spread(CARTRIDGE.spec), noise_lsb=0.0)
+    problem = replace(CARTRIDGE, ensemble=ensemble)
+    run = simulate(problem, GAINS)
+    assert run.n == ensemble.size * len(GAINS)
+    for k, member in enumerate(problem.members()):
+        alone = simulate(member, GAINS)
+        np.testing.assert_array_equal(run.temp_c[:, 2 * k:2 * k + 2], alone.temp_c)
+    costs = heater_cost(run).reshape(ensemble.size, -1)
+    np.testing.assert_array_equal(Evaluator(problem, heater_cost)(GAINS), ensemble.reduce(costs))
+    (first, _) = runs(problem, heater_cost, GAINS, ["a", "b"])
+    assert first.member_costs.tolist() == costs[:, 0].tolist() and first.run.n == ensemble.size
+    assert NOMINAL.size == 1 and CARTRIDGE.members() == [CARTRIDGE]
+
+
+@pytest.mark.slow
+def test_the_proof_counts_trips_on_the_reference_engine():
+    """250 s of heat-up with 1 LSB of noise: zero gains stall short of the target (outside the PID's band
+    the law is bang-bang) and trip Marlin's protection on most plants, M303-like gains on some; the proof
+    (tick-by-tick reference engine) counts the very trips of scalar fast-engine twins on the same cases
+    (the engines give the firmware the same samples)."""
+    short = replace(CARTRIDGE, scenario=TuneScenario(210.0, 250.0, 25.0, ()),
+                    ensemble=corner_ensemble(preset_spread(CARTRIDGE.spec), noise_lsb=1.0))
+    assert [(c.engine, c.seed, c.noise_lsb) for c in cases(short, seeds=2)] == \
+        [("reference", 1, 1.0), ("reference", 2, 1.0)] + [("reference", k, 1.0) for k in (2, 3, 4, 5)]
+    table = np.array([[0.0, 0.0, 0.0], [12.0, 0.37, 100.0], [14.51, 0.4861, 268.1]])  # the last: a robust tune's
+    candidates = runs(short, heater_cost, table, ["zero", "m303", "tuned"])
+    rows = prove(short, candidates, seeds=1, workers=2)
+    assert [r.method for r in rows] == ["zero", "m303", "tuned"] and {r.runs for r in rows} == {5}
+    fast = [run_scalars(replace(case, engine="fast"), table).tripped for case in cases(short, seeds=1)]
+    assert [r.trips for r in rows] == np.sum(fast, axis=0).tolist()
+    assert rows[0].trips >= 3 and not rows[0].passed and rows[1].trips >= 1 and rows[2].passed

@@ -1,0 +1,47 @@
+"""A plant's discretisation caches stay bounded however a long session cuts its runs, and the bound
+changes no result (an evicted map is rebuilt by the same computation)."""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+
+from twin.linear import MAX_CACHED_MODELS, MAX_CACHED_RUNS
+from twin.plants import make_plant
+
+N_RUNS = 3000
+GROWTH_BOUND_BYTES = 2 * MAX_CACHED_MODELS * MAX_CACHED_RUNS * 45_000  # maps of runs <= 160 ticks, 16 samples
+
+
+def _drive(plant, rng: np.random.Generator, forget: bool) -> list[float]:
+    """Random conditions (fan, flow) and run shapes, as a serial session's host events make them."""
+    readings = []
+    for _ in range(N_RUNS):
+        if rng.random() < 0.05:
+            plant.set_inputs(fan=rng.integers(256) / 255, flow_mm_s=round(rng.uniform(0, 20), 2), ambient_c=25.0)
+        n = int(rng.integers(1, 161))
+        offsets = tuple(sorted(set(rng.integers(0, n, rng.integers(0, 17)).tolist())))
+        u = (rng.random(n) < 0.5).astype(float)
+        if forget:
+            plant.model._runs.clear()
+        readings += plant.outputs(u, offsets)[:, 0].tolist()
+        plant.advance(u)
+    return readings
+
+
+def test_the_caches_stay_bounded_over_ever_new_conditions_and_run_shapes():
+    plant = make_plant()
+    tracemalloc.start()
+    _drive(plant, np.random.default_rng(3), forget=False)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert len(plant._models) <= MAX_CACHED_MODELS
+    assert all(len(model._runs) <= MAX_CACHED_RUNS for model in plant._models.values())
+    assert peak < GROWTH_BOUND_BYTES
+
+
+def test_eviction_changes_no_result():
+    cached = _drive(make_plant(), np.random.default_rng(4), forget=False)
+    rebuilt = _drive(make_plant(), np.random.default_rng(4), forget=True)
+    assert cached == rebuilt  # bit for bit

@@ -8,16 +8,13 @@ from firmware_port.marlin.pid import (
     D_RAW_LIMIT_Q8,
     D_SHIFT,
     I_SHIFT,
-    KD_MAX,
-    KI_MAX,
-    KP_MAX,
     OUT_FRAC_BITS,
     PREV_TEMP_EVERY_SAMPLE,
     PREV_TEMP_IN_BAND,
     PidFixed,
-    PidGains,
     float_error_bound_counts,
 )
+from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX, PidGains
 from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.thermistor import B3950_TABLE, MAX_RAW_THERMISTOR_VALUE
 

@@ -12,7 +12,7 @@ from firmware_port.marlin.mpc import MpcConstants
 from protocol.mpc_commands import mpc_constants_from_text
 from protocol.printer import VirtualPrinter
 from protocol.settings import Eeprom, Settings
-from protocol.transport import build_printer
+from protocol.build import build_printer
 
 DEFAULT_REPORT = "  M306 E0 P40.00 C16.70 R0.2200 A0.0680 F0.0970 H0.0056"
 
@@ -89,16 +89,17 @@ def test_a_pid_image_on_an_mpc_build_keeps_the_builds_model(tmp_path):
 def test_m306_t_runs_without_idle_lines_and_keeps_the_result(mpc):
     send(mpc, "M155 S1")
     start_s = mpc.time_s
-    tune = send(mpc, "M306 T", "M306", "M114")
+    tune = send(mpc, "M306 T")
     # its loop never calls idle(): no busy lines, and its own report once a second, no M155 ones
     assert not any("busy" in line for line in tune)
     assert sum(line.startswith(" T:") for line in tune) <= mpc.time_s - start_s + 1
+    tune += send(mpc, "M306", "M114")  # (M155's reports resume while these lines cross the wire)
     found = {line.split(" ")[0]: line.split(" ")[1] for line in tune if line.startswith("MPC_")}
     report = tune[tune.index("MPC_AMBIENT_XFER_COEFF_FAN255 " + found["MPC_AMBIENT_XFER_COEFF_FAN255"]) + 2]
     assert report == (f"  M306 E0 P40.00 C{found['MPC_BLOCK_HEAT_CAPACITY']} R{found['MPC_SENSOR_RESPONSIVENESS']} "
                       f"A{found['MPC_AMBIENT_XFER_COEFF']} F{found['MPC_AMBIENT_XFER_COEFF_FAN255']} H0.0056")
     # homed, at MPC_TUNING_POS, then raised to MPC_TUNING_END_Z
-    assert "X:100.00 Y:100.00 Z:10.00 E:0.00 Count X:0 Y:0 Z:0" in tune
+    assert "X:100.00 Y:100.00 Z:10.00 E:0.00 Count X:8000 Y:8000 Z:4000" in tune
 
 
 def test_m306_t_finishes_the_moves_before_it_starts(mpc):
@@ -108,7 +109,7 @@ def test_m306_t_finishes_the_moves_before_it_starts(mpc):
     assert waiting[0] == "ok" and set(waiting[1:]) <= {"echo:busy: processing"} and mpc.planner.blocks
     replies = [line for line in send(mpc, "M114") if line != "echo:busy: processing"]
     assert replies[0] == "MPC Autotune start for E0"
-    assert replies[-2] == "X:100.00 Y:100.00 Z:10.00 E:5.00 Count X:0 Y:0 Z:0"
+    assert replies[-2] == "X:100.00 Y:100.00 Z:10.00 E:5.00 Count X:8000 Y:8000 Z:4000"
     assert mpc.planner.blocks == deque() and mpc.twin.flow_mm_s == 0.0
 
 

@@ -1,5 +1,5 @@
 """The golden M306 T transcript: Marlin's MPC autotune on the default virtual printer with MPC
-(``twin-serial --firmware mpc``: the ``hotend`` preset, which is Marlin's MPC model, and the bed).
+(``twin-serial --firmware mpc``: the default plants, hotend_stock and the bed).
 
 ``python -m tools.validation.golden_m306 --write`` records what the printer answers to ``M306 T``
 into tests/golden/m306_autotune.txt; tests/protocol/test_m306_pty.py sends the same line to
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from protocol.transport import build_printer
+from protocol.build import build_printer
 from tools.validation.golden import golden_cli
 
 GOLDEN_M306_PATH = Path(__file__).resolve().parents[2] / "tests" / "golden" / "m306_autotune.txt"

@@ -22,7 +22,8 @@ from firmware_port.avr.laws import LAWS, OP_RESET, OP_STEP
 from firmware_port.avr.runner import LawSim, compare
 from firmware_port.fuzzy_pi import N_SETS_MAX, N_SETS_MIN, SEED004_BED, SEED004_HOTEND, FuzzyPiConfig
 from firmware_port.fuzzy_pid import LITERAL, READINGS, SEED001_BOARD, FuzzyPidConfig
-from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, KD_MAX, KI_MAX, KP_MAX, PidGains
+from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX, PidGains
+from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS
 from firmware_port.thermistor import TEMP_ONE
 
 pytestmark = pytest.mark.avr

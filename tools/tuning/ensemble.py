@@ -9,11 +9,13 @@ in ADC LSB and a noise seed.
 
 Where the parameters may lie (``Uncertain``: a range and its source) comes from the plant's source: a
 fit's standard errors and the plausible ranges of what the data could not identify
-(tools/ident), or, for a preset that states none, ``DEFAULT_SPREAD`` (+-20 %) on its lag and loss
-terms. 20 % is a stated default, not a measurement: about the difference a silicone sock, a
+(tools/ident), or, for a preset that states none, ``DEFAULT_SPREAD`` (+-20 %) on its lag and on its
+loss. 20 % is a stated default, not a measurement: about the difference a silicone sock, a
 re-seated thermistor or another cartridge of the same rating makes, and wider than the standard
 errors of the fits to the hotend captures, so that the nominal fit is not the only plant a tune
-has seen.
+has seen. A group's k terms share it as +-20 %/sqrt(k) each: they err independently, and a corner
+moves them all at once, so +-20 % on each (a cartridge hotend's three lag terms stacked) would be a
+lag change of about +-35 %, an ensemble no gains hold without duty chatter (docs/tuning.md).
 
 The parameters fall in groups by what they do to the loop (``GROUPS``): ``lag`` (heater to
 sensor: less sensor responsiveness or cartridge conductance, more cartridge capacity, longer
@@ -27,6 +29,7 @@ corners for a preset's lag and loss). Each member gets its own noise seed at ``n
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
 
@@ -138,17 +141,18 @@ NOMINAL = Ensemble((Member("nominal", (), 0.0, 0),), "mean")
 
 def preset_spread(spec: Spec, fraction: float = DEFAULT_SPREAD,
                   groups: Sequence[str] = DEFAULT_SPREAD_GROUPS) -> tuple[Uncertain, ...]:
-    """+-fraction on every non-zero parameter of the given groups (``DEFAULT_SPREAD_GROUPS``: lag and loss)
-    but the ratings a preset states (``PRESET_STATED``)."""
-    source = f"preset, default +-{fraction:.0%}"
+    """+-fraction on each of the given groups (``DEFAULT_SPREAD_GROUPS``: lag and loss), shared by its k
+    non-zero parameters as +-fraction/sqrt(k) each (the ratings a preset states, ``PRESET_STATED``, stay)."""
+    names = [f.name for f in fields(spec) if f.name in GROUPS and f.name not in PRESET_STATED
+             and GROUPS[f.name][0] in groups and getattr(spec, f.name)
+             and not (f.name == "radiating_area_m2" and not getattr(spec, "emissivity", 0.0))]  # no emissivity: inert
+    per_group = {g: sum(GROUPS[n][0] == g for n in names) for g in groups}
     out = []
-    for f in fields(spec):
-        value = getattr(spec, f.name)
-        if f.name == "radiating_area_m2" and not getattr(spec, "emissivity", 0.0):
-            continue  # no radiation without emissivity: the area does nothing
-        if f.name in GROUPS and f.name not in PRESET_STATED and GROUPS[f.name][0] in groups and value:
-            low, high = sorted((value * (1 - fraction), value * (1 + fraction)))
-            out.append(Uncertain(f.name, low, high, source))
+    for name in names:
+        value, count = getattr(spec, name), per_group[GROUPS[name][0]]
+        term = fraction / math.sqrt(count)  # the group's terms err independently: root-sum-square to fraction
+        low, high = sorted((value * (1 - term), value * (1 + term)))
+        out.append(Uncertain(name, low, high, f"preset, default +-{fraction:.0%} per group: +-{term:.1%} on each of {count}"))
     return tuple(out)
 
 

@@ -40,7 +40,7 @@ from tools.tuning.evaluate import (
     simulate,
 )
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, Run, objective
-from tools.tuning.optim import METHODS
+from tools.tuning.optim import METHODS, WARM_STARTS
 from tools.tuning.proof import PROOF_SEEDS, ProofRow, prove
 
 __all__ = ["Candidate", "Param", "ParamSpace", "Problem", "TuneResult", "preset_problem", "simulate", "tune"]
@@ -148,9 +148,12 @@ def search_bounds(problem: Problem, start: np.ndarray | None) -> np.ndarray:
 
 
 def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, bounds: np.ndarray, budget: int,
-             seed: int, client=None, progress: bool = False) -> Candidate:
-    """Search ``bounds`` (d, 2) with an optimiser of tools/tuning/optim, in the controller's search coordinates."""
+             seed: int, client=None, progress: bool = False, starts: np.ndarray | None = None) -> Candidate:
+    """Search ``bounds`` (d, 2) with an optimiser of tools/tuning/optim, in the controller's search coordinates;
+    ``starts`` (parameter rows: the rules' and the autotune's answers) seed the optimisers that take them."""
     space = problem.controller
+    warm = {} if starts is None or method not in WARM_STARTS else \
+        {"starts": space.to_search(np.clip(starts, bounds[:, 0], bounds[:, 1]))}
     with _bar(budget, method, progress) as bar:
         evaluator = Evaluator(problem, cost, client, on_batch=bar)
 
@@ -159,7 +162,7 @@ def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, b
 
         box = np.column_stack([space.to_search(bounds[:, 0]), space.to_search(bounds[:, 1])])
         try:
-            result = METHODS[method](objective_z, box, rng=np.random.default_rng(seed), budget=budget)
+            result = METHODS[method](objective_z, box, rng=np.random.default_rng(seed), budget=budget, **warm)
         except ValueError as exc:  # e.g. a budget below two of the optimiser's generations
             raise ValueError(f"--method {method} --budget {budget}: {exc}") from None
     best = space.hold(np.clip(space.from_search(result.x), bounds[:, 0], bounds[:, 1]))
@@ -193,9 +196,10 @@ def tune(problem: Problem, objective_name: str = DEFAULT_OBJECTIVE, method: str 
     candidates = score(problem, cost, dict(gains), client) if gains else []
     autotune = next((r.params for r in refs if r.method != DEFAULTS), None)
     start = (candidates[0].params if candidates else autotune) if problem.controller.pid else autotune
+    known = np.array([c.params for c in (*candidates, *refs)], float)
     for name in optimisers:
         candidates.append(optimise(problem, cost, name, search_bounds(problem, start), budget, seed, client,
-                                   progress))
+                                   progress, known if len(known) else None))
     return TuneResult(problem, objective_name, sorted(candidates, key=lambda c: c.cost), refs, notes)
 
 

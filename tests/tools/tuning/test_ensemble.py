@@ -22,9 +22,12 @@ def test_a_preset_spreads_its_lag_and_loss_terms_by_the_stated_default():
     spread = {u.name: u for u in preset_spread(spec)}
     assert set(spread) == {"sensor_responsiveness_per_s", "ambient_xfer_w_k", "fan_ambient_xfer_w_k",
                            "cartridge_heat_capacity_j_k", "cartridge_xfer_w_k"}  # no radiation: area inert
-    r = spread["sensor_responsiveness_per_s"]
-    assert (r.low, r.high) == pytest.approx((spec.sensor_responsiveness_per_s * (1 - DEFAULT_SPREAD),
-                                            spec.sensor_responsiveness_per_s * (1 + DEFAULT_SPREAD)))
+    r = spread["sensor_responsiveness_per_s"]  # one of three lag terms: the group's 20 % shared root-sum-square
+    term = DEFAULT_SPREAD / 3 ** 0.5
+    assert (r.low, r.high) == pytest.approx((spec.sensor_responsiveness_per_s * (1 - term),
+                                            spec.sensor_responsiveness_per_s * (1 + term)))
+    a = spread["ambient_xfer_w_k"]  # one of two loss terms
+    assert a.high == pytest.approx(spec.ambient_xfer_w_k * (1 + DEFAULT_SPREAD / 2 ** 0.5))
     assert "block_heat_capacity_j_k" not in spread and "power_w" not in spread
 
 

@@ -1,4 +1,5 @@
-"""Optimisers under one contract: ``minimize(objective, bounds, *, rng, budget, **options)``.
+"""Optimisers under one contract: ``minimize(objective, bounds, *, rng, budget, **options)``; those in
+``WARM_STARTS`` also take ``starts``, known points (rows) to put in their first population.
 
 The objective maps a population (rows) to costs, so each generation is one batch of lanes on the
 firmware twin; see result.py for the contract and the result type.
@@ -16,5 +17,6 @@ METHODS = {
     "alo": alo.minimize,
     "ocalo": ocalo.minimize,
 }
+WARM_STARTS = frozenset({"de"})
 
-__all__ = ["METHODS", "BatchObjective", "OptimResult", "batch_objective"]
+__all__ = ["METHODS", "WARM_STARTS", "BatchObjective", "OptimResult", "batch_objective"]

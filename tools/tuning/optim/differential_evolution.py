@@ -31,9 +31,12 @@ def minimize(
     rng: np.random.Generator,
     budget: int,
     population: int | None = None,
+    starts: np.ndarray | None = None,
     **options: Any,
 ) -> OptimResult:
-    """DE with a population of ``population`` points; options go to scipy (e.g. strategy, mutation)."""
+    """DE with a population of ``population`` points, Latin-hypercube sampled but for up to a third of
+    them taken from ``starts`` (known points, rows; clipped into the bounds: a warm start from the
+    tuning rules); options go to scipy (e.g. strategy, mutation)."""
     low, high = check_bounds(bounds)
     size = SCIPY_POPSIZE_PER_DIM * low.size if population is None else int(population)
     if size < 5:
@@ -42,6 +45,9 @@ def minimize(
         raise ValueError(f"budget {budget} is below two generations of DE ({2 * size} evaluations)")
     ledger = Ledger("de", objective, budget, low.size)
     start = qmc.scale(qmc.LatinHypercube(d=low.size, rng=rng).random(size), low, high)
+    if starts is not None:
+        known = np.clip(np.atleast_2d(np.asarray(starts, float)), low, high)[:size // 3]
+        start[:len(known)] = known
 
     def batch(columns: np.ndarray) -> np.ndarray:
         if columns.shape[1] > ledger.remaining:

@@ -1,0 +1,107 @@
+"""Gains checked as a user would check them: the public API's ``Twin`` heats a preset to a target and
+holds it, with ADC noise, on several noise seeds; the verdict per gain set.
+
+    python -m tools.cli.hold_check --plant hotend_cartridge --target 210 \\
+        --gains 13,0.3,70 --gains 12.13,0.3684,99.89 --seeds 10 --noise 1
+
+Per seed: a protection trip, the mean |duty change| per reading while holding (``chatter``) and the
+mean |target - reading| while holding (``hold error``), "holding" being the readings from
+``--hold-from`` seconds to the end (no disturbance: the plain hold a print starts from). A gain set
+passes when no seed trips and every seed keeps chatter <= ``--max-chatter`` and the hold error
+<= ``--max-hold`` (defaults 0.03 and 1 C: the robust-tuning issue's acceptance). Exit status 0 when
+every gain set passes, 1 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+
+import numpy as np
+
+from tools.cli.entry import run_main
+from twin import PRESETS, PidGains, Twin
+
+DURATION_S = 900.0
+HOLD_FROM_S = 300.0
+MAX_CHATTER = 0.03
+MAX_HOLD_C = 1.0
+
+
+@dataclass(frozen=True)
+class SeedRun:
+    """One seed's heat-and-hold."""
+
+    seed: int
+    tripped: bool
+    chatter: float
+    hold_error_c: float
+    overshoot_c: float
+
+
+def hold_run(plant: str, target_c: float, gains: PidGains, seed: int, noise_lsb: float,
+             duration_s: float = DURATION_S, hold_from_s: float = HOLD_FROM_S) -> SeedRun:
+    """The gains on the preset through ``Twin``: heat to target_c, hold to duration_s."""
+    twin = Twin.create("pid", hotend=plant, seed=seed, noise_lsb=noise_lsb)
+    twin.hotend.gains = gains
+    twin.hotend.target_c = target_c
+    hotend = twin.run(duration_s).hotend
+    t_s, reading_c, duty = (np.asarray(a, float) for a in (hotend.t_s, hotend.measured_c, hotend.duty))
+    holding = t_s >= hold_from_s
+    return SeedRun(seed, bool(twin.board.halted), float(np.mean(np.abs(np.diff(duty[holding])))),
+                   float(np.mean(np.abs(target_c - reading_c[holding]))), float(reading_c.max() - target_c))
+
+
+def passes(runs: list[SeedRun], max_chatter: float = MAX_CHATTER, max_hold_c: float = MAX_HOLD_C) -> bool:
+    return all(not r.tripped and r.chatter <= max_chatter and r.hold_error_c <= max_hold_c for r in runs)
+
+
+def _gains(text: str) -> PidGains:
+    try:
+        kp, ki, kd = (float(v) for v in text.split(","))
+        return PidGains(kp, ki, kd)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"KP,KI,KD in Marlin's units, got {text!r} ({exc})") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m tools.cli.hold_check", description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--plant", default="hotend_cartridge", choices=sorted(PRESETS), help="plant preset")
+    parser.add_argument("--target", type=float, default=210.0, help="target, C")
+    parser.add_argument("--gains", type=_gains, action="append", required=True, help="KP,KI,KD (repeat to compare)")
+    parser.add_argument("--seeds", type=int, default=10, help="noise seeds 1..N")
+    parser.add_argument("--noise", type=float, default=1.0, help="ADC noise, LSB")
+    parser.add_argument("--duration", type=float, default=DURATION_S, help="run length, s")
+    parser.add_argument("--hold-from", type=float, default=HOLD_FROM_S, help="holding is scored from here, s")
+    parser.add_argument("--max-chatter", type=float, default=MAX_CHATTER, help="mean |duty change| per reading")
+    parser.add_argument("--max-hold", type=float, default=MAX_HOLD_C, help="mean |error| while holding, C")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.seeds < 1 or not 0 <= args.hold_from < args.duration:
+        parser.error("--seeds must be >= 1 and 0 <= --hold-from < --duration")
+
+    def run() -> int:
+        verdicts = []
+        print(f"{args.plant} at {args.target:g} C, ADC noise {args.noise:g} LSB, seeds 1..{args.seeds}, "
+              f"holding from {args.hold_from:g} s to {args.duration:g} s (worst seed / mean):")
+        for gains in args.gains:
+            runs = [hold_run(args.plant, args.target, gains, seed, args.noise, args.duration, args.hold_from)
+                    for seed in range(1, args.seeds + 1)]
+            ok = passes(runs, args.max_chatter, args.max_hold)
+            verdicts.append(ok)
+            print(f"  Kp {gains.kp:g} Ki {gains.ki:g} Kd {gains.kd:g}: trips {sum(r.tripped for r in runs)} of {len(runs)}, "
+                  f"chatter {max(r.chatter for r in runs):.4f} / {np.mean([r.chatter for r in runs]):.4f}, "
+                  f"hold error {max(r.hold_error_c for r in runs):.3f} / {np.mean([r.hold_error_c for r in runs]):.3f} C, "
+                  f"overshoot {max(r.overshoot_c for r in runs):.2f} C: {'PASS' if ok else 'FAIL'}")
+        return 0 if all(verdicts) else 1
+
+    return run_main("hold_check", run)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tools.tuning.optim import METHODS, batch_objective
+from tools.tuning.optim import METHODS, WARM_STARTS, batch_objective
 from tools.tuning.optim.alo import random_walks, shrink_ratio, walk_summary
 from tools.tuning.optim.ocalo import chaotic_population, cosine_update, tent_logistic_cotangent
 from tools.tuning.optim.result import check_bounds
@@ -165,3 +165,20 @@ def test_walk_summary_equals_the_walk_step_by_step(t: int, t_max: int) -> None:
     np.testing.assert_array_equal(here, walks[t])
     np.testing.assert_array_equal(low, walks.min(axis=0))
     np.testing.assert_array_equal(high, walks.max(axis=0))
+
+
+def test_de_puts_known_points_in_its_first_population():
+    """A warm start: the rules' answers join DE's first population (clipped into the bounds), up to a
+    third of it; the rest stays Latin-hypercube."""
+    seen = []
+
+    def objective(x: np.ndarray) -> np.ndarray:
+        seen.append(np.array(x))
+        return np.sum((x - 0.123) ** 2, axis=1)
+
+    result = METHODS["de"](objective, [(0.0, 1.0)] * 3, rng=np.random.default_rng(0), budget=90,
+                           starts=np.array([[0.123] * 3, [5.0, -1.0, 0.5]]))
+    first = seen[0]
+    assert first.shape == (45, 3)
+    np.testing.assert_array_equal(first[:2], [[0.123] * 3, [1.0, 0.0, 0.5]])
+    assert result.cost == 0.0 and "de" in WARM_STARTS

@@ -62,6 +62,7 @@ from firmware_port.firmwares import param_space
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
 from tools.tuning.tuner import DEFAULT_BUDGET, tune
+from tools.tuning.problems import build_problem, preset_source
 from twin import batch_kernel
 from twin.batch import THREADS_ENV, BatchTwin, lane_threads
 from twin.klipper_batch import KlipperBatch, gains_setups
@@ -235,15 +236,17 @@ def bench_de_tune(preset: str, seed: int, popsize: int = 15, generations: int = 
 
 
 def bench_loop_tunes(preset: str, seed: int) -> list[str]:
-    """twin-tune's default tune (rules, the firmware's autotune and defaults, DE with the default budget)
-    on the Marlin loop and on the Klipper loop, same plant, same run."""
+    """twin-tune's default tune (rules, the firmware's autotune and defaults, DE with the default budget,
+    every candidate on the default ensemble; the proof not included) on the Marlin loop and on the
+    Klipper loop, same plant, same run."""
     walls = {}
     for loop in ("marlin", "klipper"):
-        problem = preset_problem(preset, TUNE_TARGET_C, loop=loop)
+        problem = build_problem(preset_source(preset), TUNE_TARGET_C, loop=loop)
         result, walls[loop], _ = _timed_value(lambda problem=problem: tune(problem, seed=seed))
         walls[loop, "best"] = result.best
+    ensemble = problem.ensemble.describe().split(";")[0] if problem.ensemble else "none"
     lines = [f"twin-tune's default tune of {preset} at {TUNE_TARGET_C} C (rules, references, DE budget {DEFAULT_BUDGET}, "
-             f"seed {seed}), both loops on the batch:"]
+             f"seed {seed}; ensemble {ensemble}: each candidate runs once per member), both loops on the batch:"]
     for loop in ("marlin", "klipper"):
         best = walls[loop, "best"]
         lines.append(f"  {loop:7s} loop: {walls[loop]:.3f} s wall, best {best.method} "

@@ -47,7 +47,7 @@ __all__ = ["Candidate", "Param", "ParamSpace", "Problem", "TuneResult", "preset_
 
 DEFAULT_OPTIMISER = "de"
 DEFAULT_BUDGET = 900  # optimiser evaluations: 20 generations of DE's default population of 45
-SEARCH_FACTOR = 4.0  # a PID family's box: 0 .. 4 x the best rule's gains; others: the autotune's result / 4 .. x 4
+SEARCH_FACTOR = 4.0  # the box: a PID family's 0 .. 4 x the autotune's gains (the best rule's without one); others / 4 .. x 4
 MIN_BOUND = np.array([1.0, 0.05, 1.0])  # so a rule's zero Ki or Kd still leaves room to search
 DEFAULTS = "defaults"  # the reference candidate of the controller's own default parameters
 PROOF_TRIES = 3  # candidates proven, best first, before the tune gives up on an answer
@@ -195,7 +195,7 @@ def tune(problem: Problem, objective_name: str = DEFAULT_OBJECTIVE, method: str 
     notes += [f"rule {rule} gives no gains here: {why}" for rule, why in failures.items()]
     candidates = score(problem, cost, dict(gains), client) if gains else []
     autotune = next((r.params for r in refs if r.method != DEFAULTS), None)
-    start = (candidates[0].params if candidates else autotune) if problem.controller.pid else autotune
+    start = autotune if autotune is not None or not candidates else candidates[0].params
     known = np.array([c.params for c in (*candidates, *refs)], float)
     for name in optimisers:
         candidates.append(optimise(problem, cost, name, search_bounds(problem, start), budget, seed, client,

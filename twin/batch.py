@@ -68,10 +68,11 @@ from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, KELVIN_OFFSET, MAX_RAW
     TEMP_FRAC_BITS, TEMP_ONE, TempTable
 from twin import adc_table, batch_kernel as bk
 from twin.clock import TICK_S, EventQueue, ticks_at
+from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import MAX_SAMPLES, Tables, bin_tables, block_bin, linear_tables
 from twin.linear import BLOCK
 from twin.result import RunResult
-from twin.sensor import SensorChain, seeded_chains
+from twin.sensor import SensorChain
 from twin.streaming import ScoreSpec, ScoreTotals
 
 CONTROLS = {PidFixed: bk.PID, BangBangHotend: bk.BANG_BANG, FuzzyPi: bk.FUZZY_PI, FuzzyPid: bk.FUZZY_PID}
@@ -124,15 +125,6 @@ def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str
     for item in own:
         item.reset()
     return kind, ScalarLanes(own)
-
-
-def _per_lane(value, n: int, name: str, dtype) -> np.ndarray:
-    array = np.asarray(value, dtype=dtype)
-    if array.ndim == 0:
-        return np.full(n, array, dtype=dtype)
-    if array.shape != (n,):
-        raise ValueError(f"{name}: one value, or one per lane ({n}), not {array.shape[0]}")
-    return array
 
 
 class BatchTwin:
@@ -214,16 +206,12 @@ class BatchTwin:
     def _noise_setup(self, noise_lsb, seed) -> None:
         """Per lane: the noise (LSB) and the stream it scales; the streams' generators."""
         n = self.n_lanes
-        self.noise_lsb = _per_lane(self.sensor.noise_lsb if noise_lsb is None else noise_lsb, n, "noise_lsb", float)
-        if not np.all(np.isfinite(self.noise_lsb) & (self.noise_lsb >= 0)):
-            raise ValueError("noise_lsb must be finite and >= 0")
+        self.noise_lsb = noise_levels(self.sensor.noise_lsb if noise_lsb is None else noise_lsb, n)
         if seed is None:
             self.streams = np.zeros(n, np.int64)
             self._generators = [self.sensor.rng]
             return
-        seeds = _per_lane(seed, n, "seed", np.int64)
-        unique, self.streams = np.unique(seeds, return_inverse=True)
-        self._generators = [seeded_chains(1, int(s))[0].rng for s in unique]
+        self.streams, self._generators = seed_streams(seed, n)
 
     def _controller_params(self) -> np.ndarray:
         """The kernel's per-lane constants of the lanes' controller (``batch_kernel``'s columns)."""
@@ -350,7 +338,7 @@ class BatchTwin:
         kinds = ((n, offsets),)
         pulses = lanes.pulses(n)
         s = np.array(offsets, dtype=np.int64)[:, None]
-        noise = self._lane_noise(self._draw(len(offsets))) if self.noise_lsb.any() else None
+        noise = self._lane_noise(draw(self._generators, len(offsets))) if self.noise_lsb.any() else None
         samples = np.zeros((len(offsets), self.n_lanes), np.int64)
         sensor_cs = []
         for group in self.groups:
@@ -402,10 +390,6 @@ class BatchTwin:
             return adc_table.convert(edges, sensor_c)
         return self.sensor.convert_with(sensor_c, self.tick + s, noise)
 
-    def _draw(self, n_samples: int) -> np.ndarray:
-        """The next n_samples normals of every stream, (streams, n_samples)."""
-        return np.array([g.standard_normal(n_samples) for g in self._generators]).reshape(-1, n_samples)
-
     def _lane_noise(self, z: np.ndarray) -> np.ndarray:
         """Each lane's noise in LSB at each sample, (J, N): its level times its stream."""
         return (self.noise_lsb[:, None] * z[self.streams]).T
@@ -428,7 +412,7 @@ class BatchTwin:
             plan = plan.copy()
             plan[reading, bk.FLAGS] = self._flags(reading_ticks, rows)
             plan.flags.writeable = False  # as the cached plans: one compiled signature
-        z = self._draw(int(plan[-1, bk.Z_FIRST] + _n_samples(plan[-1]))) if self.noise_lsb.any() else \
+        z = draw(self._generators, int(plan[-1, bk.Z_FIRST] + _n_samples(plan[-1]))) if self.noise_lsb.any() else \
             np.zeros((1, 1))
         records = tuple(np.zeros((self.n_lanes, n_rows if self.record else 0), dtype)
                         for dtype in (np.int16, np.int16, float, float))

@@ -2,13 +2,20 @@
 
 The Klipper loop of a tuner: every lane is Klipper's host PID (``ControlPID`` and ``set_pwm``),
 ``verify_heater``, the MCU's ADC with its range check and its soft PWM, on its own plant (lanes
-given the same plant object share it) with its own gains; all lanes run the same heater
-configuration otherwise. ``twin.klipper_kernel`` runs them (compiled with numba, else as plain
-Python), spread over threads; a lane equals ``KlipperTwin([setup])`` to float rounding
-(tests/twin/test_klipper_batch.py): Klipper's host computes in float, so does the kernel, in the same
-order, and the plant agrees with the scalar twin's to rounding.
+given the same plant object share it) with its own gains and its own ADC noise
+(``HeaterSetup.noise_lsb``); all lanes run the same heater configuration otherwise. ``twin.klipper_kernel``
+runs them (compiled with numba, else as plain Python), spread over threads; a lane equals
+``KlipperTwin([setup], seed=seed)`` to float rounding (tests/twin/test_klipper_batch.py): Klipper's host
+computes in float, so does the kernel, in the same order, and the plant agrees with the scalar twin's
+to rounding.
 
-    batch = KlipperBatch([extruder_setup(plant, pid_kp=kp, pid_ki=ki, pid_kd=kd) for kp, ki, kd in gains])
+Noise: ``seed`` for every lane or per lane (None: KlipperTwin's default, 0). Common random numbers
+(twin/lane_noise.py): lanes that name the same seed draw the same normal sequence, scaled by their own
+noise_lsb, and it is the one ``KlipperTwin([setup], seed=seed)``'s heater draws (SAMPLE_COUNT normals
+per MCU report, in order). So a lane with seed s and noise n reads what that scalar twin reads.
+
+    setup = dataclasses.replace(extruder_setup(plant), noise_lsb=1.0)
+    batch = KlipperBatch(gains_setups(setup, gains), seed=[1, 1, 2])     # three lanes, two noise draws
     batch.set_target(210.0)
     batch.schedule(300.0, lambda b: [p.set_inputs(1.0, 0.0, 25.0) for p in b.plants])
     batch.run_until(900.0)
@@ -32,17 +39,20 @@ from firmware_port.klipper import CommandError, HeaterConfig, KlipperHeater, Ver
 from firmware_port.klipper.heater import PWM_RESEND_2025_08, QUELL_STALE_TIME, REPORT_TIME, SAMPLE_COUNT, \
     SAMPLE_TIME
 from firmware_port.klipper.verify_heater import CHECK_INTERVAL_S
+from firmware_port.thermistor import KELVIN_OFFSET, SteinhartHart
 from twin import adc_table, batch_kernel as bk, klipper_kernel as kk
 from twin.batch import LaneGroup, lane_threads, run_group
 from twin.clock import TICK_S, EventQueue, tick_near
 from twin.klipper_twin import ADC_FIRST_SAMPLE_S, PRIO_ADC, PRIO_REPORT, PRIO_USER, PRIO_VERIFY, RANGE_CHECK_COUNT, \
     STM32F103, HeaterSetup, Mcu, calc_adc, calc_temp
+from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import Tables, bin_tables, linear_tables
 from twin.result import RunResult
 from twin.streaming import ScoreSpec, ScoreTotals
 
 INTERVALS = kk.MAX_INTERVALS
 KLIPPER_HOTTEST_C = 3000.0  # a 12-bit converter still counts 1 at 1000 C: its bisection's hot end
+DEFAULT_SEED = 0  # KlipperTwin's
 
 
 def _config_without_gains(config: HeaterConfig) -> HeaterConfig:
@@ -64,6 +74,16 @@ def _converter(part, pullup_ohm: float, adc_bits: int) -> tuple[np.ndarray, np.n
     temps = np.array([calc_temp(part, pullup_ohm, v * inv_max) for v in range(SAMPLE_COUNT * adc_max + 1)])
     temps.flags.writeable = False
     return edges, temps
+
+
+def _sensor_params(part: SteinhartHart, pullup_ohm: float, adc_bits: int) -> np.ndarray:
+    """The kernel's ``sensor_p``: a noisy conversion's analog value as ``calc_adc`` computes it (p^3 / 27 of
+    ``resistance_ohm``'s Cardano formula taken here, as there, in Python's float)."""
+    p27 = (part.c2 / part.c3) ** 3 / 27.0 if part.c3 else 0.0
+    sp = np.zeros(kk.N_SP)
+    sp[[kk.SP_C1, kk.SP_C2, kk.SP_C3, kk.SP_P27, kk.SP_KELVIN, kk.SP_PULLUP, kk.SP_SCALE]] = (
+        part.c1, part.c2, part.c3, p27, KELVIN_OFFSET, pullup_ohm, float(1 << adc_bits))
+    return sp
 
 
 @functools.lru_cache(maxsize=64)
@@ -122,8 +142,9 @@ def _plan(first_sample_s: float, verify: bool, after: tuple[float, int], until: 
         tick = advance_to
     plan = np.array(rows, np.int64).reshape(-1, kk.PLAN_COLUMNS)
     plan_t = np.array(times, float).reshape(-1, 2)
-    is_report = plan[:, kk.OP] == kk.REPORT
+    is_report, is_adc = plan[:, kk.OP] == kk.REPORT, plan[:, kk.OP] == kk.ADC
     plan[is_report, kk.ROW] = np.arange(int(is_report.sum()))
+    plan[is_adc, kk.ROW] = SAMPLE_COUNT * np.arange(int(is_adc.sum()))  # each window's first noise draw
     for array in (plan, plan_t):
         array.flags.writeable = False  # shared by the runs that replay it; the kernel reads it only
     kinds = (tuple((n, ()) for n in runs), tuple((0, offs) for offs in windows))
@@ -134,19 +155,22 @@ def _plan(first_sample_s: float, verify: bool, after: tuple[float, int], until: 
 class KlipperBatch:
     """N single-heater Klipper printers on one clock; ``run_until``, then ``result()`` or ``score_totals()``."""
 
-    def __init__(self, setups: Sequence[HeaterSetup], *, mcu: Mcu = STM32F103, record: bool = True,
-                 score: ScoreSpec | None = None, threads: int | None = None):
+    def __init__(self, setups: Sequence[HeaterSetup], *, mcu: Mcu = STM32F103, seed: int | Sequence[int] | None = None,
+                 record: bool = True, score: ScoreSpec | None = None, threads: int | None = None):
         if not setups:
             raise ValueError("a batch needs at least one lane")
         self._check(setups)
         first = setups[0]
         self.setup, self.mcu, self.n_lanes = first, mcu, len(setups)
+        self.noise_lsb = noise_levels([s.noise_lsb for s in setups], self.n_lanes)
+        self.streams, self._generators = seed_streams(DEFAULT_SEED if seed is None else seed, self.n_lanes)
         self.record, self.score = record, score
         self.threads = lane_threads(threads)
         self.heaters = [KlipperHeater(s.config) for s in setups]
         self.groups = self._group([s.plant for s in setups])
         self.first_sample_s = ADC_FIRST_SAMPLE_S  # the heater's query slot: the first and only one
         self.edges, self.temps = _converter(first.part, first.pullup_ohm, mcu.adc_bits)
+        self.sensor_p = _sensor_params(first.part, first.pullup_ohm, mcu.adc_bits)
         self.cfg = self._settings(first)
         self.gains = np.array([[h.control.kp, h.control.ki, h.control.kd, h.control.temp_integ_max]  # type: ignore[attr-defined]
                                for h in self.heaters])
@@ -312,13 +336,15 @@ class KlipperBatch:
             plan[plan[:, kk.OP] == kk.REPORT, kk.FLAGS] = self.score.flags(report_t, self._report_times(rows + 1), rows)
             plan.flags.writeable = False
         records = tuple(np.zeros((self.n_lanes, len(report_t) if self.record else 0)) for _ in range(4))
+        n_draws = SAMPLE_COUNT * int((plan[:, kk.OP] == kk.ADC).sum())
+        z = draw(self._generators, n_draws) if self.noise_lsb.any() else np.zeros((1, 1))
         self.cfg[kk.C_ROW_BASE] = self._rows
         n_offsets = np.array([len(o) for o in offsets], np.int64)
         offsets_a = np.zeros((max(1, len(offsets)), max(1, *n_offsets)), np.int64)
         for w, offs in enumerate(offsets):
             offsets_a[w, :len(offs)] = offs
         for group in self.groups:
-            self._run_group(group, plan, plan_t, offsets_a, n_offsets, kinds, records)
+            self._run_group(group, plan, plan_t, offsets_a, n_offsets, kinds, z, records)
         if len(report_t):
             self._t_s.append(report_t)
             self._targets.extend([self.target_c] * len(report_t))
@@ -327,7 +353,7 @@ class KlipperBatch:
         self._rows += len(report_t)
 
     def _run_group(self, group: LaneGroup, plan: np.ndarray, plan_t: np.ndarray, offsets: np.ndarray,
-                   n_offsets: np.ndarray, kinds: tuple, records: tuple) -> None:
+                   n_offsets: np.ndarray, kinds: tuple, z: np.ndarray, records: tuple) -> None:
         run_kinds, window_kinds = kinds
         n_max = max(max(n for n, _ in run_kinds), int(offsets.max())) + 1
 
@@ -346,8 +372,9 @@ class KlipperBatch:
             cfg[kk.C_BIN_LO], cfg[kk.C_RADIATING] = runs.bin_lo, not group.plant.linear
             kk.run_lanes(part, group.lanes, q_start, plan, plan_t, offsets, n_offsets, runs.fx, runs.fdd, windows.px,
                          windows.pdd, windows.bx, windows.bdd, runs.steps, runs.sensor_steps, runs.block_steps,
-                         runs.io, self.edges, self.temps, cfg, self.gains, self.kstate, self.fstate, self.segments,
-                         group.x, self.score_i, self.score_f, self._score_array(), *records,
+                         runs.io, self.edges, self.temps, self.sensor_p, cfg, self.gains, self.kstate, self.fstate,
+                         self.segments, group.x, self.noise_lsb, self.streams, z, self.score_i, self.score_f,
+                         self._score_array(), *records,
                          np.zeros((INTERVALS, 2)), np.zeros((2, group.x.shape[0])), stop, need)
 
         run_group(group, len(plan), self.target_c, tables_for, run_part, self.threads)

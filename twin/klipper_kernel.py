@@ -19,7 +19,12 @@ The ADC counts come from a table of switching temperatures of Klipper's converte
 (``floor(4096 R / (R + Rp))`` of the thermistor's Steinhart-Hart model), the host's
 temperature from a table of ``calc_temp`` over every sum: the host sees the very numbers the scalar
 twin computes, as long as the plant's temperature, equal to float rounding, does not straddle a
-switching temperature. tests/twin/test_klipper_batch.py compares them lane by lane.
+switching temperature. A noisy lane's conversion is ``floor(analog + noise)``, clipped, as
+``KlipperTwin._adc_sample`` computes it: the analog value from ``calc_adc`` itself (libm's ``exp`` and
+``cbrt``, which may differ from numpy's in the last bit: with the plant's rounding, about 1e-10 LSB),
+the noise drawn outside (``KlipperBatch``: one stream per seed). A count differs from the scalar
+twin's only if the noisy value falls that near an integer. tests/twin/test_klipper_batch.py compares
+them lane by lane.
 """
 
 from __future__ import annotations
@@ -28,8 +33,8 @@ import numpy as np
 
 from twin.batch_kernel import adc_count, inline, jit, output, score_row
 
-# Operations of the plan, column OP; columns: OP, TICK, RUN_KIND, WINDOW_KIND, ROW, FLAGS (int64) and
-# TIME, LAST_S (float64, ``plan_t``).
+# Operations of the plan, column OP; columns: OP, TICK, RUN_KIND, WINDOW_KIND, ROW (a report's row, an ADC
+# window's first noise draw), FLAGS (int64) and TIME, LAST_S (float64, ``plan_t``).
 ADC, REPORT, VERIFY, ADVANCE = range(4)
 OP, TICK, RUN_KIND, WINDOW_KIND, ROW, FLAGS = range(6)
 PLAN_COLUMNS = 6
@@ -51,6 +56,9 @@ G_KP, G_KI, G_KD, G_INTEG_MAX = range(4)
  C_V_GAIN_TIME, C_STALE_S, C_TICK_S, C_DELAY, C_ADC_MAX, C_BIN_LO, C_RADIATING, C_RECORD, C_SCORE,
  C_ROW_BASE) = range(27)
 N_CFG = 27
+# ``sensor_p``: the thermistor's Steinhart-Hart model and the converter, for a noisy sample's analog value.
+SP_C1, SP_C2, SP_C3, SP_P27, SP_KELVIN, SP_PULLUP, SP_SCALE = range(7)
+N_SP = 7
 MAX_INTERVALS = 64  # on-intervals in one run: 0.3 s of 0.1 s cycles, a few PWM values, fragments (ample)
 
 
@@ -157,17 +165,38 @@ def _window_output(xl, maps, dd, row_steps, m, window, j, offset, n_iv, iv):
 
 
 @inline
-def _adc(ks, fs, seg, cfg, xl, px, pdd, bx, bdd, sensor_steps, block_steps, m, window, offsets, n_off, edges, iv):
+def _analog(y, sp):
+    """Klipper's calc_adc of temperature y times the converter's scale: ``SteinhartHart.resistance_ohm``
+    (closed form for beta, Cardano otherwise) and the divider, in their order of operations."""
+    inv_t = 1.0 / (y + sp[SP_KELVIN])
+    if sp[SP_C3] == 0.0:
+        r = np.exp((inv_t - sp[SP_C1]) / sp[SP_C2])
+    else:
+        q = (sp[SP_C1] - inv_t) / sp[SP_C3]
+        disc = np.sqrt(q * q / 4.0 + sp[SP_P27])
+        r = np.exp(np.cbrt(-q / 2.0 + disc) + np.cbrt(-q / 2.0 - disc))
+    return r / (sp[SP_PULLUP] + r) * sp[SP_SCALE]
+
+
+@inline
+def _adc(ks, fs, seg, cfg, xl, px, pdd, bx, bdd, sensor_steps, block_steps, m, window, offsets, n_off, edges, iv,
+         noise_lsb, z, z0, sp):
     """The MCU's summed reading of the window at the lane's tick: 8 samples (the last offset is the
-    report's read time: the true temperatures recorded there), then the range check."""
+    report's read time: the true temperatures recorded there), then the range check. A noisy lane's
+    conversion j is ``floor(analog + noise_lsb * z[z0 + j])`` clipped to the converter's range; a
+    noiseless one's count comes from the switching temperatures."""
     delay, tick_s = int(cfg[C_DELAY]), cfg[C_TICK_S]
     lo_s = (ks[PLANT_TICK] - delay) * tick_s
     n_iv = _intervals(ks, seg, cfg, lo_s, (ks[PLANT_TICK] + offsets[n_off - 1] - delay) * tick_s, iv)
     value, count, adc_max = 0, ks[HINT], int(cfg[C_ADC_MAX])
     for j in range(n_off - 1):
-        count = adc_count(_window_output(xl, px, pdd, sensor_steps, m, window, j, offsets[j], n_iv, iv), count,
-                          edges, adc_max)
-        value += count
+        y = _window_output(xl, px, pdd, sensor_steps, m, window, j, offsets[j], n_iv, iv)
+        if noise_lsb == 0.0:
+            count = adc_count(y, count, edges, adc_max)
+            value += count
+        else:
+            v = np.floor(_analog(y, sp) + noise_lsb * z[z0 + j])
+            value += int(min(max(v, 0.0), float(adc_max)))
     last = n_off - 1
     fs[READ_SENSOR] = _window_output(xl, px, pdd, sensor_steps, m, window, last, offsets[last], n_iv, iv)
     fs[READ_BLOCK] = _window_output(xl, bx, bdd, block_steps, m, window, last, offsets[last], n_iv, iv)
@@ -319,8 +348,9 @@ def _plant_bin(xl, io, cfg, n_bins):
 
 @jit
 def run_lanes(todo, lane_ids, q_start, plan, plan_t, offsets, n_offsets, fx, fdd, px, pdd, bx, bdd, steps,
-              sensor_steps, block_steps, io, edges, temps, cfg, gains, kstate, fstate, segments, x, score_i,
-              score_f, score_p, rec_temp, rec_duty, rec_sensor, rec_block, iv, x_pair, stop, need_bin):
+              sensor_steps, block_steps, io, edges, temps, sensor_p, cfg, gains, kstate, fstate, segments, x,
+              noise_lsb, streams, z, score_i, score_f, score_p, rec_temp, rec_duty, rec_sensor, rec_block, iv,
+              x_pair, stop, need_bin):
     """Every operation of ``plan`` from ``q_start[k]`` on each lane k of ``todo`` (its column of x,
     ``lane_ids[k]`` its row of the per-lane arrays); ``stop[k]``: where it stopped.
 
@@ -328,14 +358,17 @@ def run_lanes(todo, lane_ids, q_start, plan, plan_t, offsets, n_offsets, fx, fdd
     model m (radiating bin from ``cfg[C_BIN_LO]``) and kind: fx, fdd the runs' (RUN_KIND), px, pdd, bx,
     bdd the windows' (WINDOW_KIND, its tick offsets in ``offsets``); steps, sensor_steps,
     block_steps the heater's step responses; io the output rows. edges: the ADC's switching
-    temperatures; temps: calc_temp of every sum. segments (N, cap, 2): each lane's PWM values (time,
-    on seconds). Scratch: iv (MAX_INTERVALS, 2), x_pair (2, n_x).
+    temperatures; temps: calc_temp of every sum; sensor_p: the thermistor (SP_* columns) for noisy
+    lanes. segments (N, cap, 2): each lane's PWM values (time, on seconds). Noise: lane ``lane`` adds
+    ``noise_lsb[lane]`` times ``z[streams[lane], ROW + j]`` to conversion j of an ADC row (its ROW: the
+    window's first normal). Scratch: iv (MAX_INTERVALS, 2), x_pair (2, n_x).
     """
     xl, xn = x_pair[0], x_pair[1]
     n_bins = fx.shape[0]
     for k in todo:
         lane = lane_ids[k]
         ks, fs, g, seg = kstate[lane], fstate[lane], gains[lane], segments[lane]
+        noise, zl = noise_lsb[lane], z[streams[lane]]
         si, sf = score_i[lane], score_f[lane]
         for i in range(x.shape[0]):
             xl[i] = x[i, k]
@@ -357,7 +390,7 @@ def run_lanes(todo, lane_ids, q_start, plan, plan_t, offsets, n_offsets, fx, fdd
                 if op == ADC:
                     w = plan[q, WINDOW_KIND]
                     _adc(ks, fs, seg, cfg, xl, px, pdd, bx, bdd, sensor_steps, block_steps, m, w, offsets[w],
-                         n_offsets[w], edges, iv)
+                         n_offsets[w], edges, iv, noise, zl, plan[q, ROW], sensor_p)
                     if ks[INVALID] >= cfg[C_RANGE_COUNT]:
                         fs[SHUTDOWN_AT] = plan_t[q, LAST_S]
             q += 1

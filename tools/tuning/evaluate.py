@@ -295,7 +295,8 @@ def _run_batch(problem: Problem, params: np.ndarray, record: bool = True) -> Tra
         batch.set_target(int(round(scenario.target_c)))
     else:
         setup = extruder_setup(make_problem_plant(problem), max_temp_c=KLIPPER_MAX_TEMP_C)
-        batch = KlipperBatch(gains_setups(setup, params), record=record, score=score)
+        batch = KlipperBatch(gains_setups(replace(setup, noise_lsb=problem.noise_lsb), params), seed=problem.seed,
+                             record=record, score=score)
         batch.set_target(scenario.target_c)
     for event in scenario.events:
         batch.schedule(event.at_s, functools.partial(_batch_event, event=event))

@@ -103,7 +103,7 @@ def bench_batch(n_lanes: int, duration_s: float, seed: int) -> list[str]:
     batch = BatchTwin(make_plant("hotend"), gains)
     batch.schedule(0.0, lambda b: b.set_target(210))
     wall = _timed(lambda: batch.run_until(duration_s))
-    periods = n_lanes * len(batch.t_s)
+    periods = n_lanes * len(batch.result().hotend.t_s)
     return [
         f"batch of {n_lanes} hotend twins x {duration_s:g} s, random gains (seed {seed}):",
         f"  wall {wall:.3f} s, {periods / wall:,.0f} firmware control periods per second",

@@ -265,9 +265,9 @@ class BatchTwin:
             raise ValueError("this batch keeps no trace (record=False): read score_totals()")
         n = len(self._targets)
         target = np.repeat(np.array(self._targets, dtype=float)[:, None], self.n_lanes, axis=1).reshape(n, -1)
-        hotend = {"target_c": target, "measured_c": self.measured_c, "block_c": self.block_c,
-                  "sensor_c": self.sensor_c, "duty": self.duty}
-        return RunResult.from_columns(self.t_s, {"hotend": hotend}, label=f"{label}, {self.n_lanes} lanes")
+        hotend = {"target_c": target, "measured_c": self._measured_c, "block_c": self._block_c,
+                  "sensor_c": self._sensor_c, "duty": self._duty}
+        return RunResult.from_columns(self._t_s, {"hotend": hotend}, label=f"{label}, {self.n_lanes} lanes")
 
     def score_totals(self) -> ScoreTotals:
         """The heater objective's inputs accumulated so far (ValueError without a ``score``, or before
@@ -531,23 +531,23 @@ class BatchTwin:
         return joined if index == 0 else joined.T
 
     @property
-    def t_s(self) -> np.ndarray:
+    def _t_s(self) -> np.ndarray:
         return self._column(0)
 
     @property
-    def measured_c(self) -> np.ndarray:
+    def _measured_c(self) -> np.ndarray:
         return self._column(1) / TEMP_ONE
 
     @property
-    def block_c(self) -> np.ndarray:
+    def _block_c(self) -> np.ndarray:
         return self._column(3)
 
     @property
-    def sensor_c(self) -> np.ndarray:
+    def _sensor_c(self) -> np.ndarray:
         return self._column(4)
 
     @property
-    def duty(self) -> np.ndarray:
+    def _duty(self) -> np.ndarray:
         return self._column(2) / SOFT_PWM_MAX
 
 

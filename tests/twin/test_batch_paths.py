@@ -44,14 +44,14 @@ def _batch(preset: str, controllers, duration_s: float, **options) -> BatchTwin:
 def _assert_lane_is_the_twin(batch: BatchTwin, lane: int, twin: Twin) -> None:
     """Same readings and duty reading by reading (up to a trip: a halted board records on its own
     cadence), the same trip, the block within BLOCK_TOLERANCE_C."""
-    scalar = twin.result().hotend
-    n = min(len(scalar.t_s), len(batch.t_s))
-    apart = np.abs(batch.t_s[:n] - scalar.t_s[:n]) > 1e-9  # after a trip the scalar twin records every 160 ticks
+    scalar, lanes = twin.result().hotend, batch.result().hotend
+    n = min(len(scalar.t_s), len(lanes.t_s))
+    apart = np.abs(lanes.t_s[:n] - scalar.t_s[:n]) > 1e-9  # after a trip the scalar twin records every 160 ticks
     rows = int(np.argmax(apart)) if apart.any() else n
     assert rows > 0 and (rows == len(scalar.t_s) or twin.board.halted)
-    np.testing.assert_array_equal(batch.measured_c[:rows, lane], scalar.measured_c[:rows])
-    np.testing.assert_array_equal(batch.duty[:rows, lane], scalar.duty[:rows])
-    np.testing.assert_allclose(batch.block_c[:rows, lane], scalar.block_c[:rows], rtol=0, atol=BLOCK_TOLERANCE_C)
+    np.testing.assert_array_equal(lanes.measured_c[:rows, lane], scalar.measured_c[:rows])
+    np.testing.assert_array_equal(lanes.duty[:rows, lane], scalar.duty[:rows])
+    np.testing.assert_allclose(lanes.block_c[:rows, lane], scalar.block_c[:rows], rtol=0, atol=BLOCK_TOLERANCE_C)
     assert bool(batch.lanes.halted[lane]) == twin.board.halted
 
 
@@ -85,7 +85,8 @@ def test_a_noisy_lane_reads_what_the_scalar_twin_with_its_seed_reads(kernel):
     batch = _batch("hotend_cartridge", gains, 100.0, kernel=kernel, seed=seeds, noise_lsb=noise)
     for lane, g in enumerate(gains):
         _assert_lane_is_the_twin(batch, lane, _scalar("hotend_cartridge", PidFixed(g), 100.0, seeds[lane], noise[lane]))
-    assert not np.array_equal(batch.measured_c[:, 0], batch.measured_c[:, 2])  # same stream, more noise
+    noisy = batch.result().hotend.measured_c
+    assert not np.array_equal(noisy[:, 0], noisy[:, 2])  # same stream, more noise
 
 
 def test_a_sensor_chain_lends_its_stream_to_every_lane():

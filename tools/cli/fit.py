@@ -9,8 +9,8 @@ PID_CALIBRATE results (one entry's Tu and swing). tools/ident/log_fit.py does th
 output gives each parameter with its standard error and whether the log identifies it, a
 plausible range with its source for those it does not, the residuals, a FOPDT equivalent, and
 Marlin (M306 for two_node, M301/M304) and Klipper settings: the PID gains twin-tune's tuner suggests
-(tools/tuning/problems.py quick_tune: the rules and the twin's M303 on the fitted plant's ensemble,
-never one that trips on a plant the log allows).
+(tools/tuning/problems.py suggest: the rules and the twin's M303 on the fitted plant's ensemble, or
+where each trips, a short DE seeded with them; never one that trips on a plant the log allows).
 --loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
 
 Exit status: 0 fitted; 2 the log or the options cannot be used (one line on stderr); 3 the fit is
@@ -38,7 +38,7 @@ from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog
 from tools.tuning.evaluate import Candidate
-from tools.tuning.problems import build_problem, fitted_source, quick_tune, safe_best
+from tools.tuning.problems import build_problem, fitted_source, suggest
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 EXIT_UNUSABLE = 2
@@ -189,8 +189,8 @@ def _settings_lines(result: FitResult, heater: str, sample_s: float, suggestion:
     if heater != BED:
         lines += ["ready to paste, MPC (the fitted model is its own tune):", *_mpc_lines(result)]
     if suggestion is None:
-        return lines + ["no tuning rule's gains, nor the twin's M303, hold on every plant this log allows (each trips "
-                        "on some): `twin-tune --from-log` searches further and proves what it prints"]
+        return lines + ["no tuning rule's gains, nor the twin's M303, nor a short search, hold on every plant this log "
+                        "allows (each trips on some): `twin-tune --from-log` searches further and proves what it prints"]
     kp, ki, kd = suggestion.gains.kp, suggestion.gains.ki, suggestion.gains.kd
     command = "M304" if heater == BED else "M301"
     return lines + [
@@ -281,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     if reason := fitted.degenerate:
         print(f"twin-fit: {args.log}: degenerate fit, no gains: {reason}", file=sys.stderr)
         return EXIT_DEGENERATE
-    suggestion = safe_best(quick_tune(build_problem(fitted_source(fitted, Path(args.log).name))))
+    suggestion = suggest(build_problem(fitted_source(fitted, Path(args.log).name)))
     settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s, suggestion) + _log_notes(log, fitted)
     print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
     return 0

@@ -41,6 +41,7 @@ from twin.plants import SPECS, Spec
 
 HOTEND_TARGET_C, BED_TARGET_C = 210.0, 60.0
 QUICK_BUDGET = 0  # quick_tune: the rules and the autotune, scored on the ensemble (no optimiser)
+SUGGEST_SEARCH_BUDGET = 270  # suggest: where no rule holds, six generations of DE seeded with them
 
 
 @dataclass(frozen=True)
@@ -118,6 +119,12 @@ def quick_tune(problem: Problem, budget: int = QUICK_BUDGET, seed: int = 0) -> T
     """What twin-fit suggests: the rules and the firmware's autotune (and DE with a ``budget``), scored on the
     problem's ensemble by the heater objective; ``safe_best`` picks the answer."""
     return tune(problem, method="auto" if budget else "rules", budget=max(budget, 1), seed=seed)
+
+
+def suggest(problem: Problem, seed: int = 0) -> Candidate | None:
+    """twin-fit's gains: the safe best of the rules and the autotune; where each trips on some member,
+    of a short DE seeded with them (``SUGGEST_SEARCH_BUDGET``); None if that trips too."""
+    return safe_best(quick_tune(problem, seed=seed)) or safe_best(quick_tune(problem, SUGGEST_SEARCH_BUDGET, seed))
 
 
 def safe_best(result: TuneResult) -> Candidate | None:

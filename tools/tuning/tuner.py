@@ -39,6 +39,7 @@ from tools.tuning.evaluate import (
     score,
     simulate,
 )
+from tools.tuning.ensemble import Ensemble
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, Run, objective
 from tools.tuning.optim import METHODS, WARM_STARTS
 from tools.tuning.proof import PROOF_SEEDS, ProofRow, prove
@@ -185,6 +186,20 @@ def references(problem: Problem, cost: Callable[[Run], np.ndarray], client=None)
     return [scored[name] for name in table], notes
 
 
+def hopeless_members(problem: Problem, scored: list[Candidate]) -> list[int]:
+    """The ensemble's corner members (never the nominal plant) on which every scored candidate trips."""
+    if problem.ensemble is None or problem.ensemble.size < 2 or not scored:
+        return []
+    trips = np.array([np.asarray(c.run.tripped, bool) for c in scored])  # (candidates, members)
+    return [k for k in range(1, problem.ensemble.size) if trips[:, k].all()]
+
+
+def without_members(ensemble: Ensemble | None, drop: list[int]) -> Ensemble | None:
+    if ensemble is None:
+        return None
+    return replace(ensemble, members=tuple(m for k, m in enumerate(ensemble.members) if k not in drop))
+
+
 def tune(problem: Problem, objective_name: str = DEFAULT_OBJECTIVE, method: str = "auto",
          budget: int = DEFAULT_BUDGET, seed: int = 0, client=None, progress: bool = False) -> TuneResult:
     """Every planned candidate scored, best first, beside the references (see the module docstring)."""
@@ -194,6 +209,13 @@ def tune(problem: Problem, objective_name: str = DEFAULT_OBJECTIVE, method: str 
     gains, failures = rule_gains(problem, rules)
     notes += [f"rule {rule} gives no gains here: {why}" for rule, why in failures.items()]
     candidates = score(problem, cost, dict(gains), client) if gains else []
+    if hopeless := hopeless_members(problem, [*refs, *candidates]):
+        labels = ", ".join(problem.ensemble.members[k].label for k in hopeless) if problem.ensemble else ""
+        problem = replace(problem, ensemble=without_members(problem.ensemble, hopeless))
+        notes.append(f"left out of the ensemble: {labels}: every rule and reference trips on that plant (the corner of "
+                     "what the data cannot pin down, not a printer any gains hold); the tune and its proof run without it")
+        refs = score(problem, cost, {r.method: r.params for r in refs}, client)
+        candidates = score(problem, cost, dict(gains), client) if gains else []
     autotune = next((r.params for r in refs if r.method != DEFAULTS), None)
     start = autotune if autotune is not None or not candidates else candidates[0].params
     known = np.array([c.params for c in (*candidates, *refs)], float)

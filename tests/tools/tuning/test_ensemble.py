@@ -90,3 +90,20 @@ def test_the_proof_counts_trips_on_the_reference_engine():
     fast = [run_scalars(replace(case, engine="fast"), table).tripped for case in cases(short, seeds=1)]
     assert [r.trips for r in rows] == np.sum(fast, axis=0).tolist()
     assert rows[0].trips >= 3 and not rows[0].passed and rows[1].trips >= 1 and rows[2].passed
+
+
+def test_a_corner_every_candidate_trips_on_is_left_out_never_the_nominal():
+    """tune() drops a corner member on which every rule and reference trips (a plant no gains hold: the edge
+    of what a fit cannot pin down), keeps one where some candidate survives, and never drops the nominal."""
+    from types import SimpleNamespace
+
+    from tools.tuning.tuner import hopeless_members, without_members
+
+    ensemble = corner_ensemble(preset_spread(CARTRIDGE.spec), noise_lsb=1.0)
+    problem = replace(CARTRIDGE, ensemble=ensemble)
+    scored = [SimpleNamespace(run=SimpleNamespace(tripped=np.array(t, bool)))
+              for t in ([1, 1, 0, 0, 1], [1, 1, 1, 0, 0], [1, 1, 0, 0, 1])]
+    assert hopeless_members(problem, scored) == [1]
+    kept = without_members(ensemble, [1])
+    assert [m.label for m in kept.members] == ["nominal", "lag+ loss-", "lag- loss+", "lag- loss-"]
+    assert hopeless_members(CARTRIDGE, scored) == []  # no ensemble: nothing to leave out

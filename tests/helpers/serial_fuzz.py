@@ -5,7 +5,7 @@ does not), with values from the everyday to the absurd (beyond float32, beyond i
 empty), line numbers and checksums right or wrong, and raw bytes. ``MARLIN_REPLY`` is every line
 shape Marlin 2.1 (and the twin's heater port) prints; anything else on the wire is a defect.
 
-Nightly-sized run (10^6 lines): ``FUZZ_LINES=1000000 python -m pytest tests/test_fuzz_serial.py``.
+Nightly-sized run (10^6 lines): ``FUZZ_LINES=1000000 python -m pytest tests/protocol/test_fuzz_serial.py``.
 """
 
 from __future__ import annotations

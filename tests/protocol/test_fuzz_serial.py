@@ -1,8 +1,8 @@
-"""The fuzzer (tests/serial_fuzz.py) against the printer: no exit, no traceback, Marlin's replies.
+"""The fuzzer (tests/helpers/serial_fuzz.py) against the printer: no exit, no traceback, Marlin's replies.
 
 Over twin:// (in process, host-driven clock so a seed gives the same session) FUZZ_LINES lines,
 20 000 by default to keep CI short; the nightly-sized run is
-``FUZZ_LINES=100000 python -m pytest tests/test_fuzz_serial.py -q`` (see docs/serial.md). Over a
+``FUZZ_LINES=100000 python -m pytest tests/protocol/test_fuzz_serial.py -q`` (see docs/serial.md). Over a
 pty, the twin-serial process itself gets a smaller run. The host is a patient but not endless
 one: after each line it reads until the printer is idle or has run FREE_STEPS_PER_LINE virtual
 seconds, then resets the board (DTR) if a command still runs or the board was killed, as a host
@@ -24,8 +24,8 @@ import time
 import serial
 
 import protocol  # noqa: F401  registers twin://
-from serial_fuzz import bad_replies, fuzz_lines
-from test_transport import twin_serial
+from tests.helpers.serial_fuzz import bad_replies, fuzz_lines
+from tests.helpers.serial_host import twin_serial
 
 FUZZ_LINES = int(os.environ.get("FUZZ_LINES", "20000"))
 # Two plants x MAX_CACHED_MODELS (8) x MAX_CACHED_RUNS (48) maps of up to ~45 kB: 35 MB at most,

@@ -12,7 +12,7 @@ import protocol  # noqa: F401  registers twin://
 from firmware_port.thermistor import TEMP_ONE
 from protocol.build import build_printer
 from protocol.pacing import MAX, Pacer, parse_idle_speed
-from test_transport import expect, twin_serial
+from tests.helpers.serial_host import expect, twin_serial
 
 REPORT = re.compile(r"^ T:(\d+\.\d\d) /200\.00")
 LIVENESS_S = 120  # a bound on waiting, not a timing: the machine may be loaded

@@ -14,7 +14,7 @@ from twin.build import build_twin
 from twin.scenario import parse_scenario
 from twin.trace import Trace
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = Path(__file__).resolve().parents[2] / "README.md"
 GAINS = PidGains(15.0, 0.875, 80.25)  # exact in float32, as M301 parses them
 
 

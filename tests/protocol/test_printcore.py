@@ -23,7 +23,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from test_transport import twin_serial
+from tests.helpers.serial_host import twin_serial
 
 from protocol.lines import with_checksum
 from protocol.build import build_printer

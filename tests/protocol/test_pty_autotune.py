@@ -9,7 +9,7 @@ import re
 import time
 
 import serial
-from test_transport import READ_TIMEOUT_S, expect, twin_serial
+from tests.helpers.serial_host import READ_TIMEOUT_S, expect, twin_serial
 
 M303_DEADLINE_S = 30  # wall; well under 2 s on an idle machine (python -m tools.bench protocol)
 PRINTED = 0.005  # Marlin prints these floats with 2 decimals

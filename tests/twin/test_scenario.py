@@ -21,7 +21,7 @@ from twin.scenario import (
     with_overrides,
 )
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "scenarios.md"
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "scenarios.md"
 EVENT_FIELDS = {
     "pid": ("at_s", "heater", "kp", "ki", "kd"),
     "setpoint": ("at_s", "heater", "target_c"),

@@ -10,7 +10,7 @@ from pathlib import Path
 from tools.validation.doc_compare import write_section
 from tools.tuning.mpc_report import BEGIN, COMMAND, END, HOLD_BAND_C
 
-DOC = Path(__file__).resolve().parents[2] / "docs" / "firmware.md"
+DOC = Path(__file__).resolve().parents[3] / "docs" / "firmware.md"
 ROW = re.compile(r"^\| (\d) \| (PID|MPC)[^|]* \| ([\d.]+) \| [^|]* \| ([^|]*) \| [^|]* \| (yes|no) \|$", re.M)
 
 

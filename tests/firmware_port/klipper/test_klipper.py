@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import re
 from dataclasses import dataclass
 from decimal import Decimal
@@ -42,10 +41,8 @@ from firmware_port.klipper.heater import (
     SAMPLE_TIME,
 )
 from firmware_port.klipper.pid_calibrate import ControlAutoTune
-from tools.logs import DEFAULT_LOGS, LOGS_ENV
 
-LOG_DIR = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)  # checked by each test: missing logs fail
-COLLECTION = LOG_DIR / "klipper_pid_calibrate_results_collection.txt"
+COLLECTION = "klipper_pid_calibrate_results_collection.txt"  # in the hardware logs
 
 
 def make_heater(name: str = "extruder", **options) -> KlipperHeater:
@@ -399,13 +396,11 @@ SHORT_RE = re.compile(
 )
 
 
-def read_collection() -> list[Saved]:
+@pytest.fixture(scope="module")
+def collection(hardware_logs: Path) -> list[Saved]:
     """The calibrations of klipper_pid_calibrate_results_collection.txt that carry derived Tu columns."""
-    assert COLLECTION.is_file(), (
-        f"hardware logs not found at {COLLECTION}: set HEATER_TWIN_HARDWARE_LOGS to the shared/hardware_logs folder"
-    )
     saved, pending, source = [], {}, ""
-    for line in COLLECTION.read_text().splitlines():
+    for line in (hardware_logs / COLLECTION).read_text().splitlines():
         words = line[1:].split()
         if line.startswith("# [") or (words and words[0].endswith(".csv")):
             source, pending = words[0], {}  # "[3]" or the capture file of a table row
@@ -436,15 +431,15 @@ def half_unit(printed: str) -> float:
     return float(Decimal(1).scaleb(Decimal(printed).as_tuple().exponent)) / 2.0
 
 
-def test_collection_is_read_completely():
-    saved = read_collection()
+def test_collection_is_read_completely(collection):
+    saved = collection
     assert len(saved) >= 19, [s.source for s in saved]
     assert sum(not s.consistent for s in saved) >= 2
     assert sum(s.max_power != 1.0 for s in saved) >= 2
 
 
-def test_inversion_reproduces_the_derived_columns():
-    for s in read_collection():
+def test_inversion_reproduces_the_derived_columns(collection):
+    for s in collection:
         tu_ki, tu_kd, _, peak_to_peak = invert_calibration(*map(float, s.gains), s.max_power)
         assert abs(tu_ki - float(s.tu[0])) <= half_unit(s.tu[0]) + 1e-9, s
         assert abs(tu_kd - float(s.tu[1])) <= half_unit(s.tu[1]) + 1e-9, s
@@ -452,10 +447,10 @@ def test_inversion_reproduces_the_derived_columns():
             assert abs(peak_to_peak - float(s.peak_to_peak)) <= half_unit(s.peak_to_peak) + 1e-9, s
 
 
-def test_zn_reproduces_every_saved_calibration_from_its_ku_and_tu():
+def test_zn_reproduces_every_saved_calibration_from_its_ku_and_tu(collection):
     """Klipper's rule on the printed Tu and Ku (from the printed swing and max_power), over the
     rounding of the printed numbers, contains the saved gains to their own rounding."""
-    for s in read_collection():
+    for s in collection:
         tu_ki, tu_kd, _, _ = invert_calibration(*map(float, s.gains), s.max_power)
         if not s.consistent:
             assert abs(tu_ki - tu_kd) > 0.1 * tu_ki, f"{s.source}: marked inconsistent but the two Tu agree"

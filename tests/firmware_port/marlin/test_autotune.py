@@ -3,7 +3,6 @@ on a small plant (transcript format, cycle count, aborts, timeout, cancel)."""
 
 from __future__ import annotations
 
-import os
 import re
 from bisect import bisect_left
 from dataclasses import dataclass, field
@@ -29,10 +28,8 @@ from firmware_port.marlin.constants import ISR_PERIOD_S, TICKS_PER_READING, tick
 from firmware_port.marlin.protection import H_BED
 from firmware_port.marlin.serial import Console, format_float
 from firmware_port.thermistor import TEMP_ONE, c_to_q5
-from tools.logs import DEFAULT_LOGS, LOGS_ENV
 
 F32 = np.float32
-LOG_DIR = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)  # checked by each test: missing logs fail
 # Repetier prints Ku from the full peak-to-peak swing, half of Marlin's Ku (it uses the same
 # Classic PID rule on it); see the Kp/Ku ratio of its log line.
 KU_DIVISOR = {"m303_hotend_repetier_davinci356.txt": 2}
@@ -51,23 +48,10 @@ SEPARATE_RUNS = {
 # --- parsing the logs --------------------------------------------------------------------------
 
 
-def _log_paths() -> list:
-    """The m303_*.txt captures, or one None so that the tests fail (not skip) without them."""
-    return sorted(LOG_DIR.glob("m303_*.txt")) or [pytest.param(None, id="logs-missing")]
-
-
-def _require(path: Path | None) -> Path:
-    """The log file, or a test failure naming where the logs were looked for."""
-    if path is None or not path.is_file():
-        pytest.fail(f"M303 hardware log {path or 'm303_*.txt'} not found in {LOG_DIR}; "
-                    "set HEATER_TWIN_HARDWARE_LOGS to the shared/hardware_logs folder")
-    return path
-
-
 def _log_lines(path: Path) -> list[str]:
     """The captured console lines: header comments ("# ") dropped, host prefixes stripped."""
     lines = []
-    for line in _require(path).read_text().splitlines():
+    for line in path.read_text().splitlines():
         if line.startswith("# "):
             continue
         lines.append(re.sub(r"^(Recv: |READ: |< [\d:]+ [AP]M: )", "", line))
@@ -135,8 +119,9 @@ def _gains_reproducible(ku_text: str, tu_text: str, kp_text: str, ki_text: str, 
     return False
 
 
-@pytest.mark.parametrize("path", _log_paths(), ids=lambda p: getattr(p, "stem", str(p)))
-def test_logged_results_are_reproduced_by_the_float32_gain_rule(path):
+@pytest.mark.each_hardware_log("m303_*.txt")
+def test_logged_results_are_reproduced_by_the_float32_gain_rule(hardware_log):
+    path = hardware_log
     """Every logged Ku/Tu (and Kp/Ki/Kd) line is what Marlin's float32 arithmetic prints.
 
     The logs print min, max, Ku and Tu rounded to 2 decimals, so the exact inputs are unknown.
@@ -147,7 +132,7 @@ def test_logged_results_are_reproduced_by_the_float32_gain_rule(path):
     logged, with the rule named in the log (Classic PID, or No overshoot for Marlin 2.x beds;
     Prusa firmware prints Classic PID for its bed, Repetier uses Classic PID on half Marlin's Ku).
     """
-    divisor = KU_DIVISOR.get(_require(path).name, 1)
+    divisor = KU_DIVISOR.get(path.name, 1)
     for cycle in _results(path):
         v = cycle.values
         lowest, highest = _ku_possible(int(v["d"]), v["min"], v["max"], divisor)
@@ -158,9 +143,8 @@ def test_logged_results_are_reproduced_by_the_float32_gain_rule(path):
                                        cycle.rule == "No overshoot"), (path.name, cycle.line)
 
 
-def test_the_logs_hold_enough_results_to_check():
-    paths = sorted(LOG_DIR.glob("m303_*.txt")) or [_require(None)]
-    results = [c for p in paths for c in _results(p)]
+def test_the_logs_hold_enough_results_to_check(hardware_logs):
+    results = [c for p in sorted(hardware_logs.glob("m303_*.txt")) for c in _results(p)]
     assert len(results) >= 19  # 6 + 2 + 4 + 2 + 1 + 3 + 1 Ku lines in the nine files
     assert sum("Kp" in c.values for c in results) >= 16
     assert {c.rule for c in results} >= {"Classic PID", "No overshoot"}
@@ -175,11 +159,12 @@ def test_the_documented_example_no_overshoot():
 # --- the bias/d relay against the logs ---------------------------------------------------------
 
 
-@pytest.mark.parametrize("path", _log_paths(), ids=lambda p: getattr(p, "stem", str(p)))
-def test_logged_power_levels_are_the_relay_levels_of_the_last_bias(path):
+@pytest.mark.each_hardware_log("m303_*.txt")
+def test_logged_power_levels_are_the_relay_levels_of_the_last_bias(hardware_log):
+    path = hardware_log
     """Between two bias lines the tuned heater's logged power (@, or B@ for a bed) is only ever
     (bias + d) >> 1 or (bias - d) >> 1 of the last one, e.g. #8081's 127/87 after bias 214."""
-    field_name = POWER_FIELD.get(_require(path).name, "@")
+    field_name = POWER_FIELD.get(path.name, "@")
     power = re.compile(r"(?<![\w@])" + re.escape(field_name) + r":(\d+)")
     levels = None
     for line in _log_lines(path):
@@ -194,11 +179,12 @@ def test_logged_power_levels_are_the_relay_levels_of_the_last_bias(path):
                 assert int(amount) in levels, (path.name, line, levels)
 
 
-@pytest.mark.parametrize("path", _log_paths(), ids=lambda p: getattr(p, "stem", str(p)))
-def test_logged_bias_steps_are_reachable_with_integer_maths(path):
+@pytest.mark.each_hardware_log("m303_*.txt")
+def test_logged_bias_steps_are_reachable_with_integer_maths(hardware_log):
+    path = hardware_log
     """Every logged bias has Marlin's d, and each step to a line that prints Tu is what the
     truncating update gives for some half cycles of at least 5 s adding up to that Tu."""
-    if _require(path).name in NOT_REPLAYED:
+    if path.name in NOT_REPLAYED:
         return
     cycles = _cycles(path)
     for cycle in cycles:
@@ -512,39 +498,39 @@ def test_gains_use_marlins_float32_operation_order():
     assert other_order_differs > 0  # so the assertion above pins Marlin's order
 
 
-def _log_defines(name: str) -> list[str]:
-    return [line.strip() for line in _log_lines(LOG_DIR / name) if line.startswith("#define")]
+def _log_defines(path: Path) -> list[str]:
+    return [line.strip() for line in _log_lines(path) if line.startswith("#define")]
 
 
 @pytest.mark.parametrize("ncycles", [0, 1, 2])
-def test_marlin_2_1_below_c3_runs_three_cycles_and_prints_zero_gains(ncycles):
+def test_marlin_2_1_below_c3_runs_three_cycles_and_prints_zero_gains(ncycles, hardware_logs):
     """Like the Prusa Buddy C2 log: 2 bias lines (Ku needs a 4th switch-on), then 0.00 gains."""
     run = run_m303(TwoNodeHeater(), target_c=225, ncycles=ncycles)
     assert run.tune.succeeded and run.tune.cycles == 3
     assert sum(" bias: " in line for line in run.lines) == 2
     assert not any(" Ku: " in line for line in run.lines)
-    assert run.lines[-4:-1] == _log_defines("m303_hotend_C2_degenerate_prusa_buddy5306.txt")
+    assert run.lines[-4:-1] == _log_defines(hardware_logs / "m303_hotend_C2_degenerate_prusa_buddy5306.txt")
     assert run.tune.gains == (0.0, 0.0, 0.0)
 
 
-def test_marlin_1_1_with_c1_prints_the_two_space_defines_of_issue_6316():
+def test_marlin_1_1_with_c1_prints_the_two_space_defines_of_issue_6316(hardware_logs):
     run = run_m303(TwoNodeHeater(), target_c=222, ncycles=1, version="1.1")
     assert run.tune.succeeded and run.tune.cycles == 2
     assert run.report_ms[0] == run.start_ms + 2000  # 1.1 waits 2 s for its first report
     assert sum(" bias: " in line for line in run.lines) == 1
     assert re.search(BIAS + "(" + STATUS + r"\n)?" + re.escape(FINISHED) + "\n", run.console.text)
-    assert run.lines[-4:-1] == _log_defines("m303_hotend_C1_degenerate_marlin6316.txt")
+    assert run.lines[-4:-1] == _log_defines(hardware_logs / "m303_hotend_C1_degenerate_marlin6316.txt")
     assert run.lines[-4:-1] == ["#define  DEFAULT_Kp 0.00", "#define  DEFAULT_Ki 0.00",
                                 "#define  DEFAULT_Kd 0.00"]
 
 
-def test_bed_uses_no_overshoot_and_prints_bed_defines():
+def test_bed_uses_no_overshoot_and_prints_bed_defines(hardware_logs):
     run = run_m303(bed_plant(), target_c=60, ncycles=3, is_bed=True)
     assert run.tune.succeeded and not run.errors
     ku_line = next(k for k, line in enumerate(run.lines) if " Ku: " in line)
     assert run.lines[ku_line + 1] == STR_NO_OVERSHOOT == " No overshoot"
-    artillery = "m303_bed_artillery_genius_pro_S60_configs641.txt"
-    assert STR_NO_OVERSHOOT in _log_lines(LOG_DIR / artillery)
+    artillery = hardware_logs / "m303_bed_artillery_genius_pro_S60_configs641.txt"
+    assert STR_NO_OVERSHOOT in _log_lines(artillery)
     names = [line.split()[1] for line in run.lines[-4:-1]]
     assert names == [line.split()[1] for line in _log_defines(artillery)]  # DEFAULT_bedKp ...
     values = re.fullmatch(GAINS, run.lines[ku_line + 2]).groups()

@@ -3,22 +3,18 @@ a tune on a dask LocalCluster equal to in-process, and docs/tuning.md's table st
 
 from __future__ import annotations
 
-import os
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 from distributed import Client, LocalCluster
 
-from tools.logs import DEFAULT_LOGS, LOGS_ENV
 from tools.cli.tune import main
 from tools.tuning import table
 from tools.tuning.evaluate import preset_problem, rule_names
 from tools.tuning.tuner import tune
 
 ROW = re.compile(r"^ [ *](\S+(?: C8)?)\s+Kp \S+ Ki \S+ Kd \S+\s+cost\s+(\S+)", re.M)
-LOG_DIR = Path(os.environ.get(LOGS_ENV) or DEFAULT_LOGS)
 BEST = re.compile(r"^best: (\S+)\s+Kp (\S+) Ki (\S+) Kd (\S+)\s+cost (\S+)\s+\((beats|does not beat) "
                   r"M303 C8: Kp \S+ Ki \S+ Kd \S+\s+cost (\S+); (?:beats|does not beat) defaults: ", re.M)
 
@@ -45,10 +41,8 @@ def test_every_rule_on_hotend_cartridge_beats_or_loses_to_m303_and_the_best_beat
     assert plot.stat().st_size > 10_000
 
 
-def test_a_fitted_log_is_tuned(capsys, tmp_path):
-    log = LOG_DIR / "klipper_heattest_onionheater_heattest_200.csv"
-    if not log.is_file():
-        pytest.fail(f"hardware log {log} not found; set {LOGS_ENV} to the shared/hardware_logs folder")
+def test_a_fitted_log_is_tuned(capsys, tmp_path, hardware_logs):
+    log = hardware_logs / "klipper_heattest_onionheater_heattest_200.csv"
     method = rule_names()[0]
     assert main(["--from-log", str(log), "--method", method, "--spread", "0", "--noise", "0", "--proof", "0",
                  "--plot", "none"]) == 0

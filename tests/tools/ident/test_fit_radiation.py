@@ -1,7 +1,7 @@
 """The radiation-like loss in the lumped fits: a synthetic radiating plant's area recovered within
 its standard errors and kept by AIC, a linear plant's data keeping the linear loss, the power-free
 numbers of a radiating fit against a simulation, twin-fit --loss end to end on the onionheater
-no-fan pulse (fails, never skips, without the logs: hardware_logs_dir() raises), and the bad
+no-fan pulse (the hardware_logs fixture: skipped locally and failed in CI without the logs), and the bad
 combinations of options."""
 
 import re
@@ -14,7 +14,6 @@ from tools.ident.fit import RADIATING_BOUNDS_M2, fit_losses, fit_model
 from tools.ident.fopdt import fopdt_equivalent
 from tools.ident.response import radiating_response, zoh_response
 from tools.ident.result import aic
-from tools.logs import hardware_logs_dir
 from tools.validation.plant_check import onion_fit_options
 from twin.plants import ONION_RADIATING_PARAMS, Lumped, Plant
 
@@ -106,6 +105,7 @@ def test_nonlinear_loss_needs_a_lumped_model(model, loss):
         fit_model("two_node", t_s, temp_c, duty, loss="cubic")
 
 
+@pytest.mark.usefixtures("hardware_logs")
 def test_onionheater_pulse_refit_is_the_stored_radiating_preset():
     """plant_check --fit's fit (fit_losses on the no-fan first pulse) keeps the radiating loss and
     gives twin/plants.py's ONION_RADIATING_PARAMS: stored to 4 significant digits (rounding under
@@ -119,10 +119,10 @@ def test_onionheater_pulse_refit_is_the_stored_radiating_preset():
     assert radiating.rmse_c == pytest.approx(0.43, abs=0.005) and fits["linear"].rmse_c == pytest.approx(1.89, abs=0.005)
 
 
-def test_twin_fit_loss_auto_keeps_radiating_on_the_onionheater_pulse(capsys):
+def test_twin_fit_loss_auto_keeps_radiating_on_the_onionheater_pulse(capsys, hardware_logs):
     """The no-fan pulse's cooling rate per kelvin rises with temperature (docs/plants.md): the
     default two_node fit with --loss auto prints both fits and keeps the radiating one."""
-    assert main([str(hardware_logs_dir() / ONION), "--loss", "auto"]) == 0
+    assert main([str(hardware_logs / ONION), "--loss", "auto"]) == 0
     out = capsys.readouterr().out
     found = re.search(r"^loss \(--loss auto\): linear RMSE (\S+) C, AIC (\S+); radiating RMSE (\S+) C, AIC (\S+): "
                       r"kept radiating \(lower AIC\)$", out, re.M)
@@ -137,9 +137,9 @@ def test_twin_fit_loss_auto_keeps_radiating_on_the_onionheater_pulse(capsys):
     assert re.search(r"^    pid_Kp: [\d.]+$", out, re.M)
 
 
-def test_twin_fit_loss_on_a_transfer_function_is_one_line(capsys):
+def test_twin_fit_loss_on_a_transfer_function_is_one_line(capsys, hardware_logs):
     with pytest.raises(SystemExit) as stop:
-        main([str(hardware_logs_dir() / ONION), "--loss", "radiating", "--model", "fopdt"])
+        main([str(hardware_logs / ONION), "--loss", "radiating", "--model", "fopdt"])
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert err == "twin-fit: error: --loss radiating needs --model two_node or three_node: fopdt has no heat-loss term\n"

@@ -1,7 +1,7 @@
 """Identification: the fitter recovers known plants from noisy synthetic data within its standard
 errors, seed 001's FOPDT from its step response, the two-point and relay formulas on exact FOPDTs,
-segment selection, and twin-fit end to end on real captures (these fail, never skip, without the
-logs: hardware_logs_dir() raises)."""
+segment selection, and twin-fit end to end on real captures (through the hardware_logs
+fixture: without the logs these skip locally and fail in CI)."""
 
 import math
 import re
@@ -16,7 +16,7 @@ from tools.ident.fit import fit_model
 from tools.ident.fopdt import CONTROL_DELAY_S, TWO_POINT_FRACTIONS, Fopdt, fopdt_equivalent, relay_fopdt, two_point_fopdt, ultimate_point
 from tools.ident.response import zoh_response
 from tools.ident.segments import MIN_HEATUP_S, NotFittable, default_segment, log_segments, split_heatups
-from tools.logs import hardware_logs_dir, load_log
+from tools.logs import load_log
 from tools.tuning.rules import amigo
 from twin.plants import Lumped, Plant, TransferFunction, make_plant
 
@@ -170,16 +170,16 @@ def test_split_heatups_bridges_dips_and_cuts_at_a_target_change():
     assert len(split_heatups("", t_s, temp, short)) == 1
 
 
-def test_segments_of_real_logs():
-    onion = load_log(hardware_logs_dir() / ONION)
+def test_segments_of_real_logs(hardware_logs):
+    onion = load_log(hardware_logs / ONION)
     heater, pulses = log_segments(onion)
     assert heater == "extruder" and len(pulses) == 2
     assert all("in between" not in s.note and "full power 11" in s.note for s in pulses)  # open loop
-    heater, beds = log_segments(load_log(hardware_logs_dir() / CHES), "heater_bed")
+    heater, beds = log_segments(load_log(hardware_logs / CHES), "heater_bed")
     assert heater == "heater_bed" and "closed loop: the pwm Klipper last sent" in beds[0].note
     assert default_segment(beds) == 0 and beds[0].full_power_s > 60
     with pytest.raises(NotFittable, match="no heater 'extruder1'"):
-        log_segments(load_log(hardware_logs_dir() / CHES), "extruder1")
+        log_segments(load_log(hardware_logs / CHES), "extruder1")
 
 
 # -- twin-fit on real captures ---------------------------------------------------------------------
@@ -195,8 +195,8 @@ def _rmse(out: str) -> float:
     return float(re.search(r"RMSE (\S+) C", out).group(1))
 
 
-def test_twin_fit_onionheater_two_node(capsys):
-    code, out, err = twin_fit(capsys, str(hardware_logs_dir() / ONION))
+def test_twin_fit_onionheater_two_node(capsys, hardware_logs):
+    code, out, err = twin_fit(capsys, str(hardware_logs / ONION))
     assert code == 0, err
     assert "Klipper heattest (open loop)" in out and re.search(r"^\s+\*\s+0\s+89\.3\.\.", out, re.M)
     assert re.search(r"^  block_heat_capacity_j_k\s+\S+\s+\+- \S+\s+identified$", out, re.M)
@@ -207,15 +207,15 @@ def test_twin_fit_onionheater_two_node(capsys):
                      r"    pid_Kd: [\d.]+$", out, re.M)
 
 
-def test_twin_fit_klipper_stats_bed_and_extruder(capsys):
-    code, out, err = twin_fit(capsys, str(hardware_logs_dir() / CHES), "--heater", "heater_bed")
+def test_twin_fit_klipper_stats_bed_and_extruder(capsys, hardware_logs):
+    code, out, err = twin_fit(capsys, str(hardware_logs / CHES), "--heater", "heater_bed")
     assert code == 0, err
     assert "power_w 220 W assumed" in out and "the pwm Klipper last sent" in " ".join(out.split())
     assert _rmse(out) < 1.0
     assert re.search(r"^  Marlin:  M304 P[\d.]+ I[\d.]+ D[\d.]+$", out, re.M) and "M306 P" not in out
     assert "    [heater_bed]\n    control: pid\n" in out
     assert "the log's own gains: pid_Kp 54.027" in out
-    code, out, err = twin_fit(capsys, str(hardware_logs_dir() / ENDER5), "--model", "fopdt", "--segment", "0")
+    code, out, err = twin_fit(capsys, str(hardware_logs / ENDER5), "--model", "fopdt", "--segment", "0")
     assert code == 0, err
     assert re.search(r"^  delay_s\s+\S+\s+(\+- \S+|at its bound)\s+(poorly |not )?identified$", out, re.M)
     assert _rmse(out) < 3.0
@@ -223,10 +223,10 @@ def test_twin_fit_klipper_stats_bed_and_extruder(capsys):
     assert 10 < kp < 80  # the printer's own PID_CALIBRATE gave 24.8
 
 
-def test_twin_fit_marlin_m303_trace(capsys):
+def test_twin_fit_marlin_m303_trace(capsys, hardware_logs):
     """The full-power heat-up of #8081 (2 s status lines) fitted with its printed relay cycle, and that
     cycle through the fitted gain."""
-    code, out, err = twin_fit(capsys, str(hardware_logs_dir() / "m303_hotend_S250_trace_marlin8081_partial.txt"),
+    code, out, err = twin_fit(capsys, str(hardware_logs / "m303_hotend_S250_trace_marlin8081_partial.txt"),
                               "--model", "fopdt")
     assert code == 0, err
     assert "* 0 lines 9..35, 0.0..52.0 s, 27 samples: full power 52 s; 2 s per status line" in " ".join(out.split())
@@ -245,30 +245,30 @@ def test_twin_fit_marlin_m303_trace(capsys):
     ("README.md", ":3: not a log of a known kind"),
     ("rrf_m303_fopdt_models_prusa_mk3s_duet3.txt", r":\d+: RepRapFirmware heater model results"),
 ])
-def test_twin_fit_refuses_what_it_cannot_fit(capsys, name, why):
-    code, out, err = twin_fit(capsys, str(hardware_logs_dir() / name))
+def test_twin_fit_refuses_what_it_cannot_fit(capsys, name, why, hardware_logs):
+    code, out, err = twin_fit(capsys, str(hardware_logs / name))
     assert code == 2 and out == ""
     assert re.fullmatch(rf"twin-fit: error: \S*/{re.escape(name)}{why}.*\n", err, re.S), err
     assert "Traceback" not in err
 
 
-def test_twin_fit_errors_name_file_and_line(capsys, tmp_path):
+def test_twin_fit_errors_name_file_and_line(capsys, tmp_path, hardware_logs):
     bad = tmp_path / "bad.csv"
     bad.write_text("t_s,temp_c,duty\n0,25,0\n1,26,x\n")
     assert twin_fit(capsys, str(bad)) == (2, "", f"twin-fit: error: {bad}:3: duty (0..1; name the column duty_pct "
                                                   "for percent): 'x' is not a number\n")
     code, _, err = twin_fit(capsys, str(tmp_path / "missing.csv"))
     assert code == 2 and err == f"twin-fit: error: {tmp_path / 'missing.csv'}: No such file or directory\n"
-    code, _, err = twin_fit(capsys, str(hardware_logs_dir() / ONION), "--segment", "9")
+    code, _, err = twin_fit(capsys, str(hardware_logs / ONION), "--segment", "9")
     assert code == 2 and "--segment 9: the segments are 0..1" in err
 
 
 @pytest.mark.parametrize("flags, flag", [(["--heater", "chamber"], "--heater"), (["--ambient", "nan"], "--ambient"),
                                          (["--ambient", "inf"], "--ambient"), (["--power-w", "-40"], "--power-w"),
                                          (["--power-w", "nan"], "--power-w")])
-def test_twin_fit_bad_flag_one_line_naming_it(flags, flag, capsys):
+def test_twin_fit_bad_flag_one_line_naming_it(flags, flag, capsys, hardware_logs):
     with pytest.raises(SystemExit) as stop:
-        main([str(hardware_logs_dir() / ONION), *flags])
+        main([str(hardware_logs / ONION), *flags])
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith(f"twin-fit: error: argument {flag}:") and len(err.strip().splitlines()) == 1

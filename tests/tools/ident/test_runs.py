@@ -10,7 +10,6 @@ import scipy.optimize
 
 from tools.ident.response import zoh_response
 from tools.ident.runs import Run, run_response
-from tools.logs import hardware_logs_dir
 from tools.validation import compare
 from twin.plants import SPECS, Plant
 
@@ -79,8 +78,8 @@ def test_the_fan_loss_of_a_later_run_is_recovered_with_its_session():
     assert abs(bias) > 1e-3
 
 
-def test_onion_fan_check_declares_and_reports_the_session():
-    r = compare.open_loop_check(hardware_logs_dir(), both_ways=False)
+def test_onion_fan_check_declares_and_reports_the_session(hardware_logs):
+    r = compare.open_loop_check(hardware_logs, both_ways=False)
     (row,) = r.rows
     assert row["predicted"] == compare.ONION_FAN_TEST and row["start"] == f"after {compare.ONION_FAN_FIT}"
     assert row["fan"] == compare.ONION_FAN

@@ -1,7 +1,8 @@
 """tools.logs against every captured hardware log (numbers from ../shared/hardware_logs/README.md),
 against malformed input, raw klippy.log lines and the twin's own Klipper Stats output.
 
-The captures are found through hardware_logs_dir(): without them these tests fail, never skip.
+The captures come from the hardware_logs fixture (tests/conftest.py): without them these tests skip locally
+and fail in CI.
 """
 
 import math
@@ -32,11 +33,15 @@ from tools.logs import (
 from twin.result import RunResult
 
 
-def _log(name: str) -> Path:
-    """A capture's path; a missing folder raises FileNotFoundError naming the variable to set."""
-    path = hardware_logs_dir() / name
-    if not path.is_file():
-        pytest.fail(f"{name} is not in {path.parent}; set {LOGS_ENV} to the shared/hardware_logs folder")
+@pytest.fixture
+def capture(hardware_logs: Path):
+    """``capture(name)``: a capture's path; a file missing from the folder fails the test, naming it."""
+
+    def path(name: str) -> Path:
+        if not (hardware_logs / name).is_file():
+            pytest.fail(f"{name} is not in {hardware_logs}; set {LOGS_ENV} to the shared/hardware_logs folder")
+        return hardware_logs / name
+
     return path
 
 
@@ -92,16 +97,16 @@ NOT_LOGS = {  # file: what load_log says about it
 }
 
 
-def test_every_capture_is_covered_here():
+def test_every_capture_is_covered_here(hardware_logs):
     """A new capture in the folder must get its expectations in this file."""
     known = set(STATS) | set(HEATTESTS) | set(HEATSHIELD) | set(M303) | {PID_RESULTS} | set(NOT_LOGS)
-    assert {p.name for p in hardware_logs_dir().iterdir()} == known
+    assert {p.name for p in hardware_logs.iterdir()} == known
 
 
 @pytest.mark.parametrize("name", STATS)
-def test_stats_captures(name):
+def test_stats_captures(name, capture):
     n_sessions, n_lines = STATS[name]
-    log = load_log(_log(name))
+    log = load_log(capture(name))
     assert isinstance(log, StatsLog)
     assert len(log.sessions) == n_sessions
     assert all(set(session) == {"extruder", "heater_bed"} for session in log.sessions)
@@ -116,27 +121,27 @@ def test_stats_captures(name):
     assert {"extruder", "heater_bed"} <= set(log.meta["config"])
 
 
-def test_stats_numbers_from_the_readme():
-    ches = load_log(_log("klippy_stats_chesleavens_cartesian_stm32f103.csv"))
+def test_stats_numbers_from_the_readme(capture):
+    ches = load_log(capture("klippy_stats_chesleavens_cartesian_stm32f103.csv"))
     bed = ches.sessions[0]["heater_bed"]
     assert bed.temp_c[bed.target_c == 65].min() < 27 and bed.temp_c.max() >= 65  # bed 26 -> 65 C
     assert {150, 200, 210, 215, 220} <= set(ches.sessions[0]["extruder"].target_c)
     assert [len(s["extruder"].segments()) for s in ches.sessions] == [2, 3]  # idle gaps: 222 s; 14 and 47 s
     assert ches.meta["config"]["extruder"]["pid_kp"] == "29.229"
 
-    ian = load_log(_log("klippy_stats_ianryeng_corexy_ebbcan.csv"))
+    ian = load_log(capture("klippy_stats_ianryeng_corexy_ebbcan.csv"))
     assert ian.meta["config"]["heater_bed"]["max_power"] == "0.8"
     assert max(s["heater_bed"].pwm.max() for s in ian.sessions) == pytest.approx(0.8)
 
-    redoubt = load_log(_log("klippy_stats_jakew02_redoubt_longprint.csv")).sessions[0]
+    redoubt = load_log(capture("klippy_stats_jakew02_redoubt_longprint.csv")).sessions[0]
     assert redoubt["heater_bed"].pwm.max() <= 0.6 and redoubt["heater_bed"].temp_c.max() >= 110
     assert redoubt["extruder"].t_s[-1] - redoubt["extruder"].t_s[0] == pytest.approx(40432, abs=1)
 
 
 @pytest.mark.parametrize("name", HEATTESTS)
-def test_heattest_captures(name):
+def test_heattest_captures(name, capture):
     n, t_first_s, t_last_s, (on_s, off_s), peak_c = HEATTESTS[name]
-    log = load_log(_log(name))
+    log = load_log(capture(name))
     assert isinstance(log, HeattestLog)
     assert (len(log.t_s), log.t_s[0], log.t_s[-1]) == (n, pytest.approx(t_first_s), pytest.approx(t_last_s))
     assert log.pwm_events[:2] == [(pytest.approx(on_s), 1.0), (pytest.approx(off_s), 0.0)]
@@ -145,9 +150,9 @@ def test_heattest_captures(name):
     assert np.median(np.diff(log.t_s)) == pytest.approx(0.3)
 
 
-def test_heattest_overshoot_after_cut_off():
+def test_heattest_overshoot_after_cut_off(capture):
     """heattest_200: cut at 200.5 C, peak 219.0 C at 221.9 s, ~20 s later (README section B)."""
-    log = load_log(_log("klipper_heattest_onionheater_heattest_200.csv"))
+    log = load_log(capture("klipper_heattest_onionheater_heattest_200.csv"))
     cut = int(np.argmax(log.pwm[1:] < log.pwm[:-1])) + 1
     assert (log.t_s[cut], log.temp_c[cut]) == (pytest.approx(201.81), 200.5)
     peak = cut + int(np.argmax(log.temp_c[cut : cut + 200]))
@@ -155,9 +160,9 @@ def test_heattest_overshoot_after_cut_off():
 
 
 @pytest.mark.parametrize("name", HEATSHIELD)
-def test_heatshield_captures(name):
+def test_heatshield_captures(name, capture):
     n, (low_c, high_c) = HEATSHIELD[name]
-    log = load_log(_log(name))
+    log = load_log(capture(name))
     assert isinstance(log, PlainLog) and log.duty_from_percent
     assert len(log.t_s) == n and np.all(np.diff(log.t_s) == 2.0)
     assert (log.temp_c.min(), log.temp_c.max()) == (low_c, high_c)
@@ -165,9 +170,9 @@ def test_heatshield_captures(name):
 
 
 @pytest.mark.parametrize("name", M303)
-def test_m303_captures(name):
+def test_m303_captures(name, capture):
     n_bias, n_ku, n_status, final_gains, rule, heater = M303[name]
-    log = load_log(_log(name))
+    log = load_log(capture(name))
     assert isinstance(log, M303Log)
     assert sum(c.bias is not None for c in log.cycles) == n_bias
     assert sum(c.ku is not None for c in log.cycles) == n_ku
@@ -177,36 +182,36 @@ def test_m303_captures(name):
     assert all(0 <= s.power <= log.power_max for s in log.status)
 
 
-def test_m303_details():
-    bed = load_log(_log("m303_bed_artillery_genius_pro_S60_configs641.txt"))
+def test_m303_details(capture):
+    bed = load_log(capture("m303_bed_artillery_genius_pro_S60_configs641.txt"))
     assert bed.commands == [(5, "M303 E-1 C8 S60")]
     assert [c.bias for c in bed.cycles] == [34, 24, 21, 20, 20, 20, 20, 20]
     assert (bed.cycles[2].ku, bed.cycles[2].tu_s, bed.cycles[2].kp) == (97.91, 36.48, 19.58)
     assert [s.heater for s in bed.status] == ["B", "B"] and bed.status[0][1:] == (59.85, 0.0, 34, "B")
 
-    prusa = load_log(_log("m303_bed_and_hotend_octoprint_calibrationcompanion26_partial.txt"))
+    prusa = load_log(capture("m303_bed_and_hotend_octoprint_calibrationcompanion26_partial.txt"))
     assert [(c.ku, c.tu_s) for c in prusa.cycles] == [(132.30, 45.37), (122.92, 47.73)]
     assert prusa.commands == [(55, "M303 E0 C5 S215")]
     hotend = [s for s in prusa.status if s.heater == "T"]
     assert len(hotend) == 10 and all(s.power == 127 for s in hotend) and math.isnan(hotend[0].target_c)
     assert any(h.startswith("Prusa-Firmware") for h in prusa.firmware_hints)
 
-    s250 = load_log(_log("m303_hotend_S250_trace_marlin8081_partial.txt"))
+    s250 = load_log(capture("m303_hotend_S250_trace_marlin8081_partial.txt"))
     assert s250.skipped == [(36, s250.skipped[0][1])]  # "@:1", cut out of "@:127 B@:0"
     assert {s.power for s in s250.status} == {127, 70, 87, 79}
     assert (s250.cycles[-1].bias, s250.cycles[-1].d, s250.cycles[-1].kd) == (206, 48, 42.96)
 
-    repetier = load_log(_log("m303_hotend_repetier_davinci356.txt"))
+    repetier = load_log(capture("m303_hotend_repetier_davinci356.txt"))
     assert repetier.power_max == 255 and repetier.status[0][1:] == (200.0, 0.0, 86, "T")
     assert any("failed" in h for h in repetier.firmware_hints)
 
-    mpc = load_log(_log("marlin_m306_mpc_autotune_revo_pr23984_partial.txt"))
+    mpc = load_log(capture("marlin_m306_mpc_autotune_revo_pr23984_partial.txt"))
     assert [s.temp_c for s in mpc.status] == [148.08, 151.23, 154.96, 157.94, 160.87]
     assert {(s.target_c, s.power) for s in mpc.status} == {(200.0, 127)}
 
 
-def test_pid_calibrate_results():
-    results = load_log(_log(PID_RESULTS))
+def test_pid_calibrate_results(capture):
+    results = load_log(capture(PID_RESULTS))
     assert all(isinstance(r, PidCalibrateResult) for r in results)
     assert len(results) == 20  # [1]-[4], four of [5], twelve pid_kp rows of [6] (KP3S is in another form)
     by_line = {r.line_no: r for r in results}
@@ -224,14 +229,14 @@ def test_pid_calibrate_results():
     for r in results:
         if r.source.startswith("[6]"):
             assert r.tu_s == pytest.approx(r.tu_from_kd_s, rel=1e-3)
-            config = load_log(_log(r.source.split()[1])).meta["config"][r.heater]
+            config = load_log(capture(r.source.split()[1])).meta["config"][r.heater]
             assert [float(config[k]) for k in ("pid_kp", "pid_ki", "pid_kd")] == [r.kp, r.ki, r.kd]
 
 
 @pytest.mark.parametrize("name", NOT_LOGS)
-def test_files_that_are_not_logs(name):
+def test_files_that_are_not_logs(name, capture):
     with pytest.raises(LogError, match=re.escape(NOT_LOGS[name])):
-        load_log(_log(name))
+        load_log(capture(name))
 
 
 def test_missing_logs_folder_is_a_clear_error(monkeypatch, tmp_path):

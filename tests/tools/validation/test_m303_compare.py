@@ -6,7 +6,7 @@ import pytest
 
 from tools.cli import compare as compare_cli
 from tools.ident.segments import NotFittable, log_segments
-from tools.logs import hardware_logs_dir, load_log
+from tools.logs import load_log
 from tools.validation import m303_compare
 from tools.validation.m303_compare import GOAL_TU_REL, IN, relay_stats, twin_noise_lsb
 from twin.sensor import SensorChain
@@ -38,17 +38,17 @@ def test_target_estimated_from_the_switches():
     assert estimate_target_c(temp_c, np.ones(6, bool)) is None
 
 
-def test_ambient_from_the_idle_bed_else_the_prior():
-    assert ambient_hint_c(load_log(hardware_logs_dir() / ENDER)) == 30.0  # B:30.00 /0.00 ... B@:0
+def test_ambient_from_the_idle_bed_else_the_prior(hardware_logs):
+    assert ambient_hint_c(load_log(hardware_logs / ENDER)) == 30.0  # B:30.00 /0.00 ... B@:0
     # the Artillery bed run's idle hotend reads 56-61 C: still hot, not the room
-    assert ambient_hint_c(load_log(hardware_logs_dir() / "m303_bed_artillery_genius_pro_S60_configs641.txt")) \
+    assert ambient_hint_c(load_log(hardware_logs / "m303_bed_artillery_genius_pro_S60_configs641.txt")) \
         == AMBIENT_PRIOR_C
 
 
-def test_bed_capture_without_its_m303_line_by_heater_flag():
+def test_bed_capture_without_its_m303_line_by_heater_flag(hardware_logs):
     """The Prusa bed run's M303 line is not in the capture (only the later hotend's M303 E0 S215): the
     bed is chosen by --heater heater_bed, its target estimated from the switches, not taken from E0's S215."""
-    log = load_log(hardware_logs_dir() / PRUSA_BED)
+    log = load_log(hardware_logs / PRUSA_BED)
     heater, (seg,) = log_segments(log, "heater_bed")
     assert heater == "heater_bed" and seg.target_c == 60.0 and "estimated" in seg.note
     assert not seg.observed.all()  # switch instants inserted, and the burn-in before the first one
@@ -56,8 +56,8 @@ def test_bed_capture_without_its_m303_line_by_heater_flag():
         log_segments(log, "extruder")  # the hotend's 10-line heat-up is too short
 
 
-def test_relay_stats_means_over_the_printed_cycles():
-    stats = relay_stats(load_log(hardware_logs_dir() / ENDER).cycles)
+def test_relay_stats_means_over_the_printed_cycles(hardware_logs):
+    stats = relay_stats(load_log(hardware_logs / ENDER).cycles)
     assert stats.cycles == 4 and stats.tu_s == pytest.approx((10.58 + 10.74 + 10.26 + 10.42) / 4)
     assert stats.swing_c == pytest.approx(np.mean([214.37 - 206.02, 214.53 - 206.25, 213.75 - 206.21, 213.83 - 206.25]))
 
@@ -79,10 +79,10 @@ def test_twin_noise_gives_the_readings_the_noise_asked_for(temp_c, noise_c):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("capture", [ENDER, PRUSA_BED])
-def test_twin_compare_m303_in_sample_is_listed_not_counted(capture, capsys):
+def test_twin_compare_m303_in_sample_is_listed_not_counted(capture, capsys, hardware_logs):
     """Fitted on all its printed cycles, a capture gives in-sample rows only: listed, and the summary
     counts none of them; every line within 120 columns."""
-    assert compare_cli.main([str(hardware_logs_dir() / capture)]) == 0
+    assert compare_cli.main([str(hardware_logs / capture)]) == 0
     out = capsys.readouterr().out
     assert any(line.startswith(IN) and "listed, not scored" not in line for line in out.splitlines())
     assert "summary: no out-of-sample row" in out
@@ -90,11 +90,11 @@ def test_twin_compare_m303_in_sample_is_listed_not_counted(capture, capsys):
 
 
 @pytest.mark.slow
-def test_a_noiseless_twin_crosses_a_bed_target_late():
+def test_a_noiseless_twin_crosses_a_bed_target_late(hardware_logs):
     """Why the twin's ADC is dithered in the comparison: on the Prusa bed's fitted plant a noiseless
     chain (0.2 C steps at 60 C) sees each crossing up to a step late and its period comes out
     more than 10 % long (the in-sample fit, all printed cycles)."""
-    r = m303_compare.m303_check(hardware_logs_dir() / PRUSA_BED, "heater_bed")
+    r = m303_compare.m303_check(hardware_logs / PRUSA_BED, "heater_bed")
     assert r.noise_lsb == m303_compare.DITHER_LSB  # fitted to relay results: dither only
     quiet = m303_compare.run_twin_m303("fit", r.spec, r.heater, r.ambient_c, r.target_c, r.ncycles, "1.1",
                                        noise_lsb=0.0)

@@ -87,6 +87,9 @@ def test_parse_idle_speed():
             parse_idle_speed(bad)
 
 
+@pytest.mark.slow
+
+
 def test_default_twin_serial_heats_and_reports_while_the_host_only_reads(tmp_path):
     """The issue's acceptance: M155 S1 and M104 S200, then only reading."""
     with twin_serial(tmp_path=tmp_path) as (_, path):

@@ -21,6 +21,7 @@ import os
 import select
 import time
 
+import pytest
 import serial
 
 import protocol  # noqa: F401  registers twin://
@@ -61,6 +62,9 @@ def rss_mb() -> float:
         return next(int(line.split()[1]) for line in status if line.startswith("VmRSS:")) / 1024
 
 
+@pytest.mark.slow
+
+
 def test_fuzzed_lines_over_twin_url_get_marlin_replies_only(caplog):
     caplog.set_level(logging.ERROR)
     unanswered, shapes, resets = [], [], 0
@@ -88,6 +92,9 @@ def test_fuzzed_lines_over_twin_url_get_marlin_replies_only(caplog):
     assert internal_errors == 0 and caplog.records == []  # no command raised
     assert resets < FUZZ_LINES / 10  # the host mostly got its answers without a reset
     assert growth_mb < RSS_GROWTH_BOUND_MB
+
+
+@pytest.mark.slow
 
 
 def test_fuzzed_lines_over_a_pty_never_stop_the_server(tmp_path):

@@ -240,6 +240,9 @@ def split_lines(path: Path) -> int:
                if direction == ">" and isinstance(data, bytes))
 
 
+@pytest.mark.slow
+
+
 def test_printcore_prints_through_a_noisy_wire(tmp_path):
     if printcore is None:
         pytest.skip("Printrun is not installed (pip install --no-deps Printrun==2.2.0)")

@@ -8,6 +8,7 @@ from __future__ import annotations
 import re
 import time
 
+import pytest
 import serial
 from tests.helpers.serial_host import READ_TIMEOUT_S, expect, twin_serial
 
@@ -28,6 +29,9 @@ def classic_pid_bounds(ku: float, tu: float) -> list[tuple[float, float]]:
     ki = (2 * kp[0] / tu_range[1], 2 * kp[1] / tu_range[0])
     kd = (kp[0] * tu_range[0] / 8, kp[1] * tu_range[1] / 8)
     return [(low - PRINTED, high + PRINTED) for low, high in (kp, ki, kd)]
+
+
+@pytest.mark.slow
 
 
 def test_m303_over_a_pty_reports_and_applies_classic_pid(tmp_path):

@@ -90,6 +90,9 @@ def test_a_host_that_never_reads_stalls_the_printer_not_the_memory():
         assert port.read_until(b"ok T:").endswith(b"ok T:")  # it serves again once the host reads
 
 
+@pytest.mark.slow
+
+
 def test_moves_at_ever_new_feeds_keep_the_model_cache_bounded():
     """Each feed rate is a new filament flow, so a new plant discretisation (about 1 MB); the
     issue's 20 000-move stream is ``N_MOVES=20000`` (five minutes here), CI runs 2 000."""

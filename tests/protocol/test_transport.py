@@ -39,6 +39,9 @@ def pty_twin(tmp_path_factory):
         yield path, link, log
 
 
+@pytest.mark.slow
+
+
 def test_pty_answers_m115_and_m105(pty_twin):
     path, _, _ = pty_twin
     with serial.Serial(path, 115200, timeout=READ_TIMEOUT_S) as port:
@@ -97,6 +100,7 @@ def test_transcript_records_both_directions(pty_twin):
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.slow
 def test_signal_stops_cleanly_and_removes_the_link(tmp_path, signum):
     link = tmp_path / "printer"
     with twin_serial("--link", str(link), tmp_path=tmp_path) as (proc, path):
@@ -108,6 +112,7 @@ def test_signal_stops_cleanly_and_removes_the_link(tmp_path, signum):
 
 
 # -- TCP, as pyserial's socket:// and Pronterface's host:port use it ---------------------------------
+@pytest.mark.slow
 def test_tcp_serves_and_each_connection_resets(tmp_path):
     with twin_serial("--tcp", "127.0.0.1:0", tmp_path=tmp_path) as (_, address):
         assert re.fullmatch(r"127\.0\.0\.1:\d+", address)
@@ -211,11 +216,15 @@ def test_pacer_host_driven_at_max_waits_for_the_host_when_idle():
 
 
 # -- CLI errors: one message, exit 2 -------------------------------------------------------------------
+@pytest.mark.slow
 def test_bad_speed_exits_2_with_a_message():
     result = run_cli("--speed", "fast")
     assert result.returncode == 2
     assert "speed must be 'max' or a positive number" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.slow
 
 
 def test_bad_scenario_file_exits_2_with_a_message(tmp_path):
@@ -227,6 +236,9 @@ def test_bad_scenario_file_exits_2_with_a_message(tmp_path):
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
+
+
 def test_port_in_use_exits_2_with_a_message():
     with socket.create_server(("127.0.0.1", 0)) as taken:
         port = taken.getsockname()[1]
@@ -234,6 +246,9 @@ def test_port_in_use_exits_2_with_a_message():
     assert result.returncode == 2
     assert f"cannot listen on 127.0.0.1:{port}" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.slow
 
 
 def test_settings_file_not_written_by_the_twin_is_refused_and_left_alone(tmp_path):
@@ -251,6 +266,9 @@ def test_settings_file_m500_wrote_is_accepted(tmp_path):
     printer.receive(b"M500\n")
     assert eeprom.exists()
     assert build_printer(settings=str(eeprom)).take_output().decode().count("stored settings retrieved") == 1
+
+
+@pytest.mark.slow
 
 
 def test_help_has_examples():

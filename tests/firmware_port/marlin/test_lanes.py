@@ -152,6 +152,7 @@ def _assert_same_batches(a: BatchTwin, b: BatchTwin) -> None:
     st.lists(st.tuples(st.floats(0.0, 80.0), st.sampled_from([0, 150, 210, 260, 300])), min_size=1, max_size=4),
     st.floats(1.0, 90.0),
 )
+@pytest.mark.slow
 def test_kernel_equals_numpy_lanes(gains, mode, preset, initial_c, events, duration_s):
     """The compiled loop and the numpy lanes: same records and state, bit for bit, through target
     changes at any tick (periods of every length), protection trips (MINTEMP from cold, MAXTEMP

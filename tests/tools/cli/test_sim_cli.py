@@ -184,6 +184,9 @@ def test_a_missing_output_folder_is_refused_as_twin_compare_refuses_it(capsys, t
     assert not path.parent.exists()
 
 
+@pytest.mark.slow
+
+
 def test_progress_goes_to_a_terminal_only(tmp_path):
     """tqdm on stderr when it is a terminal; nothing when it is a file or a pipe."""
     import fcntl

@@ -19,6 +19,9 @@ BEST = re.compile(r"^best: (\S+)\s+Kp (\S+) Ki (\S+) Kd (\S+)\s+cost (\S+)\s+\((
                   r"M303 C8: Kp \S+ Ki \S+ Kd \S+\s+cost (\S+); (?:beats|does not beat) defaults: ", re.M)
 
 
+@pytest.mark.slow
+
+
 def test_every_rule_on_hotend_cartridge_beats_or_loses_to_m303_and_the_best_beats_it(capsys, tmp_path):
     """The acceptance run: the best rule beats the twin's own M303 C8 on the heater objective."""
     plot = tmp_path / "tune.png"
@@ -85,6 +88,9 @@ def test_a_missing_log_is_one_line(capsys, tmp_path):
     assert err.count("\n") == 1 and "none.csv" in err
 
 
+@pytest.mark.slow
+
+
 def test_a_tune_on_a_local_dask_cluster_equals_in_process():
     """Same seed, DE's three generations of 45 on two workers: the same gains and costs."""
     problem = preset_problem("hotend_cartridge", 210)
@@ -94,6 +100,9 @@ def test_a_tune_on_a_local_dask_cluster_equals_in_process():
     assert [c.method for c in remote.candidates] == [c.method for c in local.candidates]
     for a, b in zip(local.candidates + local.references, remote.candidates + remote.references, strict=True):
         assert (a.gains, a.cost) == (b.gains, b.cost)  # identical chunks, identical arithmetic
+
+
+@pytest.mark.slow
 
 
 def test_the_rules_table_in_the_docs_is_current():

@@ -39,6 +39,9 @@ def radiating_choice():
     return fit_losses("two_node", *_noisy(RADIATING, seed=4), ambient_c=AMBIENT_C)
 
 
+@pytest.mark.slow
+
+
 def test_radiating_plant_is_recovered_and_kept_by_aic(radiating_choice):
     fits, kept = radiating_choice
     assert kept == "radiating" and aic(fits["radiating"]) < aic(fits["linear"])
@@ -54,6 +57,7 @@ def test_radiating_plant_is_recovered_and_kept_by_aic(radiating_choice):
     assert fits["linear"].rmse_c > 2 * NOISE_C  # a constant loss cannot follow it
 
 
+@pytest.mark.slow  # shares radiating_choice (about 40 s) with the two above and below
 def test_radiating_fit_power_free_numbers_match_a_simulation(radiating_choice):
     """The rise at full power solves P = (A + h(T)) (T - Ta): the fitted plant held at full power for
     40 of its near-ambient loss time constants settles there (e^-40: nothing left), and the FOPDT
@@ -68,6 +72,9 @@ def test_radiating_fit_power_free_numbers_match_a_simulation(radiating_choice):
     assert fopdt_equivalent(fit).gain_c == pytest.approx(derived["rise_at_full_power_c"], rel=1e-9)
 
 
+@pytest.mark.slow
+
+
 def test_fit_model_auto_and_radiating_return_fit_losses_fits(radiating_choice):
     """fit_model's loss="auto" is fit_losses's kept fit, loss="radiating" its radiating one (the same
     computation: equal to the last digits)."""
@@ -76,6 +83,9 @@ def test_fit_model_auto_and_radiating_return_fit_losses_fits(radiating_choice):
         result = fit_model("two_node", t_s, temp_c, duty, AMBIENT_C, loss=loss)
         assert result.loss == "radiating"
         assert result.params == pytest.approx(radiating_choice.fits["radiating"].params, rel=1e-9)
+
+
+@pytest.mark.slow
 
 
 def test_linear_plant_keeps_the_linear_loss():

@@ -44,6 +44,7 @@ def _noisy(spec, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 # -- recovery from synthetic data -------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model, spec, truth", [
     ("fopdt", TransferFunction(300.0, 1.0, lag1_s=80.0, delay_s=4.0),
      {"gain_c": 300.0, "time_constant_s": 80.0, "delay_s": 4.0}),
@@ -63,6 +64,9 @@ def test_recovers_known_parameters_within_their_standard_errors(model, spec, tru
     assert result.n_samples == len(t_s) and result.max_abs_residual_c < 5 * NOISE_C
     # simulate() reproduces what the residuals were taken from
     np.testing.assert_allclose(result.simulate(t_s, duty) - temp_c, result.residuals_c, atol=1e-9)
+
+
+@pytest.mark.slow
 
 
 def test_three_node_reaches_the_noise_and_the_loss():
@@ -119,6 +123,9 @@ def test_relay_formula_inverts_the_ultimate_point():
     assert relay_fopdt(ku, tu_s, plant.gain_c) == pytest.approx(plant, rel=1e-6)
     with pytest.raises(ValueError, match="needs K Ku > 1"):
         relay_fopdt(ku, tu_s, 0.5 / ku)
+
+
+@pytest.mark.slow
 
 
 def test_fopdt_equivalent_and_amigo_gains():

@@ -82,6 +82,9 @@ def test_fast_engine_feeds_the_firmware_the_reference_samples_and_pins(firmware)
     assert np.max(np.abs(true_f - true_r)) < 1e-9
 
 
+@pytest.mark.slow
+
+
 def test_fast_engine_equals_reference_through_m303_with_dead_time_plant():
     """M303's 2 s deadlines split the fast engine's periods; a dead-time plant keeps its history."""
     sc = scenario("""
@@ -98,6 +101,9 @@ preset = "seed001_fopdt"
     assert fast.console.text == ref.console.text
     assert fast.console.text.startswith("PID Autotune start\n T:")
     assert rec_f.samples == rec_r.samples and rec_f.inputs == rec_r.inputs
+
+
+@pytest.mark.slow
 
 
 def test_nonlinear_plant_state_error_is_bounded():

@@ -164,6 +164,9 @@ def test_nelder_mead_result_is_the_seed_loop_crossing_not_a_settled_loop():
     assert r.evidence["seed_final_value_c"] == pytest.approx(100 * s0.SETPOINT_C)
 
 
+@pytest.mark.slow
+
+
 def test_de_reproduces_the_printed_metrics_with_a_small_budget():
     # The printed run (popsize 50, 1000 generations) takes minutes; the optimum it finds is where the
     # seed's rising response crosses 50 exactly at t = 50 s, which a small seeded run also finds.
@@ -172,6 +175,9 @@ def test_de_reproduces_the_printed_metrics_with_a_small_budget():
     assert r.evidence["seed_final_value_c"] == pytest.approx(s0.PLANT_GAIN_C_W * s0.SETPOINT_C)
     assert r.evidence["seed_slope_at_end_c_s"] > 0.1  # still rising at the "steady state"
     assert r.evidence["correct_max_pole_real"] < 0  # the same gains are stable in a correct loop
+
+
+@pytest.mark.slow
 
 
 def test_pso_seeded_run_lands_within_a_redraw_of_the_printed_one():
@@ -214,6 +220,9 @@ def test_gaussian_scheduler_on_a_saturating_heater_overshoots_more_than_in_the_s
     # 40 W, into a second-order plant: the same law overshoots far beyond its printed 6.38 %.
     m = s0.twin_step(lambda: SeedController(gaussian_law()), duration_s=120.0)
     assert m.reached and m.overshoot_pct is not None and m.overshoot_pct > 2 * 6.38
+
+
+@pytest.mark.slow
 
 
 def test_takagi_sugeno_anfis_fits_the_labels():

@@ -40,6 +40,9 @@ def test_ideal_loop_is_exact_for_an_open_loop_step():
         closed_loop(plant, lambda e: 1.0, 1.0, 10.0, 0.7)
 
 
+@pytest.mark.slow
+
+
 def test_verdicts(result):
     """The literal reading (the paper's scaling factors 1) is unstable: it grows without bound in
     the paper's loop and drives the twin's hotend into MAXTEMP; the incremental one and ZN's PID
@@ -55,6 +58,7 @@ def test_verdicts(result):
     assert result.literal_ki_at_setpoint == pytest.approx(1.5, abs=1e-9)  # ZO: the centre of [0, 3]
 
 
+@pytest.mark.slow  # the module's result fixture: about 10 s
 def test_numbers(result):
     """ZN from the model (closed forms, 1e-6); the step metrics of deterministic simulations
     (float arithmetic only: 1 % covers another machine's libm and BLAS by orders of magnitude)."""
@@ -69,6 +73,7 @@ def test_numbers(result):
     assert fuzzy_ideal.settling_time_2pct_s == pytest.approx(242.7, rel=0.01)
 
 
+@pytest.mark.slow  # the module's result fixture
 def test_twin_agrees_with_the_ideal_loop_for_the_stable_loops(result):
     """For the stable loops the integer twin (ADC, table, 7-bit PWM, 0.164 s sampling, a heater
     saturating at 2000 units of the paper's input, twice what 180 C needs) stays within 2 points

@@ -55,6 +55,9 @@ def test_printed_platform_gains_diverge_on_the_printed_model() -> None:
         assert numbers.overshoot_pct > 100 and numbers.settling_time_s is None
 
 
+@pytest.mark.slow
+
+
 def test_reproduce_is_deterministic_and_reports_both_optimisers() -> None:
     settings = {"seed": 1, "population": 8, "iterations": 6, "sample_s": COARSE_S, "reference_budget": 90}
     first, again = seed002.reproduce(**settings), seed002.reproduce(**settings)

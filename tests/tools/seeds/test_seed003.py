@@ -15,9 +15,15 @@ from tools.seeds.seed003 import (
 SWING_SPLIT_C = 2.0
 
 
+pytestmark = pytest.mark.slow  # every test reads the module's report, about 10 s to build
+
+
 @pytest.fixture(scope="module")
 def report():
     return reproduce()
+
+
+@pytest.mark.slow
 
 
 def test_printed_expanded_model_is_the_factored_one(report):

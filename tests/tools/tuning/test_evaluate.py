@@ -118,6 +118,9 @@ def test_m303_on_the_twin_gives_working_gains():
     assert np.all(np.isfinite(heater_cost(run)))
 
 
+@pytest.mark.slow
+
+
 def test_the_klipper_loop_runs_klippers_pid_and_its_pid_calibrate():
     """--firmware klipper: PID_CALIBRATE on the twin, then its gains through Klipper's PID."""
     problem = replace(preset_problem("hotend", 210), loop="klipper")

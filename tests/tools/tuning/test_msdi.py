@@ -79,6 +79,9 @@ def test_the_zero_keeps_a_slow_root_right_of_minus_j():
     assert roots_right_of(SEED003, result.gains, 0.0) == 0
 
 
+@pytest.mark.slow
+
+
 def test_msdi_on_the_preset_in_duty_units():
     """The twin's seed003_third preset takes heater duty (input_full_scale 550 of the paper's
     units): the same method on it gives the paper-unit gains divided by 550 (then x 255 as Gains)."""

@@ -20,6 +20,9 @@ def reduced() -> optimtable.PlantResult:
     return optimtable.run_plant(REDUCED_PLANT, REDUCED_BUDGET, seed=0)
 
 
+@pytest.mark.slow
+
+
 def test_reduced_run_beats_m303_and_matches_the_best_rule(reduced) -> None:
     assert reduced.m303 is not None
     for method in optimtable.OPTIMISERS:
@@ -29,6 +32,7 @@ def test_reduced_run_beats_m303_and_matches_the_best_rule(reduced) -> None:
         assert reduced.accepted(method)
 
 
+@pytest.mark.slow  # the module's reduced run: about 6 s
 def test_optimiser_gains_reproduce_their_cost(reduced) -> None:
     """The stated cost is the cost of the stated gains: rescoring them gives it back (same machine)."""
     from tools.tuning.evaluate import score

@@ -118,6 +118,9 @@ def test_bad_models_are_one_line_errors():
         tune("nope", model_of(SPECS["seed001_fopdt"]))
 
 
+@pytest.mark.slow
+
+
 def test_registry_tunes_every_seed_plant_with_every_rule():
     """Every rule runs on every seed model with a dead time, gives finite non-negative gains, and
     the ultimate-cycle rules see the model's own crossover."""

@@ -1,16 +1,20 @@
 """Hypothesis profiles: 'dev' (quick, random) and 'ci' (derandomised, more examples); the AVR toolchain;
-servers a test starts, always stopped.
+the hardware logs; servers a test starts, always stopped.
 
-CI sets CI=true, which selects 'ci'; HYPOTHESIS_PROFILE overrides either way.
+CI sets CI=true, which selects 'ci'; HYPOTHESIS_PROFILE overrides either way. What a clone may lack (the
+AVR toolchain, ../shared/hardware_logs) skips a test locally with the reason and fails it in CI.
 """
 
 import os
 import subprocess
+from pathlib import Path
+from typing import NoReturn
 
 import pytest
 from hypothesis import HealthCheck, settings
 
 from firmware_port.avr.toolchain import Toolchain, ToolchainMissing, find_toolchain
+from tools.logs.location import hardware_logs_dir
 
 STOP_TIMEOUT_S = 20  # a test's server gets this long to exit after SIGTERM, then SIGKILL
 
@@ -33,11 +37,50 @@ def avr_toolchain() -> Toolchain:
     try:
         return find_toolchain()
     except ToolchainMissing as exc:
-        if os.environ.get("CI"):
-            pytest.fail(str(exc), pytrace=False)
-        pytest.skip(str(exc))
-def pytest_configure(config):
-    config.addinivalue_line("markers", "slow: takes over about 5 s (leave out locally with -m 'not slow')")
+        unavailable(str(exc))
+
+
+def unavailable(reason: str) -> NoReturn:
+    """What a test needs is missing: it fails in CI (CI set) and skips elsewhere, with ``reason``."""
+    if os.environ.get("CI"):
+        pytest.fail(reason, pytrace=False)
+    pytest.skip(reason)
+
+
+@pytest.fixture(scope="session")
+def hardware_logs() -> Path:
+    """The captured hardware logs (tools.logs.location: $HEATER_TWIN_HARDWARE_LOGS, else ../shared/hardware_logs).
+    A clone without them skips the test locally and fails it in CI. Every test that reads a capture, itself
+    or through a library function, asks for this fixture (or ``hardware_log``)."""
+    try:
+        return hardware_logs_dir()
+    except FileNotFoundError as exc:
+        unavailable(str(exc))
+
+
+def pytest_generate_tests(metafunc):
+    """``@pytest.mark.each_hardware_log(pattern, exclude=names)``: one case per capture matching the glob
+    ``pattern``, named by its file, run with the ``hardware_log`` fixture; the folder is read here, at
+    collection, never at import. Without the folder there is one case, which ``hardware_logs`` skips (fails
+    in CI)."""
+    marker = metafunc.definition.get_closest_marker("each_hardware_log")
+    if marker is None:
+        return
+    pattern, exclude = marker.args[0], set(marker.kwargs.get("exclude", ()))
+    try:
+        names = sorted(p.name for p in hardware_logs_dir().glob(pattern) if p.name not in exclude)
+    except FileNotFoundError:
+        names = []
+    metafunc.parametrize("hardware_log", names or [pytest.param(None, id="no-capture")], indirect=True)
+
+
+@pytest.fixture
+def hardware_log(request, hardware_logs: Path) -> Path:
+    """The capture of a test marked ``each_hardware_log`` (see pytest_generate_tests)."""
+    if request.param is None:
+        marker = request.node.get_closest_marker("each_hardware_log")
+        pytest.fail(f"no capture in {hardware_logs} matches {marker.args[0]!r}", pytrace=False)
+    return hardware_logs / request.param
 
 
 @pytest.fixture

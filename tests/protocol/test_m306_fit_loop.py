@@ -2,8 +2,8 @@
 real capture, load the printed line into the twin (twin-sim --mpc-from), build the twin of that
 plant, run Marlin's M306 T on it over the serial layer, and find the fitted constants again.
 
-The capture is the Kingroon KP3S extruder's Klipper Stats log (hardware_logs_dir(): a missing
-folder fails the test, it never skips). Tolerance 10 %: Marlin's method is approximate (R read
+The capture is the Kingroon KP3S extruder's Klipper Stats log (the hardware_logs fixture: without
+the logs the test skips locally and fails in CI). Tolerance 10 %: Marlin's method is approximate (R read
 from the sensor's lag at one sample, A and F from 20 s windows whose stored-heat term sees the
 reading step by one ADC count); it lands within 4 % on the two-node ``hotend`` preset, and the
 issue's bound for that preset is 10 %. Where a plant's sensor is much slower or faster than
@@ -19,7 +19,6 @@ from protocol.mpc_commands import mpc_constants_from_text
 from protocol.printer import VirtualPrinter
 from tools.cli.fit import main as twin_fit
 from tools.cli.sim import main as twin_sim
-from tools.logs import hardware_logs_dir
 from twin.build import build_twin
 from twin.scenario import parse_scenario, with_overrides
 
@@ -38,8 +37,8 @@ def plant_of(constants) -> dict[str, float | str]:
 
 
 @pytest.mark.slow
-def test_m306_t_on_the_twin_of_a_fitted_plant_finds_the_fit_again(tmp_path, capsys):
-    assert twin_fit([str(hardware_logs_dir() / LOG)]) == 0
+def test_m306_t_on_the_twin_of_a_fitted_plant_finds_the_fit_again(tmp_path, capsys, hardware_logs):
+    assert twin_fit([str(hardware_logs / LOG)]) == 0
     fit_text = capsys.readouterr().out
     fitted = mpc_constants_from_text(fit_text)  # the "Marlin:  M306 P.. C.. R.. A.. F.." line
 

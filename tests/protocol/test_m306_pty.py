@@ -10,15 +10,12 @@ The wall time is measured and printed (-s shows it), never asserted.
 from __future__ import annotations
 
 import re
-import select
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 import serial
 
+from tests.helpers.serial_host import START_TIMEOUT_S, expect, twin_serial
 from tools.validation.golden_m306 import COMMAND, GOLDEN_M306_PATH
 from twin.plants import (
     MPC_AMBIENT_XFER_FAN255_W_K,
@@ -27,8 +24,6 @@ from twin.plants import (
     MPC_SENSOR_RESPONSIVENESS_PER_S,
 )
 
-ROOT = Path(__file__).resolve().parents[2]
-START_S = 30  # interpreter start and imports on a loaded machine
 DEADLINE_S = 60  # the whole autotune, wall; it takes about a second on an idle machine
 FINISHED = "MPC Autotune finished! Put the constants below into Configuration.h"
 PLANT = {  # what the four lines name, and the plant's value of each
@@ -42,48 +37,20 @@ PLANT = {  # what the four lines name, and the plant's value of each
 TOLERANCE = 0.10
 
 
-def read_until(port: serial.Serial, pattern: str, deadline_s: float) -> list[str]:
-    """Lines up to and including the first that matches; fails at the deadline."""
-    lines, end = [], time.monotonic() + deadline_s
-    while time.monotonic() < end:
-        line = port.readline().decode("latin-1").rstrip("\r\n")
-        if line:
-            lines.append(line)
-            if re.search(pattern, line):
-                return lines
-    pytest.fail(f"nothing matched {pattern!r} within {deadline_s} s; last lines: {lines[-5:]}")
-
-
 @pytest.fixture
 def mpc_port(tmp_path):
     """twin-serial --firmware mpc on a pty, host-driven while idle; the port, closed whatever happens."""
-    with open(tmp_path / "stderr.txt", "w+") as stderr:
-        proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serial", "--firmware", "mpc", "--speed", "max",
-                                 "--idle-speed", "0"], stdout=subprocess.PIPE, stderr=stderr, text=True, cwd=ROOT)
-        try:
-            ready, _, _ = select.select([proc.stdout], [], [], START_S)
-            path = proc.stdout.readline().strip() if ready else ""
-            if not path:
-                stderr.seek(0)
-                pytest.fail(f"twin-serial printed no address; stderr: {stderr.read()}")
-            with serial.Serial(path, 115200, timeout=1) as port:
-                yield port
-        finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-            proc.stdout.close()
+    with twin_serial("--firmware", "mpc", "--speed", "max", "--idle-speed", "0", tmp_path=tmp_path) as (_, path):
+        with serial.Serial(path, 115200, timeout=1) as port:
+            yield port
 
 
 @pytest.mark.slow  # a process start and the tune: about 6 s on a loaded machine
 def test_m306_t_over_a_pty_matches_the_golden_transcript(mpc_port):
-    read_until(mpc_port, r"^echo:  M306 E0 ", START_S)  # the banner's last line: the settings report
+    expect(mpc_port, r"^echo:  M306 E0 ", START_TIMEOUT_S)  # the banner's last line: the settings report
     start_s = time.monotonic()
     mpc_port.write(COMMAND.encode() + b"\n")
-    got = read_until(mpc_port, r"^ok$", DEADLINE_S)
+    got = expect(mpc_port, r"^ok$", DEADLINE_S)
     print(f"\nM306 T over the pty: {time.monotonic() - start_s:.2f} s wall, {len(got)} lines")
 
     expected = GOLDEN_M306_PATH.read_text().splitlines()

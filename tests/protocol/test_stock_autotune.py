@@ -10,7 +10,6 @@ import pytest
 
 from firmware_port.firmwares import STOCK_BED_GAINS, STOCK_HOTEND_GAINS
 from protocol.build import build_printer
-from tools.logs.location import hardware_logs_dir
 from tools.logs.m303 import parse_m303
 
 TYPICAL_TU_S = (10.0, 25.0)  # where most hotend captures' periods lie (issue 23; computed below)
@@ -32,9 +31,9 @@ def hotend_tune() -> str:
 
 
 @pytest.fixture(scope="module")
-def captures() -> dict[str, np.ndarray]:
+def captures(hardware_logs) -> dict[str, np.ndarray]:
     """Per relay cycle of every hotend M303 capture: Tu, swing (max - min) and the printed gains."""
-    cycles = [c for path in sorted(hardware_logs_dir().glob("m303_hotend_*.txt")) for c in parse_m303(path).cycles]
+    cycles = [c for path in sorted(hardware_logs.glob("m303_hotend_*.txt")) for c in parse_m303(path).cycles]
     return {
         "tu_s": np.array([c.tu_s for c in cycles if c.tu_s]),
         "swing_c": np.array([c.max_c - c.min_c for c in cycles if c.tu_s]),

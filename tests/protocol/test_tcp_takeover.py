@@ -42,6 +42,9 @@ def _read_until(sock: socket.socket, marker: bytes) -> bytes:
     return data
 
 
+@pytest.mark.slow
+
+
 def test_a_new_connection_takes_over_from_a_silent_one(tcp_printer):
     silent = socket.create_connection(tcp_printer, timeout=READ_TIMEOUT_S)
     try:

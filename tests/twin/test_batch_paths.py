@@ -112,6 +112,9 @@ def test_dead_time_lanes_run_as_the_scalar_twin():
         _assert_lane_is_the_twin(tripping, lane, _scalar("seed001_fopdt", PidFixed(g), 200.0))
 
 
+@pytest.mark.slow
+
+
 def test_radiating_lanes_are_relinearised_as_the_scalar_twin():
     """The radiating fit of hotend_cartridge: every period on the model of the block's 0.5 C bin."""
     gains = [PidGains(22.2, 1.08, 114.0), PidGains(40.0, 3.0, 60.0)]

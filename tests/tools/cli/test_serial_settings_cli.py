@@ -5,6 +5,11 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
+
+@pytest.mark.slow
+
 
 def test_an_unwritable_settings_path_is_a_usage_error():
     proc = subprocess.run([sys.executable, "-m", "tools.cli.serial", "--settings", "/proc/x.json"],

@@ -10,15 +10,12 @@ import pytest
 
 from tools.cli import fit as fit_cli
 from tools.cli import tune as tune_cli
-from tools.logs import hardware_logs_dir
-
-LOGS = sorted(p.name for p in hardware_logs_dir().iterdir() if p.name != "README.md")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", LOGS)
-def test_twin_tune_tunes_what_twin_fit_fits(capsys, name):
-    path = str(hardware_logs_dir() / name)
+@pytest.mark.each_hardware_log("*", exclude=["README.md"])
+def test_twin_tune_tunes_what_twin_fit_fits(capsys, hardware_log):
+    path = str(hardware_log)
     fitted = fit_cli.main([path])
     fit_out = capsys.readouterr().out
     tuned = tune_cli.main(["--from-log", path, "--method", "rules", "--proof", "0", "--plot", "none"])

@@ -9,7 +9,7 @@ import pytest
 from tools.cli.fit import EXIT_DEGENERATE, main
 from tools.ident.log_fit import MAX_FIT_SAMPLES, LogFitOptions, fit_log
 from tools.ident.segments import Segment
-from tools.logs import hardware_logs_dir, load_log, results_only
+from tools.logs import load_log, results_only
 from tools.tuning.evaluate import full_power_time_s
 from twin.linear import SENSOR
 
@@ -25,11 +25,11 @@ def _twin_fit(capsys, *argv):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(p.name for p in hardware_logs_dir().iterdir() if p.name != "README.md"))
-def test_twin_fit_on_every_capture(capsys, name):
+@pytest.mark.each_hardware_log("*", exclude=["README.md"])
+def test_twin_fit_on_every_capture(capsys, hardware_log):
     """Every capture in hardware_logs: fitted (exit 0, gains printed), or refused with one line on
     stderr and a non-zero status, never a traceback; a refused one prints no gains."""
-    code, out, err = _twin_fit(capsys, str(hardware_logs_dir() / name))
+    code, out, err = _twin_fit(capsys, str(hardware_log))
     assert "Traceback" not in err
     if code == 0:
         assert GAINS_RE.search(out) and err == ""
@@ -46,9 +46,9 @@ def test_a_log_without_a_heater_step_is_refused(capsys, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_degenerate_fit_prints_no_gains(capsys):
+def test_a_degenerate_fit_prints_no_gains(capsys, hardware_logs):
     """two_node on the Prusa bed's relay trace identifies neither its capacity nor its sensor lag."""
-    code, out, err = _twin_fit(capsys, str(hardware_logs_dir() / PRUSA_BED), "--heater", "heater_bed", "--model",
+    code, out, err = _twin_fit(capsys, str(hardware_logs / PRUSA_BED), "--heater", "heater_bed", "--model",
                                "two_node")
     assert code == EXIT_DEGENERATE and not GAINS_RE.search(out)
     assert err.startswith("twin-fit:") and "degenerate fit, no gains" in err and len(err.splitlines()) == 1
@@ -56,12 +56,12 @@ def test_a_degenerate_fit_prints_no_gains(capsys):
 
 
 @pytest.mark.slow
-def test_the_m303_plant_holds_its_target_at_its_ambient():
+def test_the_m303_plant_holds_its_target_at_its_ambient(hardware_logs):
     """twin-tune said "full power holds 69.99 C" where twin-fit said a 524 C rise: it refitted the
     ambient (about 195 C, a relay trace cannot tell) and ran the spec at 25 C. The fit now holds the
     ambient (the idle bed's 30 C) and carries it: full power at that ambient holds the rise twin-fit
     prints, far above the target."""
-    result = fit_log(load_log(hardware_logs_dir() / ENDER)).result
+    result = fit_log(load_log(hardware_logs / ENDER)).result
     assert result.ambient_c == 30.0
     spec = result.spec()
     lti = spec.lti(spec.conditions(0.0, 0.0, result.ambient_c, result.ambient_c))
@@ -72,9 +72,9 @@ def test_the_m303_plant_holds_its_target_at_its_ambient():
 
 
 @pytest.mark.slow
-def test_result_lines_alone_are_fitted_with_fopdt(capsys, tmp_path):
+def test_result_lines_alone_are_fitted_with_fopdt(capsys, tmp_path, hardware_logs):
     copy = tmp_path / ENDER
-    copy.write_text(results_only((hardware_logs_dir() / ENDER).read_text()))
+    copy.write_text(results_only((hardware_logs / ENDER).read_text()))
     code, out, err = _twin_fit(capsys, str(copy))
     assert code == 0, err
     assert "fit: fopdt on the printed cycles (relay results)" in out
@@ -92,7 +92,7 @@ def test_a_long_segment_is_decimated_keeping_its_heat():
     assert np.sum(small.duty[:-1] * np.diff(small.t_s)) == pytest.approx(energy, rel=1e-12)
 
 
-def test_fit_cycles_needs_an_m303_capture():
+def test_fit_cycles_needs_an_m303_capture(hardware_logs):
     with pytest.raises(ValueError, match="--fit-cycles needs an M303 capture"):
-        fit_log(load_log(hardware_logs_dir() / "klipper_heattest_onionheater_heattest_200.csv"),
+        fit_log(load_log(hardware_logs / "klipper_heattest_onionheater_heattest_200.csv"),
                 LogFitOptions(fit_cycles=2))

@@ -12,7 +12,7 @@ from tools.ident.relay_points import (
     klipper_points,
     marlin_points,
 )
-from tools.logs import hardware_logs_dir, load_log
+from tools.logs import load_log
 from twin.plants import TransferFunction
 
 ENDER = "m303_hotend_ender3v3se_creality_stock_navaismo16_partial.txt"
@@ -21,10 +21,10 @@ PID_RESULTS = "klipper_pid_calibrate_results_collection.txt"
 AMBIENT_C = 25.0
 
 
-def test_ender_points_levels_and_bias_brackets():
+def test_ender_points_levels_and_bias_brackets(hardware_logs):
     """Each cycle ran at the levels of the bias line before it; Marlin's next update, truncated toward
     zero, brackets t_high - t_low: 87 -> 84 with d 87 means -4 < 87 (t_high - t_low) / Tu <= -3."""
-    points = marlin_points(load_log(hardware_logs_dir() / ENDER), "extruder", 210.0)
+    points = marlin_points(load_log(hardware_logs / ENDER), "extruder", 210.0)
     assert [p.tu_s for p in points] == [10.58, 10.74, 10.26, 10.42]
     assert [round(p.relay.on_duty * 127) for p in points] == [87, 87, 84, 84]  # (bias + d) >> 1 of the line before
     assert all(p.relay.off_duty == 0.0 and p.relay.target_c == 210.0 for p in points)
@@ -34,9 +34,9 @@ def test_ender_points_levels_and_bias_brackets():
     assert points[2].asymmetry_s == pytest.approx((-10.26 / 84, 10.26 / 84))  # 84 -> 84: within one step
 
 
-def test_scatter_constants_are_the_artillery_beds():
+def test_scatter_constants_are_the_artillery_beds(hardware_logs):
     """The cycle-to-cycle scatter the residuals are divided by: the Artillery bed's six printed cycles."""
-    cycles = [c for c in load_log(hardware_logs_dir() / ARTILLERY_BED).cycles if c.tu_s]
+    cycles = [c for c in load_log(hardware_logs / ARTILLERY_BED).cycles if c.tu_s]
     tu = np.array([c.tu_s for c in cycles])
     swing = np.array([c.max_c - c.min_c for c in cycles])
     assert len(cycles) == 6
@@ -67,10 +67,10 @@ def test_fit_recovers_a_known_fopdt_from_its_cycles():
     assert result.evidence == "relay results" and result.fixed["ambient_c"] == AMBIENT_C
 
 
-def test_pid_calibrate_results_fit_with_the_gain_held():
+def test_pid_calibrate_results_fit_with_the_gain_held(hardware_logs):
     """One Klipper result is two numbers (Tu, swing): the dead time and lag are fitted to them exactly,
     the static gain held (Klipper prints no bias to tell it)."""
-    (entry,) = [r for r in load_log(hardware_logs_dir() / PID_RESULTS) if r.tu_s == pytest.approx(57.6, abs=0.1)]
+    (entry,) = [r for r in load_log(hardware_logs / PID_RESULTS) if r.tu_s == pytest.approx(57.6, abs=0.1)]
     (point,) = klipper_points([entry], 200.0)
     result = fit_points("fopdt", [point], AMBIENT_C, fixed={"gain_c": 500.0})
     assert set(result.params) == {"time_constant_s", "delay_s"} and result.fixed["gain_c"] == 500.0

@@ -4,7 +4,7 @@ result-lines-only copy of an M303 capture and the cycles whose heater a capture 
 import numpy as np
 import pytest
 
-from tools.logs import LogError, M303Log, PlainLog, hardware_logs_dir, load_log, parse_m303, results_only
+from tools.logs import LogError, M303Log, PlainLog, load_log, parse_m303, results_only
 from tools.logs import detect
 from tools.logs.registry import HEAD_LINES, Head, Reader
 
@@ -70,26 +70,26 @@ def test_plain_csv_time_must_increase_row_by_row(tmp_path):
         load_log(path)
 
 
-def test_results_only_keeps_every_line_but_the_status_reports(tmp_path):
-    text = (hardware_logs_dir() / ENDER).read_text()
+def test_results_only_keeps_every_line_but_the_status_reports(tmp_path, hardware_logs):
+    text = (hardware_logs / ENDER).read_text()
     alone = results_only(text)
     dropped = set(text.splitlines()) - set(alone.splitlines())
     assert dropped and all(line.lstrip().startswith("T:") for line in dropped)
     path = tmp_path / ENDER
     path.write_text(alone)
-    log, full = parse_m303(path), load_log(hardware_logs_dir() / ENDER)
+    log, full = parse_m303(path), load_log(hardware_logs / ENDER)
     assert isinstance(full, M303Log) and not log.status and log.idle_readings_c == []
     assert [(c.bias, c.tu_s, c.min_c, c.max_c) for c in log.cycles] == \
         [(c.bias, c.tu_s, c.min_c, c.max_c) for c in full.cycles]
 
 
-def test_cycles_nothing_attributes_are_marked_unknown(tmp_path):
+def test_cycles_nothing_attributes_are_marked_unknown(tmp_path, hardware_logs):
     """The Prusa bed run's cycles follow one-heater B: reports; without those lines (and with no
     M303 E-1 line in the excerpt) nothing says which heater they tune: "?", counted for either."""
-    log = load_log(hardware_logs_dir() / PRUSA_BED)
+    log = load_log(hardware_logs / PRUSA_BED)
     assert {c.heater for c in log.cycles} == {"B"}
     path = tmp_path / PRUSA_BED
-    path.write_text(results_only((hardware_logs_dir() / PRUSA_BED).read_text()))
+    path.write_text(results_only((hardware_logs / PRUSA_BED).read_text()))
     alone = parse_m303(path)
     assert {c.heater for c in alone.cycles} == {"?"}
     assert alone.cycles_of("B") == alone.cycles_of("T") == alone.cycles

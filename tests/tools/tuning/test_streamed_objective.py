@@ -54,7 +54,8 @@ def _candidates(problem, n: int = 6, seed: int = 3) -> np.ndarray:
     return np.array([space.hold(row) for row in space.from_search(rng.uniform(low, high, (n, space.dims)))])
 
 
-@pytest.mark.parametrize("name", PROBLEMS)
+@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow) if name == "marlin radiating" else name
+                                  for name in PROBLEMS])
 def test_streamed_terms_are_the_trace_terms(name):
     problem = PROBLEMS[name]()
     assert problem.batched

@@ -4,15 +4,14 @@ the summary counting out-of-sample rows only (tools/cli/compare.py, tools/valida
 import pytest
 
 from tools.cli import compare as compare_cli
-from tools.logs import hardware_logs_dir
 from tools.validation.tables import text_tables
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name, counted", [("klippy_stats_chesleavens_cartesian_stm32f103.csv", 4),
                                            ("klipper_heattest_onionheater_heattest_200.csv", 2)])
-def test_twin_compare_fits_in_120_columns(capsys, name, counted):
-    assert compare_cli.main([str(hardware_logs_dir() / name)]) == 0
+def test_twin_compare_fits_in_120_columns(capsys, name, counted, hardware_logs):
+    assert compare_cli.main([str(hardware_logs / name)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert max(len(line) for line in lines) <= 120
     assert lines[-1].startswith("summary: ") and f"/{counted} out-of-sample rows" in lines[-1]

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from tools.cli import compare as compare_cli
-from tools.logs import hardware_logs_dir, load_log, results_only
+from tools.logs import load_log, results_only
 from tools.validation import m303_compare
 from tools.validation.m303_compare import GOALS, IN, OUT, CycleRow, RelayStats, m303_check, on_floor
 from twin.engine import BOOT_S, Twin
@@ -45,13 +45,13 @@ def _check_prediction(r: m303_compare.M303Comparison, goals: tuple[float, float]
 
 @pytest.mark.slow
 @pytest.mark.parametrize("capture, heater", ACCEPTANCE)
-def test_later_cycles_predicted_from_the_first_half(capture, heater):
+def test_later_cycles_predicted_from_the_first_half(capture, heater, hardware_logs):
     """The capture as posted, its first half fitted: the issue's goals (Tu 10 %, swing 25 %) met.
     The Prusa bed excerpt prints 2 cycles, so its first half is one cycle, and its 6 status lines
     before that cycle's bias line all come before the first reconstructed switch (a burn-in, not
     compared): that fit has the printed cycle alone, and its row is judged on the results' goals,
     so the trace goals are checked here on its numbers directly."""
-    path = hardware_logs_dir() / capture
+    path = hardware_logs / capture
     n = _printed(path, heater)
     r = m303_check(path, heater, fit_cycles=n // 2)
     assert r.fitted is not None
@@ -65,8 +65,8 @@ def test_later_cycles_predicted_from_the_first_half(capture, heater):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("capture, heater", ACCEPTANCE)
-def test_later_cycles_predicted_from_the_result_lines_alone(tmp_path, capture, heater):
-    source = hardware_logs_dir() / capture
+def test_later_cycles_predicted_from_the_result_lines_alone(tmp_path, capture, heater, hardware_logs):
+    source = hardware_logs / capture
     copy = tmp_path / capture
     copy.write_text(results_only(source.read_text()))
     n = _printed(source, heater)
@@ -114,10 +114,10 @@ def test_the_relay_floor_leaves_tu_to_the_swing():
 
 
 @pytest.mark.slow
-def test_twin_compare_fit_cycles_labels_every_row(capsys):
+def test_twin_compare_fit_cycles_labels_every_row(capsys, hardware_logs):
     """An M303 capture with --fit-cycles: in-sample and out-of-sample rows labelled, the summary counting
     the out-of-sample ones only, every line within 120 columns."""
-    path = hardware_logs_dir() / "m303_bed_artillery_genius_pro_S60_configs641.txt"
+    path = hardware_logs / "m303_bed_artillery_genius_pro_S60_configs641.txt"
     assert compare_cli.main([str(path), "--fit-cycles", "3"]) == 0
     out = capsys.readouterr().out
     lines = out.splitlines()
@@ -127,8 +127,8 @@ def test_twin_compare_fit_cycles_labels_every_row(capsys):
 
 
 @pytest.mark.slow
-def test_twin_compare_outside_plant_is_all_out_of_sample(capsys):
-    path = hardware_logs_dir() / "m303_hotend_artillery_genius_pro_S210_configs641_partial.txt"
+def test_twin_compare_outside_plant_is_all_out_of_sample(capsys, hardware_logs):
+    path = hardware_logs / "m303_hotend_artillery_genius_pro_S210_configs641_partial.txt"
     assert compare_cli.main([str(path), "--plant", "hotend_cartridge"]) == 0
     out = capsys.readouterr().out
     assert "plant: preset hotend_cartridge" in out and not any(line.startswith(IN) for line in out.splitlines())
@@ -141,13 +141,13 @@ def test_twin_compare_outside_plant_is_all_out_of_sample(capsys):
      "--fit-cycles 5: the capture prints 2 cycles"),
     (["m303_hotend_artillery_genius_pro_S210_configs641_partial.txt", "--plant", "nope"], "neither a preset"),
 ])
-def test_twin_compare_refuses_bad_out_of_sample_requests(capsys, argv, says):
-    assert compare_cli.main([str(hardware_logs_dir() / argv[0]), *argv[1:]]) == 2
+def test_twin_compare_refuses_bad_out_of_sample_requests(capsys, argv, says, hardware_logs):
+    assert compare_cli.main([str(hardware_logs / argv[0]), *argv[1:]]) == 2
     err = capsys.readouterr().err
     assert says in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
-def test_twin_compare_fit_cycles_usage(capsys):
+def test_twin_compare_fit_cycles_usage(capsys, hardware_logs):
     with pytest.raises(SystemExit) as stop:
-        compare_cli.main([str(hardware_logs_dir() / ENDER), "--fit-cycles", "0"])
+        compare_cli.main([str(hardware_logs / ENDER), "--fit-cycles", "0"])
     assert stop.value.code == 2 and "--fit-cycles" in capsys.readouterr().err

@@ -1,0 +1,119 @@
+"""twin-tune end to end: the acceptance run on hotend_cartridge, a fitted log, one-line errors,
+a tune on a dask LocalCluster equal to in-process, and docs/tuning.md's table still current."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from distributed import Client, LocalCluster
+
+from tools.cli.tune import main
+from tools.tuning import table
+from tools.tuning.evaluate import preset_problem, rule_names
+from tools.tuning.tuner import tune
+
+ROW = re.compile(r"^ [ *](\S+(?: C8)?)\s+Kp \S+ Ki \S+ Kd \S+\s+cost\s+(\S+)", re.M)
+BEST = re.compile(r"^best: (\S+)\s+Kp (\S+) Ki (\S+) Kd (\S+)\s+cost (\S+)\s+\((beats|does not beat) "
+                  r"M303 C8: Kp \S+ Ki \S+ Kd \S+\s+cost (\S+); (?:beats|does not beat) defaults: ", re.M)
+
+
+@pytest.mark.slow
+
+
+def test_every_rule_on_hotend_cartridge_beats_or_loses_to_m303_and_the_best_beats_it(capsys, tmp_path):
+    """The acceptance run: the best rule beats the twin's own M303 C8 on the heater objective."""
+    plot = tmp_path / "tune.png"
+    assert main(["--plant", "hotend_cartridge", "--target", "210", "--method", "auto", "--budget", "90",
+                 "--spread", "0", "--noise", "0", "--proof", "0", "--plot", str(plot)]) == 0
+    captured = capsys.readouterr()
+    out = captured.out
+    assert "eval" not in captured.err  # no progress bar when stderr is not a terminal
+    best = BEST.search(out)
+    assert best is not None, out
+    assert best.group(1) in rule_names() + ["de"]
+    assert best.group(6) == "beats" and float(best.group(5)) < float(best.group(7))
+    costs = {name: float(cost) for name, cost in ROW.findall(out)}
+    assert min(costs[rule] for rule in rule_names()) < costs["M303 C8"]  # the acceptance: a rule beats M303
+    for paste in ("M301 E0 P", "  M500", "#define DEFAULT_Kp"):
+        assert paste in out
+    assert "not proven (--proof 0)" in out and "[extruder]" not in out  # Klipper's block from the Klipper loop only
+    for rule in rule_names():
+        assert re.search(rf"^ [ *]{re.escape(rule)}\s+Kp", out, re.M), rule
+    assert plot.stat().st_size > 10_000
+
+
+def test_a_fitted_log_is_tuned(capsys, tmp_path, hardware_logs):
+    log = hardware_logs / "klipper_heattest_onionheater_heattest_200.csv"
+    method = rule_names()[0]
+    assert main(["--from-log", str(log), "--method", method, "--spread", "0", "--noise", "0", "--proof", "0",
+                 "--plot", "none"]) == 0
+    out = capsys.readouterr().out
+    assert "klipper_heattest_onionheater_heattest_200.csv (two_node" in out
+    assert re.search(rf"^ [ *]{method}\s+Kp \S+ Ki \S+ Kd \S+\s+cost", out, re.M)  # the rule ran, scored
+    assert "plant: two_node fitted to klipper_heattest_onionheater_heattest_200.csv as twin-fit fits it:" in out
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["--plant", "nope"], "--plant"),
+    (["--plant", "hotend_cartridge", "--target", "900"], "--target"),
+    (["--plant", "hotend_cartridge", "--objective", "fastest"], "--objective"),
+    (["--plant", "hotend_cartridge", "--loop", "repetier"], "argument --loop"),
+    (["--plant", "hotend_cartridge", "--target", "nan"], "argument --target"),
+    (["--plant", "hotend_cartridge", "--target", "-50"], "--target"),
+    (["--plant", "hotend_cartridge", "--plot", "/nonexistent/t.png"], "--plot"),
+    (["--plant", "hotend_cartridge", "--controller", "bangbang"], "--controller bangbang: 'bangbang' has no parameters"),
+    (["--plant", "hotend_cartridge", "--controller", "nomodule_xyz:SPACE"], "--controller"),
+    (["--plant", "hotend_cartridge", "--controller", "fuzzy_pi", "--loop", "klipper"], "--loop klipper"),
+    (["--plant", "hotend_cartridge", "--controller", "fuzzy_pi", "--method", "amigo"], "--method amigo"),
+    (["--plant", "hotend_cartridge", "--noise", "-1"], "--noise"),
+    (["--plant", "hotend_cartridge", "--spread", "1.5"], "--spread"),
+    (["--plant", "hotend_cartridge", "--proof", "-2"], "--proof"),
+    (["--plant", "hotend_cartridge", "--statistic", "median"], "argument --statistic"),
+    (["--plant", "hotend_cartridge", "--budget", "0"], "--budget"),
+    (["--plant", "hotend_cartridge", "--method", "guess"], "--method"),
+    (["--plant", "hotend_cartridge", "--method", "alo", "--budget", "3"], "--method alo --budget 3"),
+    (["--plant", "hotend_cartridge", "--model", "fifth_order"], "--model"),
+])
+def test_bad_input_is_one_line_naming_the_flag(capsys, argv, flag):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"twin-tune: error: {flag}"), err
+
+
+def test_a_missing_log_is_one_line(capsys, tmp_path):
+    assert main(["--from-log", str(tmp_path / "none.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "none.csv" in err
+
+
+@pytest.mark.slow
+
+
+def test_a_tune_on_a_local_dask_cluster_equals_in_process():
+    """Same seed, DE's three generations of 45 on two workers: the same gains and costs."""
+    problem = preset_problem("hotend_cartridge", 210)
+    local = tune(problem, method="de", budget=135, seed=3)
+    with LocalCluster(n_workers=2, processes=False, dashboard_address=None) as cluster, Client(cluster) as client:
+        remote = tune(problem, method="de", budget=135, seed=3, client=client)
+    assert [c.method for c in remote.candidates] == [c.method for c in local.candidates]
+    for a, b in zip(local.candidates + local.references, remote.candidates + remote.references, strict=True):
+        assert (a.gains, a.cost) == (b.gains, b.cost)  # identical chunks, identical arithmetic
+
+
+@pytest.mark.slow
+
+
+def test_the_rules_table_in_the_docs_is_current():
+    """docs/tuning.md's table against a fresh run, with table.same_table's tolerances."""
+    problems = table.same_table(table.table_of(table.DOC.read_text()), table.generate())
+    assert not problems, "\n".join(problems[:20]) + "\nregenerate with: python -m tools.tuning.table"
+
+
+def test_same_table_tolerates_small_moves_but_not_verdicts():
+    a = "| hotend | 210 | simc | 10.0 | 0.5 | 100 | beats |"
+    assert table.same_table(a, a.replace("10.0", "10.1")) == []
+    assert table.same_table(a, a.replace("10.0", "11")) != []
+    assert table.same_table(a, a.replace("beats", "loses")) != []
+    assert np.isclose(10.0, 10.1, rtol=table.REL_TOL)

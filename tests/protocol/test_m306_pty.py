@@ -16,7 +16,7 @@ import pytest
 import serial
 
 from tests.helpers.serial_host import START_TIMEOUT_S, expect, twin_serial
-from tools.validation.golden_m306 import COMMAND, GOLDEN_M306_PATH
+from tools.validation.golden_m306 import COMMAND, GOLDEN_M306_PATH, PLANT_PRESET
 from twin.plants import (
     MPC_AMBIENT_XFER_FAN255_W_K,
     MPC_AMBIENT_XFER_W_K,
@@ -39,8 +39,9 @@ TOLERANCE = 0.10
 
 @pytest.fixture
 def mpc_port(tmp_path):
-    """twin-serial --firmware mpc on a pty, host-driven while idle; the port, closed whatever happens."""
-    with twin_serial("--firmware", "mpc", "--speed", "max", "--idle-speed", "0", tmp_path=tmp_path) as (_, path):
+    """twin-serial --firmware mpc --plant hotend on a pty, host-driven while idle; the port, closed whatever happens."""
+    with twin_serial("--firmware", "mpc", "--plant", PLANT_PRESET, "--speed", "max", "--idle-speed", "0",
+                     tmp_path=tmp_path) as (_, path):
         with serial.Serial(path, 115200, timeout=1) as port:
             yield port
 

@@ -61,14 +61,14 @@ from protocol.printer import BUFSIZE
 from firmware_port.firmwares import param_space
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
-from tools.tuning.tuner import DEFAULT_BUDGET, tune
+from tools.tuning.tuner import DEFAULT_BUDGET, Candidate, tune
 from twin import batch_kernel
 from twin.batch import THREADS_ENV, BatchTwin, lane_threads
 from twin.klipper_batch import KlipperBatch, gains_setups
 from twin.klipper_twin import extruder_setup
 from twin.build import build_twin
 from twin.linear import SENSOR, TICK_S
-from twin.plants import ONION_RADIATING_PARAMS, SPECS, TransferFunction, make_plant
+from twin.plants import ONION_RADIATING_PARAMS, SPECS, TransferFunction, make_plant, respec
 from twin.scenario import PRESETS, with_overrides
 
 T = TypeVar("T")
@@ -130,7 +130,7 @@ def bench_open_loop(duration_s: float) -> list[str]:
     t = np.arange(n_ticks) * TICK_S
     inputs = np.column_stack([u, np.full(n_ticks, plant.ambient_c)])
     x0 = make_plant("hotend").x
-    result = {}
+    result: dict[str, np.ndarray] = {}
     wall_lsim = _timed(lambda: result.update(out=scipy.signal.lsim(system, inputs, t, X0=x0, interp=False)[1]))
     lsim_at_chunks = result["out"][::TICKS_PER_READING]
     diff = np.max(np.abs(np.array(temps) - lsim_at_chunks[: len(temps)]))
@@ -237,15 +237,16 @@ def bench_de_tune(preset: str, seed: int, popsize: int = 15, generations: int = 
 def bench_loop_tunes(preset: str, seed: int) -> list[str]:
     """twin-tune's default tune (rules, the firmware's autotune and defaults, DE with the default budget)
     on the Marlin loop and on the Klipper loop, same plant, same run."""
-    walls = {}
+    walls: dict[str, float] = {}
+    bests: dict[str, Candidate] = {}
     for loop in ("marlin", "klipper"):
         problem = preset_problem(preset, TUNE_TARGET_C, loop=loop)
-        result, walls[loop], _ = _timed_value(lambda problem=problem: tune(problem, seed=seed))
-        walls[loop, "best"] = result.best
+        result, walls[loop], _ = _timed_value(functools.partial(tune, problem, seed=seed))
+        bests[loop] = result.best
     lines = [f"twin-tune's default tune of {preset} at {TUNE_TARGET_C} C (rules, references, DE budget {DEFAULT_BUDGET}, "
              f"seed {seed}), both loops on the batch:"]
     for loop in ("marlin", "klipper"):
-        best = walls[loop, "best"]
+        best = bests[loop]
         lines.append(f"  {loop:7s} loop: {walls[loop]:.3f} s wall, best {best.method} "
                      f"Kp {best.params[0]:.2f} Ki {best.params[1]:.3f} Kd {best.params[2]:.1f}: cost {best.cost:.1f}")
     lines.append(f"  klipper / marlin: {walls['klipper'] / walls['marlin']:.2f} x (target <= 3)")
@@ -260,7 +261,7 @@ def bench_batch_tunes(seed: int) -> list[str]:
             preset_problem("seed001_fopdt", TUNE_TARGET_C),
         "dead time: seed003_third (5 s)": preset_problem("seed003_third", TUNE_TARGET_C),
         "radiating loss: hotend_cartridge's radiating fit": dataclasses.replace(
-            cartridge, spec=dataclasses.replace(cartridge.spec, **ONION_RADIATING_PARAMS)),
+            cartridge, spec=respec(cartridge.spec, ONION_RADIATING_PARAMS)),
         "noisy sensor: hotend_cartridge, 1 LSB, seed 1": dataclasses.replace(cartridge, noise_lsb=1.0, seed=1),
     }
     lines = [f"DE tunes on the batch (population 45, 100 generations, seed {seed}; the first generation's "
@@ -304,7 +305,7 @@ def _twin_serial_port():
 
 def _read_until(port: serial.Serial, start: bytes) -> list[bytes]:
     """The lines up to the first that starts with ``start``, that one included."""
-    lines = []
+    lines: list[bytes] = []
     while not lines or not lines[-1].startswith(start):
         lines.append(port.readline())
         if not lines[-1].endswith(b"\n"):
@@ -418,8 +419,9 @@ def _path_run(path: str, gains: np.ndarray, horizon_s: float):
     plant = make_plant(preset, **params)
     score = score_spec(TUNE_TARGET_C, plant.ambient_c, horizon_s / 2, 1)
     if options.pop("klipper", False):
-        batch: BatchTwin | KlipperBatch = _klipper_batch(plant, gains, score)
-        batch.set_target(float(TUNE_TARGET_C))
+        klipper = _klipper_batch(plant, gains, score)
+        klipper.set_target(float(TUNE_TARGET_C))
+        batch: BatchTwin | KlipperBatch = klipper
     else:
         lanes = _fuzzy_lanes(gains) if options.pop("fuzzy", False) else _pid_lanes(gains)
         batch = BatchTwin(plant, lanes, record=False, score=score, **options)

@@ -15,7 +15,7 @@ def run_main(prog: str, run: Callable[[], int], errors: tuple[type[BaseException
     try:
         return run()
     except BrokenPipeError:
-        sys.stdout = None  # type: ignore[assignment]  # nothing more can be written, not even at exit
+        sys.stdout = None  # nothing more can be written, not even at exit
         return 0
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""

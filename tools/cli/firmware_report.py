@@ -149,7 +149,7 @@ def avr_markdown(footprints: list[Footprint], header: str, command: str) -> str:
 
 
 def write_avr_doc(path: Path, body: str) -> None:
-    from tools.tuning.benchfuncs import replace_section
+    from tools.validation.doc_compare import replace_section
 
     new = replace_section(path.read_text(), body, AVR_DOC_BEGIN, AVR_DOC_END)
     if new is None:

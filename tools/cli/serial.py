@@ -19,6 +19,7 @@ from protocol.build import build_printer
 from protocol.corruption import RxCorruptor
 from protocol.pacing import MAX, Pacer, parse_idle_speed, parse_speed
 from protocol.pty_server import PtyServer
+from protocol.server import Server
 from protocol.tcp_server import TcpServer
 from protocol.transcript import Transcript
 from twin.plants import PRESETS as PLANT_PRESETS
@@ -120,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
     corruptor = RxCorruptor(args.corrupt_rx, args.seed) if args.corrupt_rx else None
     pacer = Pacer(printer, args.speed, args.idle_speed)
     try:
+        server: Server
         if args.tcp:
             host, port = args.tcp
             try:

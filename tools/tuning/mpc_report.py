@@ -37,7 +37,7 @@ from protocol.printer import VirtualPrinter
 from tools.logs import hardware_logs_dir
 from tools.validation.doc_compare import write_section
 from twin.build import build_twin
-from twin.plants import SPECS
+from twin.plants import SPECS, Lumped
 from twin.scenario import Scenario, parse_scenario, scenario_for, with_overrides
 
 BEGIN, END = "<!-- mpc-report: begin", "<!-- mpc-report: end -->"
@@ -110,7 +110,8 @@ def fitted_model(capture: str) -> MpcConstants:
 
 def accuracy_rows() -> list[str]:
     spec = SPECS["hotend"]
-    models = [("`hotend` preset (Configuration.h)", MpcConstants.from_m306(
+    assert isinstance(spec, Lumped)  # the hotend preset is Marlin's MPC model
+    models: list[tuple[str, MpcConstants, dict[str, float | str]]] = [("`hotend` preset (Configuration.h)", MpcConstants.from_m306(
         spec.power_w, spec.block_heat_capacity_j_k, spec.sensor_responsiveness_per_s, spec.ambient_xfer_w_k,
         spec.fan_ambient_xfer_w_k, spec.filament_heat_capacity_j_k_mm), {"preset": "hotend"})]
     models += [(f"twin-fit `{capture}`", model, mpc_plant(model)) for capture in CAPTURES
@@ -159,6 +160,7 @@ def heat_hold(firmware: str, noise_lsb: float, *, gains: PidGains | None = None,
     result = twin.run(scenario.duration_s)
     run, trips = result.hotend, result.protection_trips()
     metrics = run.metrics()
+    assert not isinstance(metrics, list)  # one twin, one lane
     hold = run.t_s >= HOLD_FROM_S
     error_c = run.measured_c[hold] - TARGET_C
     trip = f"{trips[0][1]} at {trips[0][0]:.0f} s" if trips else None

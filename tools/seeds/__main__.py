@@ -4,7 +4,7 @@ With a seed id (000 .. 004): re-run that paper's experiments under a progress ba
 each printed number beside ours with a verdict, which loop each number comes from, and the firmware
 twin's numbers (tools/seeds/report.py); ``--budget`` sets how much its optimisers search.
 
-Without one: re-run every paper at the small budget and write docs/seeds.md (tools/seeds/page.py),
+Without one: re-run every paper at the small budget and write docs/seeds.md (tools/docs/seeds_page.py),
 or, with --check, compare a fresh rendering with the committed page (words and verdicts exactly,
 numbers within tools/validation/doc_compare.py's tolerance) and exit 1 if they differ. --seeds
 renders (replacing those sections of an existing page) or checks those sections only.
@@ -20,7 +20,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from tools.cli.args import OneLineParser
-from tools.seeds import page
+from tools.docs import seeds_page as page
 from tools.seeds.command import BUDGET_HELP, run_seed
 from tools.seeds.papers import PAPERS
 from tools.seeds.report import SMALL_BUDGET, parse_budget

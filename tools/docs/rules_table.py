@@ -1,6 +1,6 @@
 """The rules table of docs/tuning.md: every preset plant tuned by every rule, run on the firmware twin.
 
-``python -m tools.tuning.table`` tunes each plant of twin/plants.py (the seeds' models and the
+``python -m tools.docs.rules_table`` tunes each plant of twin/plants.py (the seeds' models and the
 presets fitted to real printers) with every rule of tools/tuning/rules, runs each candidate and
 Marlin's own M303 C8 result through the default scenario on the Marlin firmware twin
 (tools/tuning/evaluate.py), and rewrites the table between the markers in docs/tuning.md.
@@ -23,7 +23,7 @@ from twin.metrics import step_metrics
 from twin.plants import SPECS
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "tuning.md"
-BEGIN, END = "<!-- rules-table: begin (python -m tools.tuning.table) -->", "<!-- rules-table: end -->"
+BEGIN, END = "<!-- rules-table: begin (python -m tools.docs.rules_table) -->", "<!-- rules-table: end -->"
 # Beds at 60 C (PLA); seed 000's models at its listings' setpoint, 50 C of rise, on 25 C ambient (at
 # 210 C they would need 92.5 % of full power to hold, so the load step makes the target unreachable);
 # every other plant at 210 C.
@@ -139,7 +139,7 @@ def same_table(a: str, b: str) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.tuning.table", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m tools.docs.rules_table", description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="compare with docs/tuning.md instead of writing it")
     args = parser.parse_args(argv)
     table = generate()

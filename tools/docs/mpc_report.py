@@ -1,7 +1,7 @@
 """PID against MPC on the same hotend, each tuned by its own firmware autotune on the twin, as a
 user would do it; and how close M306 T comes to the model it measures.
 
-``python -m tools.tuning.mpc_report --doc docs/firmware.md`` rewrites the generated part of the MPC
+``python -m tools.docs.mpc_report --doc docs/firmware.md`` rewrites the generated part of the MPC
 section there; without --doc it prints it. Everything runs through the serial layer as twin-serial
 serves it (M303, M306 T, M306) and through twin-sim's heat_hold scenario:
 
@@ -41,7 +41,7 @@ from twin.plants import SPECS, Lumped
 from twin.scenario import Scenario, parse_scenario, scenario_for, with_overrides
 
 BEGIN, END = "<!-- mpc-report: begin", "<!-- mpc-report: end -->"
-COMMAND = "python -m tools.tuning.mpc_report --doc docs/firmware.md"
+COMMAND = "python -m tools.docs.mpc_report --doc docs/firmware.md"
 PLANT = "hotend_cartridge"
 TARGET_C = 210
 M303_CYCLES = 8
@@ -211,7 +211,7 @@ def markdown() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.tuning.mpc_report", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m tools.docs.mpc_report", description=__doc__.splitlines()[0])
     parser.add_argument("--doc", type=Path, help="rewrite the generated MPC section of this file (docs/firmware.md)")
     args = parser.parse_args(argv)
     try:

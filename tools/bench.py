@@ -59,6 +59,7 @@ from firmware_port.marlin.pid import PidGains
 from protocol.lines import with_checksum
 from protocol.printer import BUFSIZE
 from firmware_port.firmwares import param_space
+from tools.entry import OneLineParser, run_main
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
 from tools.tuning.tuner import DEFAULT_BUDGET, Candidate, tune
@@ -490,15 +491,19 @@ def bench_scaling(seed: int) -> list[str]:
     return lines + _scaling_dask(seed)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=["twin", "tune", "protocol", "scaling"], help="what to benchmark")
-    parser.add_argument("--duration", type=float, default=600.0, help="twin: virtual seconds (default 600)")
-    parser.add_argument("--lanes", type=int, default=1000, help="twin, tune: batch lanes (default 1000)")
-    parser.add_argument("--seed", type=int, default=1, help="twin, tune: seed of the random gains and of DE (default 1)")
-    parser.add_argument("--requests", type=int, default=500, help="protocol: M105 round trips (default 500)")
-    parser.add_argument("--lines", type=int, default=5000, help="protocol: G1 lines per stream (default 5000)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--duration", type=float, default=600.0, help="twin: virtual seconds (default: %(default)s)")
+    parser.add_argument("--lanes", type=int, default=1000, help="twin, tune: batch lanes (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=1,
+                        help="twin, tune: seed of the random gains and of DE (default: %(default)s)")
+    parser.add_argument("--requests", type=int, default=500, help="protocol: M105 round trips (default: %(default)s)")
+    parser.add_argument("--lines", type=int, default=5000, help="protocol: G1 lines per stream (default: %(default)s)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
     if args.what == "twin":
         lines = bench_single(args.duration) + bench_batch(args.lanes, args.duration, args.seed)
         lines += bench_open_loop(args.duration)
@@ -515,6 +520,12 @@ def main(argv: list[str] | None = None) -> int:
         lines += bench_protocol(args.requests, args.lines)
     print("\n".join(lines))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return run_main(parser.prog, lambda: run(args))
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
 from tools.tuning.problems import build_problem, log_source
 from tools.tuning.tuner import tune
 from tools.validation.doc_compare import write_section
+from tools.entry import OneLineParser, run_main
 
 BEGIN, END = "<!-- crossval: begin", "<!-- crossval: end -->"
 COMMAND = "python -m tools.docs.crossval --doc docs/tuning.md"
@@ -93,17 +94,26 @@ def markdown(groups: dict[str, list[Cell]], budget: int) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.docs.crossval", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.docs.crossval", description=__doc__.splitlines()[0])
     parser.add_argument("--doc", type=Path, help="rewrite the section of this file (docs/tuning.md)")
-    parser.add_argument("--budget", type=int, default=BUDGET, help=f"DE evaluations per tune (default: {BUDGET})")
-    args = parser.parse_args(argv)
+    parser.add_argument("--budget", type=int, default=BUDGET, help="DE evaluations per tune (default: %(default)s)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
     groups = {printer: group_cells(heater, names, args.budget) for printer, (heater, names) in GROUPS.items()}
     body = markdown(groups, args.budget)
     if args.doc is not None:
         write_section(args.doc, body, BEGIN, END)
     print(body)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return run_main(parser.prog, lambda: run(args))
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ from protocol.mpc_commands import mpc_constants_from_text
 from protocol.printer import VirtualPrinter
 from tools.logs import hardware_logs_dir
 from tools.validation.doc_compare import write_section
+from tools.entry import OneLineParser, run_main
 from twin.build import build_twin
 from twin.plants import SPECS, Lumped
 from twin.scenario import Scenario, parse_scenario, scenario_for, with_overrides
@@ -210,19 +211,24 @@ def markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.docs.mpc_report", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.docs.mpc_report", description=__doc__.splitlines()[0])
     parser.add_argument("--doc", type=Path, help="rewrite the generated MPC section of this file (docs/firmware.md)")
-    args = parser.parse_args(argv)
-    try:
-        body = markdown()
-        if args.doc is not None:
-            write_section(args.doc, body, BEGIN, END)
-    except (ValueError, OSError) as exc:
-        print(f"mpc_report: {exc}", file=sys.stderr)
-        return 2
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    body = markdown()
+    if args.doc is not None:
+        write_section(args.doc, body, BEGIN, END)
     print(body, end="")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return run_main(parser.prog, lambda: run(args))
 
 
 if __name__ == "__main__":

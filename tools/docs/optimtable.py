@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tools.docs.rules_table import cost_verdict
+from tools.entry import OneLineParser, run_main
 from tools.ident.log_fit import LogFitOptions
 from tools.logs import hardware_logs_dir
 from tools.tuning.evaluate import Candidate, rule_gains, rule_names, score
@@ -112,29 +113,35 @@ def write_doc(path: Path, body: str, command: str) -> None:
     write_section(path, f"Written by `{command}`.\n\n{body}", BEGIN, END)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.docs.optimtable", description=__doc__.splitlines()[0])
-    parser.add_argument("--budget", type=int, default=BUDGET, help=f"evaluations per optimiser ({BUDGET})")
-    parser.add_argument("--seed", type=int, default=SEED, help=f"every optimiser's seed ({SEED})")
-    parser.add_argument("--plants", default=",".join(PLANTS), help="comma-separated plant labels")
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.docs.optimtable", description=__doc__.splitlines()[0])
+    parser.add_argument("--budget", type=int, default=BUDGET, help="evaluations per optimiser, at least 150 "
+                        "(OCALO: 3 x its population of 50) (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=SEED, help="every optimiser's seed (default: %(default)s)")
+    parser.add_argument("--plants", default=",".join(PLANTS),
+                        help="comma-separated plant labels, of " + ", ".join(PLANTS) + " (default: all)")
     parser.add_argument("--doc", type=Path, help="rewrite the optimiser section of this file (docs/tuning.md)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run(args: argparse.Namespace, argv: list[str]) -> int:
     labels = args.plants.split(",")
     unknown = [p for p in labels if p not in PLANTS]
-    if unknown or args.budget < 150:
-        why = f"--plants: unknown {unknown}, choose from {list(PLANTS)}" if unknown else "--budget must be >= 150 (OCALO: 3 x its population of 50)"
-        print(f"optimtable: {why}", file=sys.stderr)
-        return 2
-    try:
-        table = markdown([run_plant(p, args.budget, args.seed) for p in labels], args.budget, args.seed)
-        if args.doc is not None:
-            command = "python -m tools.docs.optimtable " + " ".join(sys.argv[1:] if argv is None else argv)
-            write_doc(args.doc, table, command.strip())
-    except (ValueError, OSError) as exc:
-        print(f"optimtable: {exc}", file=sys.stderr)
-        return 2
+    if unknown:
+        raise ValueError(f"--plants: unknown {unknown}, choose from {list(PLANTS)}")
+    if args.budget < 150:
+        raise ValueError("--budget must be >= 150 (OCALO: 3 x its population of 50)")
+    table = markdown([run_plant(p, args.budget, args.seed) for p in labels], args.budget, args.seed)
+    if args.doc is not None:
+        write_doc(args.doc, table, ("python -m tools.docs.optimtable " + " ".join(argv)).strip())
     print(table, end="")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return run_main(parser.prog, lambda: run(args, sys.argv[1:] if argv is None else argv))
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.entry import OneLineParser, run_main
 from tools.tuning.evaluate import Candidate, firmware_autotune, preset_problem, rule_gains, rule_names, score
 from tools.tuning.objectives import heater_cost, heater_terms
 from twin.metrics import step_metrics
@@ -138,10 +139,14 @@ def same_table(a: str, b: str) -> list[str]:
     return problems
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.docs.rules_table", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.docs.rules_table", description=__doc__.splitlines()[0],
+                           epilog="exit status: 0 written (or current), 1 --check: out of date, 2 bad input")
     parser.add_argument("--check", action="store_true", help="compare with docs/tuning.md instead of writing it")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
     table = generate()
     doc = DOC.read_text()
     if args.check:
@@ -152,6 +157,12 @@ def main(argv: list[str] | None = None) -> int:
     DOC.write_text(doc[:start] + "\n" + table + "\n" + doc[end:])
     print(f"wrote the rules table ({table.count(chr(10)) - 1} rows) into {DOC}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return run_main(parser.prog, lambda: run(args))
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from tools.validation import compare
 from tools.docs.validation_m303 import m303_section
+from tools.entry import OneLineParser, run_main
 from tools.ident.segments import NotFittable
 from tools.logs import StatsLog, hardware_logs_dir, load_log
 
@@ -194,11 +195,21 @@ def render(logs_dir: Path | None = None) -> str:
     return "\n".join(parts)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> OneLineParser:
+    return OneLineParser(prog="python -m tools.docs.validation", description=__doc__.splitlines()[0])
+
+
+def run() -> int:
     text = render()
     DOC.write_text(text)
     print(text)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    parser.parse_args(argv)
+    return run_main(parser.prog, run)
 
 
 if __name__ == "__main__":

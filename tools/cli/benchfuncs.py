@@ -27,14 +27,18 @@ DOC_BEGIN, DOC_END = "<!-- benchfuncs: begin", "<!-- benchfuncs: end -->"
 
 def build_parser() -> OneLineParser:
     parser = OneLineParser(prog=PROG, description="Every optimiser on F1-F23, as a markdown report.")
-    parser.add_argument("--runs", type=int, default=30, help="runs per function, optimiser and form (30)")
-    parser.add_argument("--population", type=int, default=SEED_POPULATION, help="population (seed 002: 50)")
+    parser.add_argument("--runs", type=int, default=30,
+                        help="runs per function, optimiser and form (default: %(default)s)")
+    parser.add_argument("--population", type=int, default=SEED_POPULATION,
+                        help="population (default: %(default)s, seed 002's)")
     parser.add_argument("--iterations", type=int, default=SEED_ITERATIONS,
-                        help="iterations; budget = population x this (seed 002: 300)")
-    parser.add_argument("--seed", type=int, default=0, help="root seed of every run's Generator (0)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (2)")
-    parser.add_argument("--methods", default="nm,de,pso,alo,ocalo", help=f"comma-separated, of {','.join(METHODS)}")
-    parser.add_argument("--functions", default=",".join(b.name for b in BENCHMARKS), help="e.g. F1,F9,F21 (all)")
+                        help="iterations; budget = population x this (default: %(default)s, seed 002's)")
+    parser.add_argument("--seed", type=int, default=0, help="root seed of every run's Generator (default: %(default)s)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (default: %(default)s)")
+    parser.add_argument("--methods", default="nm,de,pso,alo,ocalo",
+                        help=f"comma-separated, of {','.join(METHODS)} (default: %(default)s)")
+    parser.add_argument("--functions", default=",".join(b.name for b in BENCHMARKS),
+                        help="comma-separated, e.g. F1,F9,F21 (default: %(default)s)")
     parser.add_argument("--forms", default=PLAIN, help=f"comma-separated, of {','.join(FORMS)} "
                         "(shifted/rotated: F1-F7, F9-F13 only; default plain)")
     parser.add_argument("--quick", action="store_true", help="2 runs, population 10, 10 iterations")

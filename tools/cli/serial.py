@@ -104,7 +104,7 @@ def build_parser() -> OneLineParser:
                         help="no 'ok' after 'Resend:' (a buggy firmware, to test a host's handling; "
                              "default: 'ok' follows, as GCodeQueue::flush_and_request_resend() sends in Marlin 2.1)")
     parser.add_argument("--corrupt-rx", type=float, default=0.0, metavar="P",
-                        help="probability per received line of one flipped bit (default 0: a clean wire)")
+                        help="probability per received line of one flipped bit (default: %(default)s, a clean wire)")
     parser.add_argument("--seed", type=int, default=0, metavar="N",
                         help="seed of --corrupt-rx's draws: a host sending the same lines gets the same "
                              "flips (default 0)")

@@ -70,11 +70,11 @@ def build_parser() -> OneLineParser:
                         help="MPC's model for --firmware mpc: an M306 line (as twin-fit, M306 or M503 print it) "
                              "or a file holding one; letters it leaves out keep Configuration.h's values")
     parser.add_argument("--seed", type=int, help="seed of every random source (default: the scenario's, else 0)")
-    parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default 0)")
+    parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default: %(default)s)")
     parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default), the tick-by-tick reference, or avr: fast with the "
                         "controllers' C compiled for the ATmega328P and run in simavr")
     parser.add_argument("--record-every", type=float, default=0.0, metavar="SECONDS",
-                        help="at most one trace row per SECONDS (default: every firmware reading, 0.164 s; "
+                        help="at most one trace row per SECONDS (default: %(default)s, every firmware reading, 0.164 s; "
                              "a row costs about 380 bytes: bound long runs with this)")
     parser.add_argument("--out", default="twin-out",
                         help="directory for the default trace and plot, created if missing (default twin-out)")

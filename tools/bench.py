@@ -59,7 +59,7 @@ from firmware_port.marlin.pid import PidGains
 from protocol.lines import with_checksum
 from protocol.printer import BUFSIZE
 from firmware_port.firmwares import param_space
-from tools.entry import OneLineParser, run_main
+from tools.entry import OneLineParser, run_cli
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
 from tools.tuning.tuner import DEFAULT_BUDGET, Candidate, tune
@@ -523,9 +523,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    return run_main(parser.prog, lambda: run(args))
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

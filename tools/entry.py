@@ -46,6 +46,13 @@ def run_main(prog: str, run: Callable[[], int], errors: tuple[type[BaseException
     return EXIT_USAGE
 
 
+def run_cli(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace], int], argv: list[str] | None,
+            errors: tuple[type[BaseException], ...] = (ValueError,)) -> int:
+    """A whole ``main``: parse ``argv`` with ``parser`` (a bad flag exits 2), then ``run(args)`` under ``run_main``."""
+    args = parser.parse_args(argv)
+    return run_main(parser.prog, lambda: run(args), errors)
+
+
 def os_error(exc: OSError) -> str:
     """``file: reason`` (or the reason alone) of an OSError, without Python's ``[Errno N]``."""
     where = f"{exc.filename}: " if exc.filename else ""

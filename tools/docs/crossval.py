@@ -26,7 +26,7 @@ from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
 from tools.tuning.problems import build_problem, log_source
 from tools.tuning.tuner import tune
 from tools.validation.doc_compare import write_section
-from tools.entry import OneLineParser, run_main
+from tools.entry import OneLineParser, run_cli
 
 BEGIN, END = "<!-- crossval: begin", "<!-- crossval: end -->"
 COMMAND = "python -m tools.docs.crossval --doc docs/tuning.md"
@@ -111,9 +111,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    return run_main(parser.prog, lambda: run(args))
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ from protocol.mpc_commands import mpc_constants_from_text
 from protocol.printer import VirtualPrinter
 from tools.logs import hardware_logs_dir
 from tools.validation.doc_compare import write_section
-from tools.entry import OneLineParser, run_main
+from tools.entry import OneLineParser, run_cli
 from twin.build import build_twin
 from twin.plants import SPECS, Lumped
 from twin.scenario import Scenario, parse_scenario, scenario_for, with_overrides
@@ -226,9 +226,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    return run_main(parser.prog, lambda: run(args))
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

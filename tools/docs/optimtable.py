@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tools.docs.rules_table import cost_verdict
-from tools.entry import OneLineParser, run_main
+from tools.entry import OneLineParser, run_cli
 from tools.ident.log_fit import LogFitOptions
 from tools.logs import hardware_logs_dir
 from tools.tuning.evaluate import Candidate, rule_gains, rule_names, score
@@ -139,9 +139,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    return run_main(parser.prog, lambda: run(args, sys.argv[1:] if argv is None else argv))
+    return run_cli(build_parser(), lambda args: run(args, sys.argv[1:] if argv is None else argv), argv)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.entry import OneLineParser, run_main
+from tools.entry import OneLineParser, run_cli
 from tools.tuning.evaluate import Candidate, firmware_autotune, preset_problem, rule_gains, rule_names, score
 from tools.tuning.objectives import heater_cost, heater_terms
 from twin.metrics import step_metrics
@@ -160,9 +160,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    return run_main(parser.prog, lambda: run(args))
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

@@ -9,12 +9,13 @@ and code give the same text (tests/test_compare.py checks the committed file is 
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
 from tools.validation import compare
 from tools.docs.validation_m303 import m303_section
-from tools.entry import OneLineParser, run_main
+from tools.entry import OneLineParser, run_cli
 from tools.ident.segments import NotFittable
 from tools.logs import StatsLog, hardware_logs_dir, load_log
 
@@ -199,7 +200,7 @@ def build_parser() -> OneLineParser:
     return OneLineParser(prog="python -m tools.docs.validation", description=__doc__.splitlines()[0])
 
 
-def run() -> int:
+def run(_args: argparse.Namespace) -> int:
     text = render()
     DOC.write_text(text)
     print(text)
@@ -207,9 +208,7 @@ def run() -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    parser.parse_args(argv)
-    return run_main(parser.prog, run)
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

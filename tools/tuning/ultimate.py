@@ -17,6 +17,7 @@ the crossover, and the describing function gives Ku ~ 4 d / (pi a).
 
 from __future__ import annotations
 
+import argparse
 import math
 from typing import NamedTuple
 
@@ -24,7 +25,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from tools.entry import OneLineParser, run_main
+from tools.entry import OneLineParser, run_cli
 from tools.tuning.models import LinearModel, model_of
 from twin.plants import SPECS, Lumped
 
@@ -220,7 +221,7 @@ def build_parser() -> OneLineParser:
                          description="Every plant preset's ultimate point from its model beside an ideal relay's on it.")
 
 
-def print_points() -> int:
+def print_points(_args: argparse.Namespace) -> int:
     """Print every plant preset's ultimate point from its model beside an ideal relay's on it."""
     print(f"{'preset':<18} {'extra delay':>11} {'Ku model':>10} {'Tu model':>9} {'Ku relay':>10} {'Tu relay':>9} "
           f"{'dKu %':>6} {'dTu %':>6}  Ku range (DF)        Tu range (DF)")
@@ -239,9 +240,7 @@ def print_points() -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    parser.parse_args(argv)
-    return run_main(parser.prog, print_points)
+    return run_cli(build_parser(), print_points, argv)
 
 
 if __name__ == "__main__":

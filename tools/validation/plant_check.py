@@ -28,7 +28,7 @@ from tools.logs import csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
 from twin.plants import MK3_POWER_W, SPECS, Lumped, Plant, make_plant
-from tools.entry import OneLineParser, run_main
+from tools.entry import OneLineParser, run_cli
 
 # Onionheater pulse tests (README section B; the author's notes in the files' headers).
 ONION_LOG = "klipper_heattest_onionheater_{}.csv"
@@ -309,9 +309,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    return run_main(parser.prog, lambda: run(args))
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

@@ -42,7 +42,8 @@ def run_main(prog: str, run: Callable[[], int], errors: tuple[type[BaseException
     except errors as exc:
         print(f"{prog}: error: {describe(exc)}", file=sys.stderr)
     except OSError as exc:
-        print(f"{prog}: error: {os_error(exc)}", file=sys.stderr)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
     return EXIT_USAGE
 
 
@@ -52,8 +53,3 @@ def run_cli(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace],
     args = parser.parse_args(argv)
     return run_main(parser.prog, lambda: run(args), errors)
 
-
-def os_error(exc: OSError) -> str:
-    """``file: reason`` (or the reason alone) of an OSError, without Python's ``[Errno N]``."""
-    where = f"{exc.filename}: " if exc.filename else ""
-    return f"{where}{exc.strerror or exc}"

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tools.cli.args import plot_path, ranged_float
-from tools.entry import OneLineParser, os_error, run_main
+from tools.entry import OneLineParser, run_main
 from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.lsq import MAX_EVALUATIONS
 from tools.ident.segments import NotFittable
@@ -232,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
 
     def describe(exc: BaseException) -> str:
-        return f"{args.log}: not usable: {os_error(exc) if isinstance(exc, OSError) else exc}"
+        return f"{args.log}: not usable: {(exc.strerror or exc) if isinstance(exc, OSError) else exc}"
 
     return run_main("twin-compare", lambda: run(args),
                     errors=(LogError, compare.Unusable, NotFittable, OSError, ValueError), describe=describe)

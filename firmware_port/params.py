@@ -90,7 +90,7 @@ class ParamSpace:
         b = self.bounds
         return np.all(np.isfinite(x) & (x >= b[:, 0]) & (x <= b[:, 1]), axis=1)
 
-    def check(self, x: Sequence[float]) -> np.ndarray:
+    def check(self, x: Sequence[float] | np.ndarray) -> np.ndarray:
         """x as a float vector; ValueError naming the first parameter that is missing or out of bounds."""
         vector = np.asarray(x, float).ravel()
         if vector.size != self.dims:
@@ -101,7 +101,7 @@ class ParamSpace:
                 raise ValueError(f"{self.name} parameter {p.name}={float(value)!r} outside {p.low:g}..{p.high:g} {p.unit}")
         return vector
 
-    def make(self, x: Sequence[float]) -> Controller:
+    def make(self, x: Sequence[float] | np.ndarray) -> Controller:
         """A fresh controller from x (checked against the bounds, then held as the firmware holds it)."""
         return self.factory(*self.hold(self.check(x)))
 
@@ -110,7 +110,7 @@ class ParamSpace:
         vector = np.asarray(x, float).ravel()
         return vector if self.held is None else np.array(self.held(*(float(v) for v in vector)), float)
 
-    def describe(self, x: Sequence[float]) -> str:
+    def describe(self, x: Sequence[float] | np.ndarray) -> str:
         """``name value unit`` for each parameter, 4 significant digits."""
         return ", ".join(f"{p.name} {v:.4g} {p.unit}".rstrip() for p, v in zip(self.params, np.ravel(x)))
 

@@ -72,6 +72,36 @@ def test_libraries_never_import_a_cli_a_paper_or_a_docs_generator():
     assert not bad, "\n".join(sorted(bad))
 
 
+# Who may import a docs generator (tools/docs): another generator, and the command lines (tools/cli, the
+# benchmark, ``python -m tools.seeds``), which may write a page; never a library, nor a paper's module.
+DOCS = "tools.docs"
+DOCS_IMPORTERS = (DOCS, "tools.cli", "tools.bench", "tools.seeds.__main__")
+
+
+def _within(module: str, prefixes: tuple[str, ...]) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in prefixes)
+
+
+def _docs_imports(graph: dict[str, set[str]]) -> list[str]:
+    """``m imports t`` for every import of a docs generator by a module that is neither one nor a CLI."""
+    return sorted(f"{m} imports {t}" for m, targets in graph.items() if not _within(m, DOCS_IMPORTERS)
+                  for t in targets if _within(t, (DOCS,)))
+
+
+def test_only_generators_and_clis_import_a_docs_generator():
+    bad = _docs_imports(_graph())
+    assert not bad, "\n".join(bad)
+
+
+def test_the_docs_rule_flags_a_paper_or_a_library_importing_a_page():
+    graph = {"tools.seeds.seed001": {"tools.docs.seeds_page"}, "tools.tuning.evaluate": {"tools.docs"},
+             "tools.cli.tune": {"tools.docs.rules_table"}, "tools.docs.optimtable": {"tools.docs.rules_table"},
+             "tools.seeds.__main__": {"tools.docs.seeds_page"}, "tools.docsx": {"tools.docs.crossval"}}
+    assert _docs_imports(graph) == ["tools.docsx imports tools.docs.crossval",
+                                    "tools.seeds.seed001 imports tools.docs.seeds_page",
+                                    "tools.tuning.evaluate imports tools.docs"]
+
+
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     """Strongly connected components with more than one module (Tarjan), each sorted."""
     index: dict[str, int] = {}

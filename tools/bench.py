@@ -59,17 +59,18 @@ from firmware_port.marlin.pid import PidGains
 from protocol.lines import with_checksum
 from protocol.printer import BUFSIZE
 from firmware_port.firmwares import param_space
+from tools.entry import OneLineParser, run_cli
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
-from tools.tuning.tuner import DEFAULT_BUDGET, tune
 from tools.tuning.problems import build_problem, preset_source
+from tools.tuning.tuner import DEFAULT_BUDGET, Candidate, tune
 from twin import batch_kernel
 from twin.batch import THREADS_ENV, BatchTwin, lane_threads
 from twin.klipper_batch import KlipperBatch, gains_setups
 from twin.klipper_twin import extruder_setup
 from twin.build import build_twin
 from twin.linear import SENSOR, TICK_S
-from twin.plants import ONION_RADIATING_PARAMS, SPECS, TransferFunction, make_plant
+from twin.plants import ONION_RADIATING_PARAMS, SPECS, TransferFunction, make_plant, respec
 from twin.scenario import PRESETS, with_overrides
 
 T = TypeVar("T")
@@ -131,7 +132,7 @@ def bench_open_loop(duration_s: float) -> list[str]:
     t = np.arange(n_ticks) * TICK_S
     inputs = np.column_stack([u, np.full(n_ticks, plant.ambient_c)])
     x0 = make_plant("hotend").x
-    result = {}
+    result: dict[str, np.ndarray] = {}
     wall_lsim = _timed(lambda: result.update(out=scipy.signal.lsim(system, inputs, t, X0=x0, interp=False)[1]))
     lsim_at_chunks = result["out"][::TICKS_PER_READING]
     diff = np.max(np.abs(np.array(temps) - lsim_at_chunks[: len(temps)]))
@@ -239,16 +240,17 @@ def bench_loop_tunes(preset: str, seed: int) -> list[str]:
     """twin-tune's default tune (rules, the firmware's autotune and defaults, DE with the default budget,
     every candidate on the default ensemble; the proof not included) on the Marlin loop and on the
     Klipper loop, same plant, same run."""
-    walls = {}
+    walls: dict[str, float] = {}
+    bests: dict[str, Candidate] = {}
     for loop in ("marlin", "klipper"):
         problem = build_problem(preset_source(preset), TUNE_TARGET_C, loop=loop)
-        result, walls[loop], _ = _timed_value(lambda problem=problem: tune(problem, seed=seed))
-        walls[loop, "best"] = result.best
+        result, walls[loop], _ = _timed_value(functools.partial(tune, problem, seed=seed))
+        bests[loop] = result.best
     ensemble = problem.ensemble.describe().split(";")[0] if problem.ensemble else "none"
     lines = [f"twin-tune's default tune of {preset} at {TUNE_TARGET_C} C (rules, references, DE budget {DEFAULT_BUDGET}, "
              f"seed {seed}; ensemble {ensemble}: each candidate runs once per member), both loops on the batch:"]
     for loop in ("marlin", "klipper"):
-        best = walls[loop, "best"]
+        best = bests[loop]
         lines.append(f"  {loop:7s} loop: {walls[loop]:.3f} s wall, best {best.method} "
                      f"Kp {best.params[0]:.2f} Ki {best.params[1]:.3f} Kd {best.params[2]:.1f}: cost {best.cost:.1f}")
     lines.append(f"  klipper / marlin: {walls['klipper'] / walls['marlin']:.2f} x (target <= 3)")
@@ -263,7 +265,7 @@ def bench_batch_tunes(seed: int) -> list[str]:
             preset_problem("seed001_fopdt", TUNE_TARGET_C),
         "dead time: seed003_third (5 s)": preset_problem("seed003_third", TUNE_TARGET_C),
         "radiating loss: hotend_cartridge's radiating fit": dataclasses.replace(
-            cartridge, spec=dataclasses.replace(cartridge.spec, **ONION_RADIATING_PARAMS)),
+            cartridge, spec=respec(cartridge.spec, ONION_RADIATING_PARAMS)),
         "noisy sensor: hotend_cartridge, 1 LSB, seed 1": dataclasses.replace(cartridge, noise_lsb=1.0, seed=1),
     }
     lines = [f"DE tunes on the batch (population 45, 100 generations, seed {seed}; the first generation's "
@@ -307,7 +309,7 @@ def _twin_serial_port():
 
 def _read_until(port: serial.Serial, start: bytes) -> list[bytes]:
     """The lines up to the first that starts with ``start``, that one included."""
-    lines = []
+    lines: list[bytes] = []
     while not lines or not lines[-1].startswith(start):
         lines.append(port.readline())
         if not lines[-1].endswith(b"\n"):
@@ -421,8 +423,9 @@ def _path_run(path: str, gains: np.ndarray, horizon_s: float):
     plant = make_plant(preset, **params)
     score = score_spec(TUNE_TARGET_C, plant.ambient_c, horizon_s / 2, 1)
     if options.pop("klipper", False):
-        batch: BatchTwin | KlipperBatch = _klipper_batch(plant, gains, score)
-        batch.set_target(float(TUNE_TARGET_C))
+        klipper = _klipper_batch(plant, gains, score)
+        klipper.set_target(float(TUNE_TARGET_C))
+        batch: BatchTwin | KlipperBatch = klipper
     else:
         lanes = _fuzzy_lanes(gains) if options.pop("fuzzy", False) else _pid_lanes(gains)
         batch = BatchTwin(plant, lanes, record=False, score=score, **options)
@@ -491,15 +494,19 @@ def bench_scaling(seed: int) -> list[str]:
     return lines + _scaling_dask(seed)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=["twin", "tune", "protocol", "scaling"], help="what to benchmark")
-    parser.add_argument("--duration", type=float, default=600.0, help="twin: virtual seconds (default 600)")
-    parser.add_argument("--lanes", type=int, default=1000, help="twin, tune: batch lanes (default 1000)")
-    parser.add_argument("--seed", type=int, default=1, help="twin, tune: seed of the random gains and of DE (default 1)")
-    parser.add_argument("--requests", type=int, default=500, help="protocol: M105 round trips (default 500)")
-    parser.add_argument("--lines", type=int, default=5000, help="protocol: G1 lines per stream (default 5000)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--duration", type=float, default=600.0, help="twin: virtual seconds (default: %(default)s)")
+    parser.add_argument("--lanes", type=int, default=1000, help="twin, tune: batch lanes (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=1,
+                        help="twin, tune: seed of the random gains and of DE (default: %(default)s)")
+    parser.add_argument("--requests", type=int, default=500, help="protocol: M105 round trips (default: %(default)s)")
+    parser.add_argument("--lines", type=int, default=5000, help="protocol: G1 lines per stream (default: %(default)s)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
     if args.what == "twin":
         lines = bench_single(args.duration) + bench_batch(args.lanes, args.duration, args.seed)
         lines += bench_open_loop(args.duration)
@@ -516,6 +523,10 @@ def main(argv: list[str] | None = None) -> int:
         lines += bench_protocol(args.requests, args.lines)
     print("\n".join(lines))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

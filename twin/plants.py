@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import ClassVar, NamedTuple, Protocol
 
@@ -273,6 +273,13 @@ class TransferFunction:
 Spec = Lumped | TransferFunction
 
 
+def respec(spec: Spec, changes: Mapping[str, float]) -> Spec:
+    """``spec`` with the named fields set to new values (TypeError on a name the spec lacks)."""
+    if isinstance(spec, Lumped):
+        return dataclasses.replace(spec, **changes)
+    return dataclasses.replace(spec, **changes)
+
+
 class PlantSpec(Protocol):
     """What the engines and the tuners ask of a plant spec; ``Lumped`` and ``TransferFunction`` follow it.
     (Each also has ``conditions`` and ``lti``, whose operating-point key is its own.)"""
@@ -441,5 +448,5 @@ def make_plant(preset: str = DEFAULT_HOTEND, *, ambient_c: float = 25.0, initial
         if abs(value) > PARAMETER_MAX:
             raise ValueError(f"plant parameter {name}={value!r}: beyond {PARAMETER_MAX:g}, no heater's (the model "
                              "would overflow)")
-    return Plant(preset, dataclasses.replace(spec, **{name: float(value) for name, value in params.items()}),  # type: ignore[arg-type]
+    return Plant(preset, respec(spec, {name: float(value) for name, value in params.items()}),
                  ambient_c, initial_c)

@@ -1,32 +1,12 @@
-"""Argument parsing shared by twin-fit and twin-compare: errors on one line naming the flag, number
-types that refuse NaN, infinities and out-of-range values, and a checked plot path.
-
-argparse prints its usage block before an error; a user who typed one wrong flag needs one line
-that names it (the project's rule for bad input), so ``OneLineParser.error`` prints only that.
-"""
+"""Argument types shared by the CLIs: numbers that refuse NaN, infinities and out-of-range values, and a
+checked plot path (the one-line parser is tools/entry.py's ``OneLineParser``)."""
 
 from __future__ import annotations
 
 import argparse
 import math
-import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn
-
-EXIT_USAGE = 2  # argparse's own exit status for a usage error
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """argparse with a one-line error (``prog: error: message``) and the epilog kept as written."""
-
-    def __init__(self, **kwargs) -> None:
-        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
-        super().__init__(**kwargs)
-
-    def error(self, message: str) -> NoReturn:
-        print(f"{self.prog}: error: {message}", file=sys.stderr)
-        raise SystemExit(EXIT_USAGE)
 
 
 def finite_float(text: str) -> float:

@@ -17,6 +17,7 @@ from tools.seeds import seed002_benchmark
 from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME, FORMS, PLAIN
 from tools.tuning.optim import METHODS
 from tools.tuning.optim.benchmark import SEED_ITERATIONS, SEED_POPULATION, format_report, run_all, tasks_for
+from tools.entry import OneLineParser, run_main
 from tools.validation.doc_compare import replace_section
 
 PROG = "python -m tools.cli.benchfuncs"
@@ -24,22 +25,30 @@ QUICK = {"runs": 2, "population": 10, "iterations": 10}  # --quick: a smoke run 
 DOC_BEGIN, DOC_END = "<!-- benchfuncs: begin", "<!-- benchfuncs: end -->"
 
 
-def _arguments(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog=PROG, description="Every optimiser on F1-F23, as a markdown report.")
-    parser.add_argument("--runs", type=int, default=30, help="runs per function, optimiser and form (30)")
-    parser.add_argument("--population", type=int, default=SEED_POPULATION, help="population (seed 002: 50)")
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog=PROG, description="Every optimiser on F1-F23, as a markdown report.")
+    parser.add_argument("--runs", type=int, default=30,
+                        help="runs per function, optimiser and form (default: %(default)s)")
+    parser.add_argument("--population", type=int, default=SEED_POPULATION,
+                        help="population (default: %(default)s, seed 002's)")
     parser.add_argument("--iterations", type=int, default=SEED_ITERATIONS,
-                        help="iterations; budget = population x this (seed 002: 300)")
-    parser.add_argument("--seed", type=int, default=0, help="root seed of every run's Generator (0)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (2)")
-    parser.add_argument("--methods", default="nm,de,pso,alo,ocalo", help=f"comma-separated, of {','.join(METHODS)}")
-    parser.add_argument("--functions", default=",".join(b.name for b in BENCHMARKS), help="e.g. F1,F9,F21 (all)")
+                        help="iterations; budget = population x this (default: %(default)s, seed 002's)")
+    parser.add_argument("--seed", type=int, default=0, help="root seed of every run's Generator (default: %(default)s)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (default: %(default)s)")
+    parser.add_argument("--methods", default="nm,de,pso,alo,ocalo",
+                        help=f"comma-separated, of {','.join(METHODS)} (default: %(default)s)")
+    parser.add_argument("--functions", default=",".join(b.name for b in BENCHMARKS),
+                        help="comma-separated, e.g. F1,F9,F21 (default: %(default)s)")
     parser.add_argument("--forms", default=PLAIN, help=f"comma-separated, of {','.join(FORMS)} "
                         "(shifted/rotated: F1-F7, F9-F13 only; default plain)")
     parser.add_argument("--quick", action="store_true", help="2 runs, population 10, 10 iterations")
     parser.add_argument("--out", type=Path, help="write the markdown report here (default: stdout)")
     parser.add_argument("--doc", type=Path, help="rewrite the report's section of this markdown file (docs/tuning.md)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
+    args = build_parser().parse_args(argv)
     if args.quick:
         vars(args).update(QUICK)
     return args
@@ -98,34 +107,34 @@ def report(args: argparse.Namespace) -> str:
     return text
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _arguments(argv)
+def run(args: argparse.Namespace, command: str) -> int:
     problem = _problem(args)
     if problem:
-        print(f"benchfuncs: {problem}", file=sys.stderr)
-        return 2
+        raise ValueError(problem)
     if args.doc is not None:  # checked before the runs, so that a typo costs nothing
         problem = _write_doc(args.doc, "", "") if not args.doc.is_file() else None
         if problem is None and replace_section(args.doc.read_text(), "", DOC_BEGIN, DOC_END) is None:
             problem = f"no '{DOC_BEGIN} ... -->' / '{DOC_END}' markers"
         if problem:
-            print(f"benchfuncs: --doc {args.doc}: {problem}", file=sys.stderr)
-            return 2
+            raise ValueError(f"--doc {args.doc}: {problem}")
     text = report(args)
     if args.out is None and args.doc is None:
         print(text, end="")
         return 0
-    command = " ".join(sys.argv[1:] if argv is None else argv)
     for flag, path in (("--out", args.out), ("--doc", args.doc)):
         if path is None:
             continue
         problem = _write_out(path, text) if flag == "--out" else _write_doc(path, text, command)
         if problem:
-            print(f"benchfuncs: {flag} {path}: {problem}", file=sys.stderr)
-            return 2
+            raise ValueError(f"{flag} {path}: {problem}")
         print(f"report written to {path}")
     print(text.split("\n\n")[0])
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _arguments(argv)
+    return run_main(PROG, lambda: run(args, " ".join(sys.argv[1:] if argv is None else argv)))
 
 
 if __name__ == "__main__":

@@ -19,7 +19,8 @@ import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tools.cli.args import OneLineParser, plot_path, ranged_float
+from tools.cli.args import plot_path, ranged_float
+from tools.entry import OneLineParser, run_main
 from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.lsq import MAX_EVALUATIONS
 from tools.ident.segments import NotFittable
@@ -27,7 +28,6 @@ from tools.logs import HeattestLog, LogError, M303Log, StatsLog
 from tools.validation import compare, m303_compare
 from tools.validation.tables import WIDTH, markdown_cells, text_tables
 
-EXIT_UNUSABLE = 2
 
 
 @dataclass
@@ -177,7 +177,7 @@ EXAMPLES = """examples:
 """
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> OneLineParser:
     parser = OneLineParser(prog="twin-compare", description=__doc__, epilog=EXAMPLES)
     parser.add_argument("log", type=Path, metavar="LOG", help="the hardware log")
     parser.add_argument("--plot", metavar="FILE", type=plot_path,
@@ -194,6 +194,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     sample.add_argument("--plant", metavar="PRESET_OR_LOG",
                         help="an M303 capture: the twin's plant instead of a fit to it: a preset (twin/plants.py) or "
                              "a log that twin-fit fits; every cycle is then out-of-sample")
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.fit_cycles is not None and args.fit_cycles < 1:
         parser.error(f"argument --fit-cycles: {args.fit_cycles}: at least one cycle")
@@ -214,18 +219,23 @@ def _report(args: argparse.Namespace) -> Report:
                            "the checks need a Klipper Stats log, an M303 capture or the onionheater heattests")
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
-    try:
-        report = _report(args)
-    except (LogError, compare.Unusable, NotFittable, OSError, ValueError) as error:
-        print(f"twin-compare: {args.log}: not usable: {error}", file=sys.stderr)
-        return EXIT_UNUSABLE
+def run(args: argparse.Namespace) -> int:
+    report = _report(args)
     print("\n".join(report.lines + ["", report.summary()]))
     if args.plot:
         _plot(str(args.plot), report.traces)
         print(f"plot written to {args.plot}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+
+    def describe(exc: BaseException) -> str:
+        return f"{args.log}: not usable: {(exc.strerror or exc) if isinstance(exc, OSError) else exc}"
+
+    return run_main("twin-compare", lambda: run(args),
+                    errors=(LogError, compare.Unusable, NotFittable, OSError, ValueError), describe=describe)
 
 
 if __name__ == "__main__":

@@ -30,6 +30,7 @@ from firmware_port.marlin.pid import (
 )
 from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.thermistor import B3950_TABLE, TABLE_ERROR_BOUND_C, TEMP_ONE, Divider
+from tools.entry import EXIT_USAGE, OneLineParser, run_main
 
 # Gain sets to measure: Marlin's defaults and M303 results from ../shared/hardware_logs.
 PID_CASES = {
@@ -149,7 +150,7 @@ def avr_markdown(footprints: list[Footprint], header: str, command: str) -> str:
 
 
 def write_avr_doc(path: Path, body: str) -> None:
-    from tools.tuning.benchfuncs import replace_section
+    from tools.validation.doc_compare import replace_section
 
     new = replace_section(path.read_text(), body, AVR_DOC_BEGIN, AVR_DOC_END)
     if new is None:
@@ -157,15 +158,16 @@ def write_avr_doc(path: Path, body: str) -> None:
     path.write_text(new)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="twin-firmware-report", description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=1, help="seed of the random input sequences (default 1)")
-    parser.add_argument("--sequences", type=int, default=40, help="sequences per case (default 40)")
-    parser.add_argument("--steps", type=int, default=300, help="samples per sequence (default 300)")
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="twin-firmware-report", description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=1, help="seed of the random input sequences (default: %(default)s)")
+    parser.add_argument("--sequences", type=int, default=40, help="sequences per case (default: %(default)s)")
+    parser.add_argument("--steps", type=int, default=300, help="samples per sequence (default: %(default)s)")
     parser.add_argument("--doc", type=Path, help="rewrite the AVR table in this page (docs/firmware.md)")
-    args = parser.parse_args(argv)
-    if args.sequences < 1 or args.steps < 1:
-        parser.error("--sequences and --steps must be at least 1")
+    return parser
+
+
+def run(args: argparse.Namespace, command: str) -> int:
     rng = random.Random(args.seed)
     lines = table_report()
     lines += pid_report(rng, args.sequences, args.steps)
@@ -176,18 +178,23 @@ def main(argv: list[str] | None = None) -> int:
         header = avr_header(args.seed, args.sequences, args.steps)
         lines += avr_report(footprints, header)
         if args.doc is not None:
-            command = " ".join(["twin-firmware-report", *(sys.argv[1:] if argv is None else argv)])
             write_avr_doc(args.doc, avr_markdown(footprints, header, command))
     except ToolchainMissing as exc:
         if args.doc is not None:
             print(f"twin-firmware-report: --doc needs the AVR build: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_USAGE
         lines.append(f"AVR build: not measured: {exc}")
-    except (ValueError, OSError) as exc:
-        print(f"twin-firmware-report: {exc}", file=sys.stderr)
-        return 2
     print("\n".join(lines))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.sequences < 1 or args.steps < 1:
+        parser.error("--sequences and --steps must be at least 1")
+    command = " ".join(["twin-firmware-report", *(sys.argv[1:] if argv is None else argv)])
+    return run_main(parser.prog, lambda: run(args, command))
 
 
 if __name__ == "__main__":

@@ -22,11 +22,13 @@ from __future__ import annotations
 import argparse
 import sys
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from tools.cli.args import OneLineParser, ranged_float
+from tools.cli.args import ranged_float
+from tools.entry import OneLineParser, run_main
 from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.fit import LOSSES, LUMPED_MODELS, MODELS, RADIATING_BOUNDS_M2, RADIATING_EMISSIVITY, RADIATING_PARAM
 from tools.ident.fopdt import CONTROL_DELAY_S, Fopdt, fopdt_equivalent, relay_fopdt, ultimate_point
@@ -41,8 +43,13 @@ from tools.tuning.evaluate import Candidate
 from tools.tuning.problems import build_problem, fitted_source, suggest
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
-EXIT_UNUSABLE = 2
 EXIT_DEGENERATE = 3
+EXIT_STATUS = """
+exit status:
+  0  fitted, settings printed
+  2  bad input: an option, or a log that cannot be read or fitted, said in one line
+  3  a degenerate fit: the report is printed, but no gains
+"""
 WIDTH = 120  # output lines are wrapped to this
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
 KINDS = {StatsLog: "Klipper Stats", HeattestLog: "Klipper heattest (open loop)", M303Log: "Marlin M303 console text",
@@ -68,8 +75,8 @@ POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
 TARGET_RANGE_C = (1.0, 500.0)  # a relay target: above freezing, below any hotend's limit
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = OneLineParser(prog="twin-fit", description=__doc__, epilog=EXAMPLES)
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="twin-fit", description=__doc__, epilog=EXAMPLES + EXIT_STATUS)
     parser.add_argument("log", metavar="LOG", help="the log file")
     parser.add_argument("--model", choices=MODELS,
                         help="two_node (Marlin's MPC model, gives M306; the default for a trace), three_node (plus "
@@ -99,6 +106,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                              "(plus sigma area (T^4 - Ta^4), an effective area at emissivity 1 fitted within "
                              f"{RADIATING_BOUNDS_M2[0] * 1e4:g}..{RADIATING_BOUNDS_M2[1] * 1e4:g} cm^2) or auto "
                              "(both, the lower AIC kept)")
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.loss != "linear" and args.model not in (None, *LUMPED_MODELS):
         parser.error(f"--loss {args.loss} needs --model two_node or three_node: {args.model} has no heat-loss term")
@@ -287,22 +299,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _describe(log: str) -> Callable[[BaseException], str]:
+    """The one-line error for a log that cannot be read or fitted."""
+    def describe(exc: BaseException) -> str:
+        if isinstance(exc, LogError):
+            return str(exc)
+        return f"{log}: not usable for fitting: {exc}" if isinstance(exc, NotFittable) else f"{log}: {exc}"
+
+    return describe
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    try:
-        return run(args)
-    except BrokenPipeError:  # `twin-fit LOG | head`: the reader left
-        sys.stdout = None
-        return 0
-    except LogError as exc:
-        print(f"twin-fit: error: {exc}", file=sys.stderr)
-    except NotFittable as exc:
-        print(f"twin-fit: error: {args.log}: not usable for fitting: {exc}", file=sys.stderr)
-    except OSError as exc:
-        print(f"twin-fit: error: {args.log}: {exc.strerror or exc}", file=sys.stderr)
-    except ValueError as exc:
-        print(f"twin-fit: error: {args.log}: {exc}", file=sys.stderr)
-    return EXIT_UNUSABLE
+    return run_main("twin-fit", lambda: run(args), errors=(LogError, NotFittable, ValueError),
+                    describe=_describe(args.log))
 
 
 if __name__ == "__main__":

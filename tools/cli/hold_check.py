@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.cli.entry import run_main
+from tools.entry import run_main
 from twin import PRESETS, PidGains, Twin
 
 DURATION_S = 900.0

@@ -19,8 +19,10 @@ from protocol.build import build_printer
 from protocol.corruption import RxCorruptor
 from protocol.pacing import MAX, Pacer, parse_idle_speed, parse_speed
 from protocol.pty_server import PtyServer
+from protocol.server import Server
 from protocol.tcp_server import TcpServer
 from protocol.transcript import Transcript
+from tools.entry import OneLineParser, run_main
 from twin.plants import PRESETS as PLANT_PRESETS
 
 DEFAULT_TCP_HOST = "127.0.0.1"
@@ -60,11 +62,10 @@ def _tcp_address(text: str) -> tuple[str, int]:
     return host.strip("[]") or DEFAULT_TCP_HOST, int(port)
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(
         prog="twin-serial",
         description=__doc__.split("\n\n")[0].replace("\n", " "),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=EXAMPLES + "\n" + textwrap.fill(
             "clock: while a command executes (M109, M190, M303, G4, M400, a G1 waiting for the planner) "
             "it runs at --speed: 'max' runs free, N at N x real time. While the printer waits for the host "
@@ -103,12 +104,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="no 'ok' after 'Resend:' (a buggy firmware, to test a host's handling; "
                              "default: 'ok' follows, as GCodeQueue::flush_and_request_resend() sends in Marlin 2.1)")
     parser.add_argument("--corrupt-rx", type=float, default=0.0, metavar="P",
-                        help="probability per received line of one flipped bit (default 0: a clean wire)")
+                        help="probability per received line of one flipped bit (default: %(default)s, a clean wire)")
     parser.add_argument("--seed", type=int, default=0, metavar="N",
                         help="seed of --corrupt-rx's draws: a host sending the same lines gets the same "
                              "flips (default 0)")
     parser.add_argument("--baud", type=int, metavar="N", help="accepted and ignored: any baud rate works")
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -120,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     corruptor = RxCorruptor(args.corrupt_rx, args.seed) if args.corrupt_rx else None
     pacer = Pacer(printer, args.speed, args.idle_speed)
     try:
+        server: Server
         if args.tcp:
             host, port = args.tcp
             try:
@@ -151,11 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signum, _stop)
     args = parse_args(argv)
     logging.basicConfig(format="twin-serial: %(levelname)s: %(message)s", stream=sys.stderr)
-    try:
-        return run(args)
-    except (ValueError, OSError) as exc:
-        print(f"twin-serial: error: {exc}", file=sys.stderr)
-        return 2
+    return run_main("twin-serial", lambda: run(args))
 
 
 if __name__ == "__main__":

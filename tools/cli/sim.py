@@ -26,6 +26,7 @@ from twin.plants import DEFAULT_BED, DEFAULT_HOTEND
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
 from twin.scenario import ScenarioError, scenario_for, with_overrides
+from tools.entry import OneLineParser, run_main
 
 PROGRESS_STEP_S = 10.0  # virtual seconds between progress bar updates
 NOISE_MAX_LSB = 100.0  # ADC noise beyond this is no sensor, it is a broken wire
@@ -37,8 +38,8 @@ EXIT_STATUS = """exit status:
   2  bad input (an option, a scenario file, an output path), said in one line; nothing is run"""
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(
         prog="twin-sim",
         description=__doc__.splitlines()[0],
         epilog="\n\n".join([*(textwrap.fill(paragraph, 100) for paragraph in (
@@ -48,7 +49,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             "plant, --set, --no-bed or gains go into the name, so runs of other plants or gains do not overwrite "
             "each other. --out is created; --csv, --plot and --klipper-log must name a file in an existing folder.",
         )), EXIT_STATUS]),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--firmware", choices=list(FIRMWARES), default="pid", help="firmware build (default pid)")
     parser.add_argument("--plant", choices=list(PLANT_PRESETS), help=f"hotend plant preset (default: the scenario's, else {DEFAULT_HOTEND})")
@@ -70,11 +70,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="MPC's model for --firmware mpc: an M306 line (as twin-fit, M306 or M503 print it) "
                              "or a file holding one; letters it leaves out keep Configuration.h's values")
     parser.add_argument("--seed", type=int, help="seed of every random source (default: the scenario's, else 0)")
-    parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default 0)")
+    parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default: %(default)s)")
     parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default), the tick-by-tick reference, or avr: fast with the "
                         "controllers' C compiled for the ATmega328P and run in simavr")
     parser.add_argument("--record-every", type=float, default=0.0, metavar="SECONDS",
-                        help="at most one trace row per SECONDS (default: every firmware reading, 0.164 s; "
+                        help="at most one trace row per SECONDS (default: %(default)s, every firmware reading, 0.164 s; "
                              "a row costs about 380 bytes: bound long runs with this)")
     parser.add_argument("--out", default="twin-out",
                         help="directory for the default trace and plot, created if missing (default twin-out)")
@@ -82,7 +82,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--klipper-log", help="also write the trace as Klipper Stats lines to this path")
     parser.add_argument("--plot", help="plot PNG path (default OUT/<run name>.png; needs matplotlib)")
     parser.add_argument("--no-plot", action="store_true", help="do not draw a plot")
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def parse_settings(items: list[str], option: str) -> dict[str, float | str]:
@@ -275,14 +279,7 @@ def _write(path: str, text: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    try:
-        return run(args)
-    except BrokenPipeError:  # `twin-sim | head`: the reader left, nothing more to say
-        sys.stdout = None
-        return 0
-    except (ScenarioError, ValueError, OSError) as exc:
-        print(f"twin-sim: error: {exc}", file=sys.stderr)
-        return 2
+    return run_main("twin-sim", lambda: run(args), errors=(ScenarioError, ValueError))
 
 
 if __name__ == "__main__":

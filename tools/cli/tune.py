@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.cli.args import OneLineParser, finite_float, plot_path
-from tools.cli.entry import run_main
+from tools.cli.args import finite_float, plot_path
+from tools.entry import OneLineParser, run_main
 from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
 from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
@@ -45,6 +45,11 @@ EPILOG = """examples:
   twin-tune --controller my_module:SPACE --plant hotend      # your own controller (a ParamSpace)
   twin-tune --controller pid,mpc --plant hotend_cartridge --budget 100   # PID against Marlin's MPC
   twin-tune --from-log klippy.log --heater extruder --loop klipper
+
+exit status:
+  0  tuned, and a candidate passed the proof
+  1  tuned, but no candidate passed the proof (the report says why)
+  2  bad input (an option, a log, a controller), said in one line; nothing is tuned
 """
 
 
@@ -208,7 +213,7 @@ def write_plot(path: Path, result: TuneResult, title: str) -> None:
 
 
 # -- the command ----------------------------------------------------------------------------------
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> OneLineParser:
     parser = OneLineParser(prog="twin-tune", description=__doc__.split("\n\n")[0], epilog=EPILOG)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--plant", help=f"a plant preset: {', '.join(SPECS)}")
@@ -250,7 +255,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--segment", type=int, help="--from-log: the segment to fit (default: the longest heat-up)")
     parser.add_argument("--plot", help="plot file (default twin-out/twin-tune-<plant>.png); 'none' for no plot")
     parser.add_argument("--dask", metavar="ADDRESS", help="a dask.distributed scheduler (tcp://host:port)")
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def check_args(args: argparse.Namespace) -> None:

@@ -4,7 +4,7 @@ With a seed id (000 .. 004): re-run that paper's experiments under a progress ba
 each printed number beside ours with a verdict, which loop each number comes from, and the firmware
 twin's numbers (tools/seeds/report.py); ``--budget`` sets how much its optimisers search.
 
-Without one: re-run every paper at the small budget and write docs/seeds.md (tools/seeds/page.py),
+Without one: re-run every paper at the small budget and write docs/seeds.md (tools/docs/seeds_page.py),
 or, with --check, compare a fresh rendering with the committed page (words and verdicts exactly,
 numbers within tools/validation/doc_compare.py's tolerance) and exit 1 if they differ. --seeds
 renders (replacing those sections of an existing page) or checks those sections only.
@@ -19,24 +19,33 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from tools.cli.args import OneLineParser
-from tools.seeds import page
+from tools.entry import OneLineParser, run_main
+from tools.docs import seeds_page as page
 from tools.seeds.command import BUDGET_HELP, run_seed
 from tools.seeds.papers import PAPERS
 from tools.seeds.report import SMALL_BUDGET, parse_budget
 from tools.validation.doc_compare import compare_docs
 
+EXIT_STATUS = """exit status:
+  0  the report printed, or the page written (or, with --check, current)
+  1  --check: the page differs from a fresh rendering
+  2  bad input (an option, an unwritable or missing page), said in one line"""
 DESCRIPTION = ("Re-run one seed paper and print it beside the paper's numbers, or (no SEED) write docs/seeds.md, "
                "or --check it is current.")
 
 
-def _arguments(argv: list[str] | None) -> argparse.Namespace:
-    parser = OneLineParser(prog="python -m tools.seeds", description=DESCRIPTION)
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.seeds", description=DESCRIPTION, epilog=EXIT_STATUS)
     parser.add_argument("seed", nargs="?", choices=list(PAPERS), help="a seed paper to re-run and print (no page)")
     parser.add_argument("--budget", type=parse_budget, help=BUDGET_HELP + "; with SEED only")
     parser.add_argument("--check", action="store_true", help="compare with the committed page instead of writing it")
     parser.add_argument("--seeds", help="comma-separated, e.g. 001,003 (default: all): the page's sections")
     parser.add_argument("--out", type=Path, help=f"the page (default {page.DOC.name} in docs/)")
+    return parser
+
+
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.seed is not None and (args.check or args.seeds or args.out):
         parser.error("--check, --seeds and --out write or check the page: give them without SEED")
@@ -99,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.seed is not None:
         budget = args.budget or SMALL_BUDGET
         module = PAPERS[args.seed]
-        return run_seed(args.seed, module.report, module.steps(budget), budget)
+        return run_main("tools.seeds", lambda: run_seed(args.seed, module.report, module.steps(budget), budget))
     seeds = (args.seeds or ",".join(page.SECTIONS)).split(",")
     out = args.out or page.DOC
     unknown = [s for s in seeds if s not in page.SECTIONS]
@@ -109,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.check and not out.is_file():
         print(f"tools.seeds: --out {out}: no such file to check", file=sys.stderr)
         return 2
-    return _page(seeds, out, args.check)
+    return run_main("tools.seeds", lambda: _page(seeds, out, args.check))
 
 
 if __name__ == "__main__":

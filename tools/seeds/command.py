@@ -10,7 +10,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from tools.cli.args import OneLineParser
+from tools.entry import OneLineParser, run_main
 from tools.seeds.report import SMALL_BUDGET, Budget, Progress, SeedReport, parse_budget, text
 
 BUDGET_HELP = ("small (default: each seed's preset, under a minute), paper (the paper's own population and "
@@ -33,7 +33,7 @@ def run_seed(seed: str, report: ReportFunction, steps: int, budget: Budget) -> i
 def main_for(seed: str, report: ReportFunction, steps: Callable[[Budget], int], argv: list[str] | None = None) -> int:
     """``python -m tools.seeds.seedNNN [--budget ...]``: the same as ``python -m tools.seeds NNN``."""
     parser = OneLineParser(prog=f"python -m tools.seeds.seed{seed}",
-                                     description=f"Re-run seed {seed}'s experiments and print them beside the paper's.")
+                           description=f"Re-run seed {seed}'s experiments and print them beside the paper's.")
     parser.add_argument("--budget", type=parse_budget, default=SMALL_BUDGET, help=BUDGET_HELP)
     args = parser.parse_args(argv)
-    return run_seed(seed, report, steps(args.budget), args.budget)
+    return run_main(parser.prog, lambda: run_seed(seed, report, steps(args.budget), args.budget))

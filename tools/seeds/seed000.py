@@ -486,7 +486,7 @@ def twin_step(controller: ControllerSpec | None = None, gains: tuple[float, floa
     twin = Twin.create("pid", hotend=preset, ambient_c=TWIN_AMBIENT_C,
                        controllers=[controller] if controller is not None else ())
     if gains is not None:
-        full_w = SPECS[preset].input_full_scale  # type: ignore[union-attr]
+        full_w = SPECS[preset].input_full_scale
         twin.hotend.gains = Gains.from_duty(*(g / full_w for g in gains)).firmware()
     twin.hotend.target_c = TWIN_AMBIENT_C + SETPOINT_C
     result = twin.run(duration_s).hotend.metrics(band_c=SETTLING_BAND * SETPOINT_C)
@@ -537,7 +537,7 @@ RNG_SEED = 0  # root seed of every stochastic run (PSO, DE, the ANFIS networks' 
 # by a small seeded run as well. PSO runs the paper's 30 x 100 (it stops early) at every budget.
 DE_SMALL = {"popsize": 10, "maxiter": 60}
 DE_PAPER = {"popsize": 50, "maxiter": 1000}
-TWIN_FULL_W = SPECS[TWIN_PRESET].input_full_scale  # type: ignore[union-attr]
+TWIN_FULL_W = SPECS[TWIN_PRESET].input_full_scale
 LOOPS = (
     "paper loop: the seed's own code, as printed: its CG/(C+G) closed loop for the optimisers "
     "(scipy.signal.step, 500 samples over 50 s), an integrator of u for the controller listings, its metric "

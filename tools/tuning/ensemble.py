@@ -31,11 +31,11 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-from twin.plants import Spec
+from twin.plants import Spec, respec
 
 DEFAULT_SPREAD = 0.2  # +-20 % on the lag and loss terms where the source states no spread (see above)
 DEFAULT_NOISE_LSB = 1.0
@@ -94,7 +94,7 @@ class Member:
     def spec(self, nominal: Spec) -> Spec:
         if self.built is not None:
             return self.built
-        return replace(nominal, **dict(self.changes)) if self.changes else nominal
+        return respec(nominal, dict(self.changes)) if self.changes else nominal
 
 
 @dataclass(frozen=True)

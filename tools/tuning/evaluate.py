@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -525,7 +525,7 @@ def mpc_autotune(problem: Problem) -> np.ndarray:
         twin.run_until(twin.time_s + AUTOTUNE_POLL_S)
     if not tune.succeeded:
         raise ValueError(f"M306 T failed on {problem.name}: " + " | ".join(twin.console.lines()[-2:]))
-    constants = twin.board.hotend.controller.constants
+    constants = tune.mpc.constants
     return np.array([constants.block_heat_capacity_j_k, constants.sensor_responsiveness_per_s,
                      constants.ambient_xfer_w_k, constants.fan_ambient_xfer_w_k])
 
@@ -588,7 +588,7 @@ def optimiser_names() -> list[str]:
     return list(METHODS)
 
 
-def score(problem: Problem, cost: Callable[[Run], np.ndarray], candidates: dict[str, np.ndarray | Gains],
+def score(problem: Problem, cost: Callable[[Run], np.ndarray], candidates: Mapping[str, np.ndarray | Gains],
           client=None) -> list[Candidate]:
     """Every candidate (parameters, or gains of a PID family) in one batch, clipped into the controller's
     bounds, best first."""

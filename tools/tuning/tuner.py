@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from typing import Any
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -153,7 +154,7 @@ def optimise(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, b
     """Search ``bounds`` (d, 2) with an optimiser of tools/tuning/optim, in the controller's search coordinates;
     ``starts`` (parameter rows: the rules' and the autotune's answers) seed the optimisers that take them."""
     space = problem.controller
-    warm = {} if starts is None or method not in WARM_STARTS else \
+    warm: dict[str, Any] = {} if starts is None or method not in WARM_STARTS else \
         {"starts": space.to_search(np.clip(starts, bounds[:, 0], bounds[:, 1]))}
     with _bar(budget, method, progress) as bar:
         evaluator = Evaluator(problem, cost, client, on_batch=bar)

@@ -17,6 +17,7 @@ the crossover, and the describing function gives Ku ~ 4 d / (pi a).
 
 from __future__ import annotations
 
+import argparse
 import math
 from typing import NamedTuple
 
@@ -24,6 +25,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
+from tools.entry import OneLineParser, run_cli
 from tools.tuning.models import LinearModel, model_of
 from twin.plants import SPECS, Lumped
 
@@ -214,7 +216,12 @@ def relay_tolerance(model: LinearModel, point: UltimatePoint) -> RelayTolerance:
 CONTROL_PERIOD_S = 0.16384  # Marlin's PID_dT on the ATmega328 (firmware_port/marlin/constants.py)
 
 
-def main() -> None:
+def build_parser() -> OneLineParser:
+    return OneLineParser(prog="python -m tools.tuning.ultimate",
+                         description="Every plant preset's ultimate point from its model beside an ideal relay's on it.")
+
+
+def print_points(_args: argparse.Namespace) -> int:
     """Print every plant preset's ultimate point from its model beside an ideal relay's on it."""
     print(f"{'preset':<18} {'extra delay':>11} {'Ku model':>10} {'Tu model':>9} {'Ku relay':>10} {'Tu relay':>9} "
           f"{'dKu %':>6} {'dTu %':>6}  Ku range (DF)        Tu range (DF)")
@@ -229,7 +236,12 @@ def main() -> None:
         print(f"{name:<18} {extra_s:>10.5f}s {point.ku:>10.5g} {point.tu_s:>8.4g}s {relay.ku:>10.5g} "
               f"{relay.tu_s:>8.4g}s {100 * (relay.ku / point.ku - 1):>+6.1f} {100 * (relay.tu_s / point.tu_s - 1):>+6.1f}"
               f"  {tol.ku_low:.4g}..{tol.ku_high:.4g}  {tol.tu_low_s:.4g}..{tol.tu_high_s:.4g} s")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), print_points, argv)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -1,1 +1,2 @@
-"""The twin against real hardware: comparisons, plant checks, the generated validation page, the golden transcript."""
+"""The twin against real hardware: comparisons, plant checks, the golden transcript (tools/docs/validation.py writes
+the validation page)."""

@@ -7,7 +7,6 @@ after a deliberate change of behaviour, and review the diff.
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 from pathlib import Path
 
@@ -15,7 +14,9 @@ from protocol.lines import with_checksum
 from protocol.printer import VirtualPrinter
 from twin.build import build_twin
 from twin.scenario import parse_scenario
+from tools.entry import OneLineParser, run_main
 
+PROG = "python -m tools.validation.golden"
 GOLDEN_PATH = Path(__file__).resolve().parents[2] / "tests" / "golden" / "marlin_session.txt"
 SERIAL_SCENARIO = 'duration_s = 86400\nname = "golden"\n'
 
@@ -54,20 +55,32 @@ def record_session() -> list[str]:
 def golden_cli(prog: str, description: str, path: Path, record: Callable[[], list[str]],
                argv: list[str] | None) -> int:
     """A golden transcript's command: print what ``record`` gives, or with --write keep it in ``path``."""
-    parser = argparse.ArgumentParser(prog=prog, description=description)
+    args = golden_parser(prog, description, path).parse_args(argv)
+
+    def run() -> int:
+        text = "\n".join(record()) + "\n"
+        if args.write:
+            path.write_text(text)
+            print(f"wrote {path} ({text.count(chr(10))} lines)")
+        else:
+            print(text, end="")
+        return 0
+
+    return run_main(prog, run)
+
+
+def golden_parser(prog: str, description: str, path: Path) -> OneLineParser:
+    parser = OneLineParser(prog=prog, description=description)
     parser.add_argument("--write", action="store_true", help=f"rewrite {path}")
-    args = parser.parse_args(argv)
-    text = "\n".join(record()) + "\n"
-    if args.write:
-        path.write_text(text)
-        print(f"wrote {path} ({text.count(chr(10))} lines)")
-    else:
-        print(text, end="")
-    return 0
+    return parser
+
+
+def build_parser() -> OneLineParser:
+    return golden_parser(PROG, __doc__.splitlines()[0], GOLDEN_PATH)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return golden_cli("python -m tools.validation.golden", __doc__.splitlines()[0], GOLDEN_PATH, record_session, argv)
+    return golden_cli(PROG, __doc__.splitlines()[0], GOLDEN_PATH, record_session, argv)
 
 
 if __name__ == "__main__":

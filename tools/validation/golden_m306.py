@@ -14,7 +14,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from protocol.build import build_printer
-from tools.validation.golden import golden_cli
+from tools.entry import OneLineParser
+from tools.validation.golden import golden_cli, golden_parser
 
 GOLDEN_M306_PATH = Path(__file__).resolve().parents[2] / "tests" / "golden" / "m306_autotune.txt"
 COMMAND = "M306 T"
@@ -31,9 +32,15 @@ def record_m306() -> list[str]:
     return printer.take_output().decode().splitlines()
 
 
+PROG = "python -m tools.validation.golden_m306"
+
+
+def build_parser() -> OneLineParser:
+    return golden_parser(PROG, __doc__.splitlines()[0], GOLDEN_M306_PATH)
+
+
 def main(argv: list[str] | None = None) -> int:
-    return golden_cli("python -m tools.validation.golden_m306", __doc__.splitlines()[0], GOLDEN_M306_PATH,
-                      record_m306, argv)
+    return golden_cli(PROG, __doc__.splitlines()[0], GOLDEN_M306_PATH, record_m306, argv)
 
 
 if __name__ == "__main__":

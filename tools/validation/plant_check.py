@@ -28,6 +28,7 @@ from tools.logs import csv_rows, parse_heattest, parse_klipper_stats_csv
 from tools.logs import hardware_logs_dir as logs_dir
 from twin.linear import SENSOR, TICK_S
 from twin.plants import MK3_POWER_W, SPECS, Lumped, Plant, make_plant
+from tools.entry import OneLineParser, run_cli
 
 # Onionheater pulse tests (README section B; the author's notes in the files' headers).
 ONION_LOG = "klipper_heattest_onionheater_{}.csv"
@@ -295,16 +296,21 @@ def fit_report() -> list[str]:
     )
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m tools.validation.plant_check", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.validation.plant_check", description=__doc__.splitlines()[0])
     parser.add_argument("--fit", action="store_true", help="rerun the fits whose results twin/plants.py holds")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
     print(f"hardware logs: {logs_dir()}")
-    if args.fit:
-        print("\n".join(fit_report()))
-        return
-    print("\n".join(hotend_report() + bed_report()))
+    print("\n".join(fit_report() if args.fit else hotend_report() + bed_report()))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

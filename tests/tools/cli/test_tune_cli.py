@@ -10,7 +10,7 @@ import pytest
 from distributed import Client, LocalCluster
 
 from tools.cli.tune import main
-from tools.tuning import table
+from tools.docs import rules_table as table
 from tools.tuning.evaluate import preset_problem, rule_names
 from tools.tuning.tuner import tune
 
@@ -108,7 +108,7 @@ def test_a_tune_on_a_local_dask_cluster_equals_in_process():
 def test_the_rules_table_in_the_docs_is_current():
     """docs/tuning.md's table against a fresh run, with table.same_table's tolerances."""
     problems = table.same_table(table.table_of(table.DOC.read_text()), table.generate())
-    assert not problems, "\n".join(problems[:20]) + "\nregenerate with: python -m tools.tuning.table"
+    assert not problems, "\n".join(problems[:20]) + "\nregenerate with: python -m tools.docs.rules_table"
 
 
 def test_same_table_tolerates_small_moves_but_not_verdicts():

@@ -1,11 +1,11 @@
-"""docs/seeds.md (tools/seeds/page.py, python -m tools.seeds): complete, current, and checked by --check."""
+"""docs/seeds.md (tools/docs/seeds_page.py, python -m tools.seeds): complete, current, and checked by --check."""
 
 from __future__ import annotations
 
 import pytest
 
 from tools.seeds import __main__ as cli
-from tools.seeds import page
+from tools.docs import seeds_page as page
 from tools.seeds.report import FITTED, VERDICTS
 from tools.validation.doc_compare import compare_docs
 

@@ -1,6 +1,6 @@
-"""docs/firmware.md's generated MPC section (tools/tuning/mpc_report.py): the markers are there,
+"""docs/firmware.md's generated MPC section (tools/docs/mpc_report.py): the markers are there,
 the writer (benchfuncs.write_section) replaces only what lies between them, and the section's verdicts follow from its own
-numbers (the run itself is python -m tools.tuning.mpc_report --doc docs/firmware.md, ~40 s)."""
+numbers (the run itself is python -m tools.docs.mpc_report --doc docs/firmware.md, ~40 s)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 
 from tools.validation.doc_compare import write_section
-from tools.tuning.mpc_report import BEGIN, COMMAND, END, HOLD_BAND_C
+from tools.docs.mpc_report import BEGIN, COMMAND, END, HOLD_BAND_C
 
 DOC = Path(__file__).resolve().parents[3] / "docs" / "firmware.md"
 ROW = re.compile(r"^\| (\d) \| (PID|MPC)[^|]* \| ([\d.]+) \| [^|]* \| ([^|]*) \| [^|]* \| (yes|no) \|$", re.M)

@@ -6,9 +6,9 @@ import re
 
 import pytest
 
-from tools.tuning import optimtable
+from tools.docs import optimtable
 from tools.validation.doc_compare import replace_section
-from tools.tuning.table import REL_TOL, cost_verdict
+from tools.docs.rules_table import REL_TOL, cost_verdict
 
 # The full table (900 evaluations per optimiser, four plants) takes minutes; the test runs the
 # reduced configuration: hotend_cartridge, 300 evaluations, seed 0.

@@ -1,4 +1,4 @@
-"""tools/validation/compare.py, tools/cli/compare.py and tools/validation/doc.py on the real hardware logs.
+"""tools/validation/compare.py, tools/cli/compare.py and tools/docs/validation.py on the real hardware logs.
 
 The logs come from the hardware_logs fixture: without them these tests skip locally and fail in CI.
 """
@@ -10,7 +10,7 @@ import pytest
 
 from tools.cli import compare as compare_cli
 from tools.validation import compare
-from tools.validation import doc as validation
+from tools.docs import validation
 from tools.validation.doc_compare import compare_docs
 from tools.logs import load_log
 
@@ -114,7 +114,7 @@ def test_validation_doc_is_up_to_date(hardware_logs):
     """Verdicts, words and integers exactly, decimals within tools/validation/doc_compare.py's tolerance: the
     fits' last bits depend on the BLAS kernel (OPENBLAS_CORETYPE), never the verdicts."""
     mismatches = compare_docs(validation.render(hardware_logs), validation.DOC.read_text())
-    assert not mismatches, ("docs/validation.md is stale (run python -m tools.validation.doc):\n"
+    assert not mismatches, ("docs/validation.md is stale (run python -m tools.docs.validation):\n"
                             + "\n".join(map(str, mismatches)))
 
 

@@ -1,6 +1,6 @@
 """The rules table of docs/tuning.md: every preset plant tuned by every rule, run on the firmware twin.
 
-``python -m tools.tuning.table`` tunes each plant of twin/plants.py (the seeds' models and the
+``python -m tools.docs.rules_table`` tunes each plant of twin/plants.py (the seeds' models and the
 presets fitted to real printers) with every rule of tools/tuning/rules, runs each candidate and
 Marlin's own M303 C8 result through the default scenario on the Marlin firmware twin
 (tools/tuning/evaluate.py), and rewrites the table between the markers in docs/tuning.md.
@@ -17,13 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.entry import OneLineParser, run_cli
 from tools.tuning.evaluate import Candidate, firmware_autotune, preset_problem, rule_gains, rule_names, score
 from tools.tuning.objectives import heater_cost, heater_terms
 from twin.metrics import step_metrics
 from twin.plants import SPECS
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "tuning.md"
-BEGIN, END = "<!-- rules-table: begin (python -m tools.tuning.table) -->", "<!-- rules-table: end -->"
+BEGIN, END = "<!-- rules-table: begin (python -m tools.docs.rules_table) -->", "<!-- rules-table: end -->"
 # Beds at 60 C (PLA); seed 000's models at its listings' setpoint, 50 C of rise, on 25 C ambient (at
 # 210 C they would need 92.5 % of full power to hold, so the load step makes the target unreachable);
 # every other plant at 210 C.
@@ -138,10 +139,14 @@ def same_table(a: str, b: str) -> list[str]:
     return problems
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.tuning.table", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.docs.rules_table", description=__doc__.splitlines()[0],
+                           epilog="exit status: 0 written (or current), 1 --check: out of date, 2 bad input")
     parser.add_argument("--check", action="store_true", help="compare with docs/tuning.md instead of writing it")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
     table = generate()
     doc = DOC.read_text()
     if args.check:
@@ -152,6 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     DOC.write_text(doc[:start] + "\n" + table + "\n" + doc[end:])
     print(f"wrote the rules table ({table.count(chr(10)) - 1} rows) into {DOC}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

@@ -39,7 +39,7 @@ MIN_PRINTED = 2  # cycles: one to fit, one to predict
 
 PROTOCOL = (
     "Protocol, fixed before the out-of-sample scores below were generated: this text and the generator "
-    "(tools/validation/doc_m303.py, tools/validation/m303_compare.py) were committed first, the scores "
+    "(tools/docs/validation_m303.py, tools/validation/m303_compare.py) were committed first, the scores "
     "in a later commit, and nothing here was changed after they were seen (`git log -- docs/validation.md "
     "tools/validation/` shows the order). While the method was built, trial fits of the first cycles of the "
     "Ender 3 V3 SE and Prusa bed captures were run (to choose how the twin's ADC noise is set for a plant "

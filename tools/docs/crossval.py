@@ -7,7 +7,7 @@ its reading noise, the robust statistic; DE with ``BUDGET`` evaluations from the
 proof); the answer is then scored on every other log's problem. The table gives, per (tuned on,
 scored on) pair, the cost of those gains there, the cost of that log's own tune there, and the loss
 (the difference: what tuning on the other log cost). In-sample rows (scored on its own fit) are
-marked so. ``python -m tools.tuning.crossval --doc docs/tuning.md`` rewrites its section.
+marked so. ``python -m tools.docs.crossval --doc docs/tuning.md`` rewrites its section.
 """
 
 from __future__ import annotations
@@ -26,9 +26,10 @@ from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
 from tools.tuning.problems import build_problem, log_source
 from tools.tuning.tuner import tune
 from tools.validation.doc_compare import write_section
+from tools.entry import OneLineParser, run_cli
 
 BEGIN, END = "<!-- crossval: begin", "<!-- crossval: end -->"
-COMMAND = "python -m tools.tuning.crossval --doc docs/tuning.md"
+COMMAND = "python -m tools.docs.crossval --doc docs/tuning.md"
 BUDGET = 270  # DE: six generations of 45
 SEED = 0
 TARGET_C = 210.0
@@ -93,17 +94,24 @@ def markdown(groups: dict[str, list[Cell]], budget: int) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.tuning.crossval", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.docs.crossval", description=__doc__.splitlines()[0])
     parser.add_argument("--doc", type=Path, help="rewrite the section of this file (docs/tuning.md)")
-    parser.add_argument("--budget", type=int, default=BUDGET, help=f"DE evaluations per tune (default: {BUDGET})")
-    args = parser.parse_args(argv)
+    parser.add_argument("--budget", type=int, default=BUDGET, help="DE evaluations per tune (default: %(default)s)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
     groups = {printer: group_cells(heater, names, args.budget) for printer, (heater, names) in GROUPS.items()}
     body = markdown(groups, args.budget)
     if args.doc is not None:
         write_section(args.doc, body, BEGIN, END)
     print(body)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

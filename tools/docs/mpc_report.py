@@ -1,7 +1,7 @@
 """PID against MPC on the same hotend, each tuned by its own firmware autotune on the twin, as a
 user would do it; and how close M306 T comes to the model it measures.
 
-``python -m tools.tuning.mpc_report --doc docs/firmware.md`` rewrites the generated part of the MPC
+``python -m tools.docs.mpc_report --doc docs/firmware.md`` rewrites the generated part of the MPC
 section there; without --doc it prints it. Everything runs through the serial layer as twin-serial
 serves it (M303, M306 T, M306) and through twin-sim's heat_hold scenario:
 
@@ -36,12 +36,13 @@ from protocol.mpc_commands import mpc_constants_from_text
 from protocol.printer import VirtualPrinter
 from tools.logs import hardware_logs_dir
 from tools.validation.doc_compare import write_section
+from tools.entry import OneLineParser, run_cli
 from twin.build import build_twin
-from twin.plants import SPECS
+from twin.plants import SPECS, Lumped
 from twin.scenario import Scenario, parse_scenario, scenario_for, with_overrides
 
 BEGIN, END = "<!-- mpc-report: begin", "<!-- mpc-report: end -->"
-COMMAND = "python -m tools.tuning.mpc_report --doc docs/firmware.md"
+COMMAND = "python -m tools.docs.mpc_report --doc docs/firmware.md"
 PLANT = "hotend_cartridge"
 TARGET_C = 210
 M303_CYCLES = 8
@@ -110,7 +111,8 @@ def fitted_model(capture: str) -> MpcConstants:
 
 def accuracy_rows() -> list[str]:
     spec = SPECS["hotend"]
-    models = [("`hotend` preset (Configuration.h)", MpcConstants.from_m306(
+    assert isinstance(spec, Lumped)  # the hotend preset is Marlin's MPC model
+    models: list[tuple[str, MpcConstants, dict[str, float | str]]] = [("`hotend` preset (Configuration.h)", MpcConstants.from_m306(
         spec.power_w, spec.block_heat_capacity_j_k, spec.sensor_responsiveness_per_s, spec.ambient_xfer_w_k,
         spec.fan_ambient_xfer_w_k, spec.filament_heat_capacity_j_k_mm), {"preset": "hotend"})]
     models += [(f"twin-fit `{capture}`", model, mpc_plant(model)) for capture in CAPTURES
@@ -159,6 +161,7 @@ def heat_hold(firmware: str, noise_lsb: float, *, gains: PidGains | None = None,
     result = twin.run(scenario.duration_s)
     run, trips = result.hotend, result.protection_trips()
     metrics = run.metrics()
+    assert not isinstance(metrics, list)  # one twin, one lane
     hold = run.t_s >= HOLD_FROM_S
     error_c = run.measured_c[hold] - TARGET_C
     trip = f"{trips[0][1]} at {trips[0][0]:.0f} s" if trips else None
@@ -208,19 +211,22 @@ def markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.tuning.mpc_report", description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.docs.mpc_report", description=__doc__.splitlines()[0])
     parser.add_argument("--doc", type=Path, help="rewrite the generated MPC section of this file (docs/firmware.md)")
-    args = parser.parse_args(argv)
-    try:
-        body = markdown()
-        if args.doc is not None:
-            write_section(args.doc, body, BEGIN, END)
-    except (ValueError, OSError) as exc:
-        print(f"mpc_report: {exc}", file=sys.stderr)
-        return 2
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    body = markdown()
+    if args.doc is not None:
+        write_section(args.doc, body, BEGIN, END)
     print(body, end="")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), run, argv)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ heater objective, and better than the firmware's own autotune (Marlin M303 C8). 
 built as twin-tune builds it (a preset, or ``--from-log`` fitted as twin-fit does); each optimiser
 searches twin-tune's box (0 .. 4 x the best rule's gains) with a fixed seed and budget.
 
-``python -m tools.tuning.optimtable`` rewrites the section between the markers in docs/tuning.md;
+``python -m tools.docs.optimtable`` rewrites the section between the markers in docs/tuning.md;
 ``--budget`` and ``--plants`` give a reduced run (the test's).
 """
 
@@ -17,11 +17,12 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from tools.docs.rules_table import cost_verdict
+from tools.entry import OneLineParser, run_cli
 from tools.ident.log_fit import LogFitOptions
 from tools.logs import hardware_logs_dir
 from tools.tuning.evaluate import Candidate, rule_gains, rule_names, score
 from tools.tuning.objectives import heater_cost
-from tools.tuning.table import cost_verdict
 from tools.tuning.evaluate import Problem
 from tools.tuning.problems import build_problem, log_source, preset_source
 from tools.tuning.tuner import optimise, references, search_bounds
@@ -53,7 +54,7 @@ class PlantResult:
     optimised: dict[str, Candidate]
 
     def verdicts(self, method: str) -> tuple[str, str]:
-        """(against the best rule, against M303): beats / ties / loses, with table.py's tie margin."""
+        """(against the best rule, against M303): beats / ties / loses, with rules_table.py's tie margin."""
         cost = self.optimised[method].cost
         vs_m303 = "-" if self.m303 is None else cost_verdict(cost, self.m303.cost)
         return cost_verdict(cost, self.best_rule.cost), vs_m303
@@ -93,7 +94,7 @@ def markdown(results: list[PlantResult], budget: int, seed: int) -> str:
     head = ["plant", "best rule", "rule cost", "M303 cost"]
     head += [f"{m.upper()} cost (vs rule / vs M303)" for m in methods] + ["accepted"]
     lines = [f"Budget {budget} evaluations per optimiser, seed {seed}, heater objective, Marlin firmware twin; "
-             "ties are within 2 % (tools/tuning/table.py REL_TOL).", "",
+             "ties are within 2 % (tools/docs/rules_table.py REL_TOL).", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in results:
         cells = [f"{r.plant} ({r.source})", r.best_rule.method, _g(r.best_rule.cost),
@@ -112,29 +113,33 @@ def write_doc(path: Path, body: str, command: str) -> None:
     write_section(path, f"Written by `{command}`.\n\n{body}", BEGIN, END)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.tuning.optimtable", description=__doc__.splitlines()[0])
-    parser.add_argument("--budget", type=int, default=BUDGET, help=f"evaluations per optimiser ({BUDGET})")
-    parser.add_argument("--seed", type=int, default=SEED, help=f"every optimiser's seed ({SEED})")
-    parser.add_argument("--plants", default=",".join(PLANTS), help="comma-separated plant labels")
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="python -m tools.docs.optimtable", description=__doc__.splitlines()[0])
+    parser.add_argument("--budget", type=int, default=BUDGET, help="evaluations per optimiser, at least 150 "
+                        "(OCALO: 3 x its population of 50) (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=SEED, help="every optimiser's seed (default: %(default)s)")
+    parser.add_argument("--plants", default=",".join(PLANTS),
+                        help="comma-separated plant labels, of " + ", ".join(PLANTS) + " (default: all)")
     parser.add_argument("--doc", type=Path, help="rewrite the optimiser section of this file (docs/tuning.md)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run(args: argparse.Namespace, argv: list[str]) -> int:
     labels = args.plants.split(",")
     unknown = [p for p in labels if p not in PLANTS]
-    if unknown or args.budget < 150:
-        why = f"--plants: unknown {unknown}, choose from {list(PLANTS)}" if unknown else "--budget must be >= 150 (OCALO: 3 x its population of 50)"
-        print(f"optimtable: {why}", file=sys.stderr)
-        return 2
-    try:
-        table = markdown([run_plant(p, args.budget, args.seed) for p in labels], args.budget, args.seed)
-        if args.doc is not None:
-            command = "python -m tools.tuning.optimtable " + " ".join(sys.argv[1:] if argv is None else argv)
-            write_doc(args.doc, table, command.strip())
-    except (ValueError, OSError) as exc:
-        print(f"optimtable: {exc}", file=sys.stderr)
-        return 2
+    if unknown:
+        raise ValueError(f"--plants: unknown {unknown}, choose from {list(PLANTS)}")
+    if args.budget < 150:
+        raise ValueError("--budget must be >= 150 (OCALO: 3 x its population of 50)")
+    table = markdown([run_plant(p, args.budget, args.seed) for p in labels], args.budget, args.seed)
+    if args.doc is not None:
+        write_doc(args.doc, table, ("python -m tools.docs.optimtable " + " ".join(argv)).strip())
     print(table, end="")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), lambda args: run(args, sys.argv[1:] if argv is None else argv), argv)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from firmware_port.controller import Controller, ControllerSpec
+from firmware_port.controller import Controller, ControllerSpec, Observable
 from firmware_port.firmwares import build_controllers
 from firmware_port.fixed import wrap_s32
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL, MarlinBoard
@@ -35,7 +35,7 @@ from firmware_port.marlin.serial import Console
 from firmware_port.thermistor import TEMP_ONE
 from twin.clock import TICK_S, EventQueue, ticks_at
 from twin.linear import BLOCK, SENSOR
-from twin.result import RunResult
+from twin.result import HEATERS, RunResult
 from twin.sensor import SensorChain, seeded_chains
 from twin.trace import Trace
 
@@ -381,6 +381,10 @@ class Twin:
                 row += [0, 0.0, 0.0, 0.0, 0.0]
         row.append(self.fan)
         self.trace.append(tuple(row))
+        for channel, name in enumerate(HEATERS[:len(self.plants)]):
+            controller = self.board.heaters[channel].controller
+            if isinstance(controller, Observable):
+                self.trace.add_signals(name, controller.signals())
 
     def _console_to_trace(self, text: str) -> None:
         if not self.recording:

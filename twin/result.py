@@ -16,7 +16,8 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -40,6 +41,7 @@ class HeaterRun:
     block_c: np.ndarray  # true heater-block temperature
     sensor_c: np.ndarray  # true sensor-node temperature
     duty: np.ndarray  # heater duty 0..1 (soft-PWM amount / 127 on Marlin)
+    signals: dict[str, np.ndarray] = field(default_factory=dict)  # what its controller published (e.g. PID's p, i, d)
 
     @property
     def lanes(self) -> int | None:
@@ -47,8 +49,9 @@ class HeaterRun:
 
     def lane(self, index: int) -> HeaterRun:
         """One lane of a batch as a single run."""
-        return HeaterRun(self.name, self.t_s, *(getattr(self, f)[:, index] if getattr(self, f).ndim == 2
-                                                  else getattr(self, f) for f in FIELDS))
+        run = HeaterRun(self.name, self.t_s, *(getattr(self, f)[:, index] if getattr(self, f).ndim == 2
+                                               else getattr(self, f) for f in FIELDS))
+        return replace(run, signals={k: v[:, index] if v.ndim == 2 else v for k, v in self.signals.items()})
 
     def metrics(self, **options) -> StepMetrics | list[StepMetrics]:
         """Step metrics (twin.metrics.step_metrics) of the first segment with a non-zero target
@@ -86,13 +89,15 @@ class RunResult:
     @classmethod
     def from_columns(cls, t_s, columns: dict[str, dict[str, np.ndarray]], fan=None,
                      events: Sequence[tuple[float, str]] = (), label: str = "") -> RunResult:
-        """Build from {heater: {field: array}}; missing fields are NaN."""
+        """Build from {heater: {field: array}}; missing fields are NaN; ``signals`` (a heater's optional
+        {name: array}) are its controller's published internals."""
         t_s = np.asarray(t_s, dtype=float)
         heaters = {}
         for name, cols in columns.items():
             shape = np.shape(cols["measured_c"])
-            heaters[name] = HeaterRun(name, t_s, *(np.asarray(cols[f], dtype=float) if f in cols
-                                                   else np.full(shape, np.nan) for f in FIELDS))
+            signals = {k: np.asarray(v, dtype=float) for k, v in dict(cols.get("signals", {})).items()}
+            arrays: list[Any] = [np.asarray(cols[f], dtype=float) if f in cols else np.full(shape, np.nan) for f in FIELDS]
+            heaters[name] = replace(HeaterRun(name, t_s, *arrays), signals=signals)
         fan = np.zeros(len(t_s)) if fan is None else np.asarray(fan, dtype=float)
         return cls(t_s, heaters, fan, list(events), label)
 

@@ -23,6 +23,13 @@ class Trace:
 
     rows: list[tuple] = field(default_factory=list)
     events: list[tuple[float, str]] = field(default_factory=list)  # (t_s, text)
+    signals: dict[str, dict[str, list[float]]] = field(default_factory=dict)  # heater -> name -> one value per row
+
+    def add_signals(self, heater: str, values: dict[str, float]) -> None:
+        """A controller's published internals for the row just appended."""
+        own = self.signals.setdefault(heater, {})
+        for name, value in values.items():
+            own.setdefault(name, []).append(value)
 
     def append(self, row: tuple) -> None:
         self.rows.append(row)
@@ -34,9 +41,12 @@ class Trace:
         """The recording as a RunResult with the named heaters (a board without a bed: hotend only)."""
         width = 1 + len(HEATERS) * len(FIELDS) + 1
         table = np.array(self.rows, dtype=float).reshape(-1, width)
-        columns = {}
+        columns: dict[str, dict] = {}
         for index, name in enumerate(HEATERS):
             if name in heaters:
                 first = 1 + index * len(FIELDS)
                 columns[name] = {f: table[:, first + k] for k, f in enumerate(FIELDS)}
+                own = {k: v for k, v in self.signals.get(name, {}).items() if len(v) == len(table)}
+                if own:
+                    columns[name]["signals"] = own
         return RunResult.from_columns(table[:, 0], columns, table[:, -1], list(self.events), label)

@@ -125,3 +125,17 @@ def test_one_result_type_for_the_klipper_twin():
     assert isinstance(result, RunResult) and set(result.heaters) == {"hotend", "bed"}
     assert result.hotend.measured_c[-1] > 50 and len(result.bed.measured_c) == len(result.t_s)
     assert result.to_klipper_stats().startswith("Stats 1.")
+
+
+def test_the_pid_publishes_its_terms_in_the_result():
+    """One run record: the PID's P, I and D terms, one value per reading beside the trace; inside the band
+    they sum to the output, which is twice the soft-PWM amount (duty x 127) within the law's rounding."""
+    twin = Twin.create("pid", hotend="hotend_cartridge")
+    twin.hotend.target_c = 210
+    hotend = twin.run(200).hotend
+    terms = hotend.signals
+    assert sorted(terms) == ["d_counts", "i_counts", "p_counts"] and all(v.shape == hotend.t_s.shape for v in terms.values())
+    inside = (np.abs(hotend.target_c - hotend.measured_c) < 10) & (hotend.t_s > 150)  # PID_FUNCTIONAL_RANGE
+    total = terms["p_counts"] + terms["i_counts"] + terms["d_counts"]
+    amount = np.clip(total[inside], 0, 255) / 2
+    assert inside.sum() > 100 and np.max(np.abs(np.floor(amount) - np.round(hotend.duty[inside] * 127))) <= 1

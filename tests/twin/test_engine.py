@@ -252,6 +252,7 @@ def test_batch_lanes_equal_scalar_twins():
         twin.schedule(0.5, lambda tw: tw.board.set_target(0, 210))
         twin.run_until(150)
         hotend = twin.result().hotend
-        assert np.array_equal(hotend.measured_c, batch.measured_c[:, lane])
-        assert np.array_equal(hotend.duty, batch.duty[:, lane])
-        assert np.allclose(hotend.block_c, batch.block_c[:, lane], atol=1e-9)
+        lanes = batch.result().hotend
+        assert np.array_equal(hotend.measured_c, lanes.measured_c[:, lane])
+        assert np.array_equal(hotend.duty, lanes.duty[:, lane])
+        assert np.allclose(hotend.block_c, lanes.block_c[:, lane], atol=1e-9)

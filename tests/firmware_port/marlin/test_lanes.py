@@ -130,8 +130,9 @@ PID_STATE = ("i_sum_q5", "d_term_q8", "prev_q5", "reset_pending")
 
 def _assert_same_batches(a: BatchTwin, b: BatchTwin) -> None:
     """Every record and every piece of state, bit for bit."""
+    ra, rb = a.result().hotend, b.result().hotend
     for column in ("t_s", "measured_c", "block_c", "sensor_c", "duty"):
-        assert np.array_equal(getattr(a, column), getattr(b, column)), column
+        assert np.array_equal(getattr(ra, column), getattr(rb, column)), column
     assert np.array_equal(a.x, b.x)
     for name in LANE_STATE:
         assert np.array_equal(getattr(a.lanes, name), getattr(b.lanes, name)), name
@@ -187,8 +188,9 @@ def test_every_kernel_equals_scalar_twins(kernel):
         twin.schedule(0.5, lambda tw: tw.board.set_target(0, 210))
         twin.run_until(120.0)
         hotend = twin.result().hotend
-        assert np.array_equal(hotend.measured_c, batch.measured_c[:, lane])
-        assert np.array_equal(hotend.duty, batch.duty[:, lane])
+        lanes = batch.result().hotend
+        assert np.array_equal(hotend.measured_c, lanes.measured_c[:, lane])
+        assert np.array_equal(hotend.duty, lanes.duty[:, lane])
 
 
 def test_a_noisy_sensor_gives_the_same_numbers_on_either_kernel():
@@ -200,10 +202,11 @@ def test_a_noisy_sensor_gives_the_same_numbers_on_either_kernel():
                        SensorChain(noise_lsb=1.0, rng=np.random.default_rng(5)))
             for kernel in KERNELS]
     _assert_same_batches(*runs)
-    assert np.array_equal(runs[0].measured_c[:, 0], runs[0].measured_c[:, 1])
+    noisy = runs[0].result().hotend.measured_c
+    assert np.array_equal(noisy[:, 0], noisy[:, 1])
     quiet = _run_batch("numba", "hotend", 25.0, [PidGains(22.2, 1.08, 114.0)], PREV_TEMP_EVERY_SAMPLE, [(0.0, 210)],
                        30.0)
-    assert not np.array_equal(runs[0].measured_c[:, 0], quiet.measured_c[:, 0])  # the noise is there
+    assert not np.array_equal(noisy[:, 0], quiet.result().hotend.measured_c[:, 0])  # the noise is there
 
 
 def test_kernel_choice_comes_from_the_environment(monkeypatch):

@@ -58,7 +58,7 @@ from twin.engine import Twin
 from twin.klipper_batch import KlipperBatch, gains_setups
 from twin.klipper_twin import KlipperTwin, extruder_setup, tick_near
 from twin.linear import SENSOR, Lti
-from twin.plants import SPECS, Plant, Spec, TransferFunction
+from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
 from twin.scenario import Event
 from twin.streaming import ScoreTotals
 
@@ -567,8 +567,12 @@ def rule_gains(problem: Problem, names: list[str]) -> tuple[dict[str, Gains], di
     """Each named rule's gains for the problem's plant (tools/tuning/rules) as its linear model, with
     the firmware loop's own delay added where a firmware is in the loop (tools/ident/fit.py
     CONTROL_DELAY_S, as twin-fit tunes; none on the papers' idealised loop); and, for the rules that
-    give none on this model, why (a rule's ValueError)."""
-    model = model_of(problem.spec)
+    give none on this model, why (a rule's ValueError). A radiating plant is linearised at the target
+    (its loss the secant conductance there, part fan off)."""
+    spec, scenario = problem.spec, problem.scenario
+    at_target = spec.conditions(0.0, 0.0, scenario.ambient_c, scenario.target_c) \
+        if isinstance(spec, Lumped) and not spec.linear else None
+    model = model_of(spec, at_target)
     if problem.loop != "ideal":
         model = model.delayed(CONTROL_DELAY_S)
     gains, failures = {}, {}

@@ -13,6 +13,8 @@ trips. Cases run in parallel worker processes (forked; serially where fork is no
 from __future__ import annotations
 
 import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 import os
 from dataclasses import dataclass, replace
 
@@ -70,8 +72,11 @@ def _run_all(tasks: list[tuple[Problem, np.ndarray]], workers: int | None) -> li
         workers = 1
     if workers <= 1 or len(tasks) <= 1:
         return [_run_task(i) for i in range(len(tasks))]
-    with context.Pool(min(workers, len(tasks))) as pool:
-        return pool.map(_run_task, range(len(tasks)))
+    try:
+        with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=context) as pool:
+            return list(pool.map(_run_task, range(len(tasks))))
+    except BrokenProcessPool:  # a forked worker died (a thread pool the parent had started does not fork): here
+        return [_run_task(i) for i in range(len(tasks))]
 
 
 def _row(problem: Problem, candidate: Candidate, traces: list[Traces]) -> ProofRow:

@@ -136,8 +136,8 @@ def test_lanes_on_several_plants_are_each_plant_alone():
         alone = BatchTwin(make_plant("hotend_cartridge", **params), [g], seed=seed, noise_lsb=1.0, threads=1)
         alone.set_target(TARGET_C)
         alone.run_until(80.0)
-        np.testing.assert_array_equal(mixed.measured_c[:, lane], alone.measured_c[:, 0])
-        np.testing.assert_array_equal(mixed.block_c[:, lane], alone.block_c[:, 0])
+        np.testing.assert_array_equal(mixed.result().hotend.measured_c[:, lane], alone.result().hotend.measured_c[:, 0])
+        np.testing.assert_array_equal(mixed.result().hotend.block_c[:, lane], alone.result().hotend.block_c[:, 0])
 
 
 def test_threads_give_the_same_numbers():
@@ -145,8 +145,8 @@ def test_threads_give_the_same_numbers():
     gains = [PidGains(*map(float, g)) for g in rng.uniform([5, 0.1, 20], [40, 3, 200], (24, 3))]
     runs = [_batch("hotend_cartridge", gains, 60.0, threads=threads, seed=5, noise_lsb=1.0) for threads in (1, 2, 3)]
     for other in runs[1:]:
-        np.testing.assert_array_equal(runs[0].measured_c, other.measured_c)
-        np.testing.assert_array_equal(runs[0].block_c, other.block_c)
+        np.testing.assert_array_equal(runs[0].result().hotend.measured_c, other.result().hotend.measured_c)
+        np.testing.assert_array_equal(runs[0].result().hotend.block_c, other.result().hotend.block_c)
 
 
 def test_the_numpy_lanes_refuse_what_only_the_kernel_runs():
@@ -192,5 +192,5 @@ def test_noisy_lanes_take_the_shortcut_to_the_same_counts():
     noise, seeds = [0.3, 1.0, 3.0] * 3, [1] * 3 + [2] * 3 + [3] * 3
     runs = [_batch("hotend_cartridge", gains, 400.0, kernel=kernel, noise_lsb=noise, seed=seeds)
             for kernel in KERNELS]
-    np.testing.assert_array_equal(runs[0].measured_c, runs[1].measured_c)
-    np.testing.assert_array_equal(runs[0].duty, runs[1].duty)
+    np.testing.assert_array_equal(runs[0].result().hotend.measured_c, runs[1].result().hotend.measured_c)
+    np.testing.assert_array_equal(runs[0].result().hotend.duty, runs[1].result().hotend.duty)

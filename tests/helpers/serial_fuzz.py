@@ -37,7 +37,7 @@ MARLIN_REPLY = re.compile("|".join((
     r"Cap:[A-Z0-9_]+:[01]",
     r"start|PowerUp| External Reset|Marlin 2\.1\.2\.1",
     r"PID Autotune .*",
-    r" bias: .*| Classic PID ?| Kp: .*",
+    r" bias: .*| Classic PID ?| No overshoot| Kp: .*",
     r"#define DEFAULT_(bed)?K[pid] .*",
     r"Printer stopped due to errors\..*",
 )))

@@ -25,6 +25,7 @@ import pytest
 import serial
 
 import protocol  # noqa: F401  registers twin://
+from protocol.build import build_printer
 from tests.helpers.serial_fuzz import bad_replies, fuzz_lines
 from tests.helpers.serial_host import twin_serial
 
@@ -60,6 +61,19 @@ def rss_mb() -> float:
     """This process's resident set (Linux /proc), MB."""
     with open("/proc/self/status") as status:
         return next(int(line.split()[1]) for line in status if line.startswith("VmRSS:")) / 1024
+
+
+@pytest.mark.parametrize("command", ["M303 E0 S210 C3 U1", "M303 E-1 S60 C3"])
+def test_the_reply_shapes_cover_a_whole_autotune_report(command):
+    """A fuzzed line can start an M303 that finishes: its report (hotend "Classic PID", bed "No
+    overshoot") is Marlin's, so the shape list has to know every line of it."""
+    printer = build_printer()
+    printer.take_output()
+    printer.receive(command.encode() + b"\n")
+    printer.run_until_idle(3600)
+    report = printer.take_output().decode()
+    assert "PID Autotune finished" in report
+    assert bad_replies(report) == []
 
 
 @pytest.mark.slow

@@ -8,7 +8,7 @@ gives a count below k, found by bisection over the doubles with ``convert`` itse
 count of T is the number of edges above T: comparisons only, the same in numpy and in a compiled
 loop. It equals ``convert`` wherever that float evaluation falls monotonically. For a beta part
 (one exponential, correct to about an ulp) a wobble can only show within a few ulps of an edge;
-tests/test_lanes.py checks every double within 64 ulps of every edge, and random temperatures
+tests/firmware_port/marlin/test_lanes.py checks every double within 64 ulps of every edge, and random temperatures
 elsewhere. A full Steinhart-Hart part goes through Cardano's formula, whose cancellation wobbles
 far wider (the Semitec 104GT-2 disagrees 4 ulps from an edge): no table for those, the batch
 converts sample by sample.

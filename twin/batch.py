@@ -3,7 +3,7 @@
 Every lane is a Marlin board (firmware_port.marlin.lanes: ADC, soft PWM, thermal protection)
 running its own controller on its own plant, with its own ADC noise; all lanes share the clock.
 A tuner evaluates a whole population (times an ensemble of plants and noise seeds) in one run;
-tests keep each lane equal to a scalar ``Twin`` (tests/twin/test_batch_paths.py, tests/test_lanes.py).
+tests keep each lane equal to a scalar ``Twin`` (tests/twin/test_batch_paths.py, tests/firmware_port/marlin/test_lanes.py).
 
 - Controllers: ``PidFixed`` (either prev-temperature mode) or ``PidGains``, ``BangBangHotend``,
   ``FuzzyPi``, ``FuzzyPid``: one family per batch (``BatchTwin.accepts``).

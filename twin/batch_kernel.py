@@ -30,7 +30,7 @@ period, without fused multiply-adds (numba does not contract without fastmath), 
 the same table of switching temperatures. A noisy sample's analog value, when it must be
 computed, comes from libm's ``exp``, which may differ from numpy's (SIMD) ``exp`` in the last bit:
 that changes a count only when the noisy value lies within 1e-13 of an integer, never seen in the
-tests (tests/twin/test_batch_paths.py, tests/test_lanes.py).
+tests (tests/twin/test_batch_paths.py, tests/firmware_port/marlin/test_lanes.py).
 
 ``HEATER_TWIN_KERNEL`` picks the implementation: ``numba`` (default when numba is installed,
 ``pip install heater-twin[fast]``) or ``numpy``. Without numba, ``BatchTwin(kernel="numba")``
@@ -128,7 +128,7 @@ def describe() -> str:
 # counting: passing arrays to the inlined helpers would otherwise cost an atomic increment and
 # decrement each, per period, more than the arithmetic (0.96 s against 0.39 s of CPU for 1000
 # lanes x 600 s on the 2-core reference machine). ``_nrt`` is numba's own switch for that runtime
-# (underscored, so not promised: tests/test_lanes.py, run against numba in CI, would catch a change).
+# (underscored, so not promised: tests/firmware_port/marlin/test_lanes.py, run against numba in CI, would catch a change).
 NUMBA_OPTIONS = {"_nrt": False}
 
 

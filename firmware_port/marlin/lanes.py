@@ -6,7 +6,7 @@ clock, so the ADC schedule and the soft-PWM counter are common (``AdcSequencer``
 arrays as happily as ints); amounts, pins, controller and protection state are per lane. numpy's
 int64 shifts are arithmetic like avr-gcc's and every value fits the widths ``PidFixed``
 declares (its property tests prove the bounds), so each lane computes exactly what the scalar
-firmware computes; tests/test_lanes.py keeps them equal. A lane that trips its protection
+firmware computes; tests/firmware_port/marlin/test_lanes.py keeps them equal. A lane that trips its protection
 (MAXTEMP, MINTEMP, runaway, heating watch) is halted with its heater off, as a killed board.
 ``millis()`` is not wrapped: a batch run is far shorter than 49 days.
 """

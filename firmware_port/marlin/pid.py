@@ -5,7 +5,7 @@ The law is Marlin 2.1's ``PID_t::get_pid_output`` (Marlin 2.1.x Marlin/src/modul
 derivative on measurement through the ``PID_K1 = 0.95`` filter, output 0..255. Gains come in user
 units (M301) and are scaled by ``PID_dT = 160/977 s`` as Marlin stores them.
 
-Widths and scales (every intermediate is bounded in the comments; tests/test_pid_properties.py
+Widths and scales (every intermediate is bounded in the comments; tests/firmware_port/marlin/test_pid_properties.py
 checks the bounds over the whole documented domain):
 - temperatures: celsius_q5, int16 Q10.5 (1/32 degC); targets int16 whole degC;
 - error ``e_q5``: int32 Q.5 (in band |e| <= 320);

@@ -3,7 +3,7 @@ the same reports ``python -m tools.seeds 000`` prints (tools/seeds/report.py), a
 Nobody types a number here: each one comes from a module's constants (the paper's, as printed) or
 from what its functions computed.
 
-One section per seed (``SECTIONS``), so a caller can re-render a subset (tests/test_seeds_page.py
+One section per seed (``SECTIONS``), so a caller can re-render a subset (tests/tools/seeds/test_seeds_page.py
 re-renders them and compares with the committed page through tools/validation/doc_compare.py).
 """
 

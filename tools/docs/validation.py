@@ -4,7 +4,7 @@ tools/validation/m303_compare.py over the logs in shared/hardware_logs and write
 summary counting the out-of-sample ones only; section 4 and its protocol in validation_m303.py).
 
 ``render()`` returns the text; the file is only written by ``main``. Deterministic: the same logs
-and code give the same text (tests/test_compare.py checks the committed file is up to date).
+and code give the same text (tests/tools/validation/test_compare.py checks the committed file is up to date).
 """
 
 from __future__ import annotations

@@ -3,8 +3,10 @@
 Issue 11's acceptance: on ``hotend_cartridge`` and on plants fitted from the captured hardware
 logs, a search on the firmware twin finds gains at least as good as the best classical rule on the
 heater objective, and better than the firmware's own autotune (Marlin M303 C8). Each plant is
-built as twin-tune builds it (a preset, or ``--from-log`` fitted as twin-fit does); each optimiser
-searches twin-tune's box (0 .. 4 x the best rule's gains) with a fixed seed and budget.
+built as twin-tune builds it (a preset, or ``--from-log`` fitted as twin-fit does), nominal and
+noiseless; each optimiser searches 0 .. 4 x the best rule's gains (twin-tune centres that box on the
+autotune's gains instead; here the box must not start from the reference it is compared with), cold
+(no warm start), with a fixed seed and budget.
 
 ``python -m tools.docs.optimtable`` rewrites the section between the markers in docs/tuning.md;
 ``--budget`` and ``--plants`` give a reduced run (the test's).

@@ -47,8 +47,11 @@ from firmware_port.marlin.constants import PID_DT_S, PID_MAX
 from firmware_port.marlin.pid import (
     HOTEND_GAINS,
     KD_FRAC_BITS,
+    KD_Q16,
     KI_FRAC_BITS,
+    KI_Q24,
     KP_FRAC_BITS,
+    KP_Q12,
     PidGains,
     q_scaled,
 )
@@ -287,8 +290,7 @@ class FixedConstants:
     def of(cls, config: FuzzyPidConfig, gains: PidGains) -> FixedConstants:
         kec_ps_q12 = max(1, q_scaled(config.kec, 1 / PID_DT_S, K_BITS))
         return cls(q_scaled(config.ke, Fraction(1), K_BITS), kec_ps_q12, round(config.span * (1 << SPAN_BITS)),
-                   q_scaled(gains.kp, Fraction(1), KP_FRAC_BITS), q_scaled(gains.ki, PID_DT_S, KI_FRAC_BITS),
-                   q_scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS))
+                   KP_Q12(gains.kp), KI_Q24(gains.ki), KD_Q16(gains.kd))
 
 
 def _position_q8(value_q5: int, k_q12: int) -> int:

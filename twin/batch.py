@@ -110,6 +110,9 @@ def _pool(workers: int) -> ThreadPoolExecutor:
 
 def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str) -> tuple[int, PidLanes | ScalarLanes]:
     """The lanes' controller family (a ``batch_kernel`` code) and its lanes; TypeError names a lane it cannot run."""
+    gains = [c for c in controllers if isinstance(c, PidGains)]
+    if len(gains) == len(controllers):
+        return bk.PID, PidLanes(gains, prev_temp_mode)  # scaled on arrays, as PidFixed scales each
     items: list[Any] = [PidFixed(c, prev_temp_mode) if isinstance(c, PidGains) else c for c in controllers]
     for lane, item in enumerate(items):
         if not BatchTwin.accepts(item):

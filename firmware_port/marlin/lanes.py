@@ -25,11 +25,17 @@ from firmware_port.marlin.pid import (
     D_RAW_LIMIT_Q8,
     D_SHIFT,
     FUNCTIONAL_RANGE_Q5,
+    I_MAX_FULL_SCALE,
     I_SHIFT,
+    I_SUM_CAP_Q5,
+    KD_Q16,
+    KI_Q24,
+    KP_Q12,
     OUT_FRAC_BITS,
     OUT_MAX_Q8,
     P_SHIFT,
     PREV_TEMP_EVERY_SAMPLE,
+    PREV_TEMP_IN_BAND,
     PidFixed,
     PidGains,
 )
@@ -75,12 +81,16 @@ class PidLanes:
     def __init__(self, gains: Sequence[PidGains | PidFixed], prev_temp_mode: str | Sequence[str] = PREV_TEMP_EVERY_SAMPLE):
         """One lane per gain set (in ``prev_temp_mode``), or per ``PidFixed`` (its gains and mode)."""
         modes = [prev_temp_mode] * len(gains) if isinstance(prev_temp_mode, str) else list(prev_temp_mode)
-        scalar = [g if isinstance(g, PidFixed) else PidFixed(g, mode) for g, mode in zip(gains, modes, strict=True)]
-        self.every_sample = np.array([p.prev_temp_mode == PREV_TEMP_EVERY_SAMPLE for p in scalar], dtype=bool)
-        self.kp_q12 = np.array([p.kp_q12 for p in scalar], dtype=np.int64)
-        self.ki_q24 = np.array([p.ki_q24 for p in scalar], dtype=np.int64)
-        self.kd_q16 = np.array([p.kd_q16 for p in scalar], dtype=np.int64)
-        self.i_max_q5 = np.array([p.i_max_q5 for p in scalar], dtype=np.int64)
+        if len(modes) != len(gains) or not set(modes) <= {PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND}:
+            raise ValueError(f"prev_temp_mode: one of {PREV_TEMP_EVERY_SAMPLE!r}, {PREV_TEMP_IN_BAND!r} per lane")
+        modes = [g.prev_temp_mode if isinstance(g, PidFixed) else mode for g, mode in zip(gains, modes)]
+        self.every_sample = np.array([mode == PREV_TEMP_EVERY_SAMPLE for mode in modes], dtype=bool)
+        # PidFixed's own scaling (QScale, i_max_q5), on arrays: the gains of the lanes given as PidGains
+        user = np.array([(p.kp, p.ki, p.kd) for p in (g.gains if isinstance(g, PidFixed) else g for g in gains)],
+                        dtype=float).reshape(-1, 3)
+        self.kp_q12, self.ki_q24, self.kd_q16 = (q.many(user[:, i]) for i, q in enumerate((KP_Q12, KI_Q24, KD_Q16)))
+        self.i_max_q5 = np.where(self.ki_q24 == 0, I_SUM_CAP_Q5, np.clip(
+            I_MAX_FULL_SCALE // np.where(self.ki_q24 == 0, 1, self.ki_q24), -I_SUM_CAP_Q5, I_SUM_CAP_Q5))
         n = len(gains)
         self.i_sum_q5 = np.zeros(n, np.int64)
         self.d_term_q8 = np.zeros(n, np.int64)

@@ -16,7 +16,10 @@ checks the bounds over the whole documented domain):
 
 from __future__ import annotations
 
+import math
 from fractions import Fraction
+
+import numpy as np
 
 from firmware_port.controller import PidGains
 from firmware_port.fixed import checked_s32, checked_s64, clamp, div_round, shr_round
@@ -48,6 +51,7 @@ FUNCTIONAL_RANGE_Q5 = PID_FUNCTIONAL_RANGE_C << TEMP_FRAC_BITS  # 320
 OUT_MAX_Q8 = PID_MAX << OUT_FRAC_BITS  # 65280
 # Integral sum ceiling when Ki is tiny or zero: keeps i_sum in int32 (Ki*i_sum stays < PID_MAX).
 I_SUM_CAP_Q5 = 1 << 30
+I_MAX_FULL_SCALE = PID_MAX << (KI_FRAC_BITS + TEMP_FRAC_BITS)  # MAX_POW in Q.29 (Ki's Q.24 times Q.5)
 # Derivative input saturation: |Kd_int * dT| <= 2**21 counts, far beyond any output, keeps the
 # filter state and (raw - state) inside int32 in Q.8.
 D_RAW_LIMIT_Q8 = 1 << (21 + OUT_FRAC_BITS)
@@ -61,9 +65,54 @@ PREV_TEMP_EVERY_SAMPLE = MarlinVersion.V2_0  # Marlin 2.0.x: previous temperatur
 PREV_TEMP_IN_BAND = MarlinVersion.V2_1  # Marlin 2.1.x: only in band, so re-entering the band kicks D
 
 
+# The float product value * scale * 2**frac_bits is within 4e-16 of the exact one, relative (the
+# decimal's, the factor's and the product's roundings): it decides unless it lies this near a half.
+HALF_MARGIN = 1e-13  # relative: 250 times the float product's error bound
+FLOAT_EXACT_BELOW = 2.0**52  # where a float still has a fractional part to look at
+
+
+class QScale:
+    """``round(value * scale * 2**frac_bits)`` from the value's decimal (half to even), exactly: in
+    floats unless the product lies within its rounding error of a half, then in fractions."""
+
+    def __init__(self, scale: Fraction, frac_bits: int):
+        self.exact = scale * (1 << frac_bits)
+        self.factor = float(self.exact)
+
+    def __call__(self, value: float) -> int:
+        x = float(value)
+        v = x * self.factor
+        if math.isfinite(v) and abs(v) < FLOAT_EXACT_BELOW and abs(v - math.floor(v) - 0.5) > HALF_MARGIN * abs(v):
+            return round(v)
+        return round(Fraction(repr(x)) * self.exact)
+
+    def many(self, values: np.ndarray) -> np.ndarray:
+        """The same on an array, int64: each element as ``self(value)`` gives it."""
+        x = np.asarray(values, dtype=float)
+        with np.errstate(over="ignore", invalid="ignore"):
+            v = x * self.factor
+            sure = np.isfinite(v) & (np.abs(v) < FLOAT_EXACT_BELOW) & \
+                (np.abs(v - np.floor(v) - 0.5) > HALF_MARGIN * np.abs(v))
+        out = np.zeros(x.shape, np.int64)
+        out[sure] = np.rint(v[sure])  # no half among them: rint and round agree
+        for i in np.flatnonzero(~sure):
+            out[i] = self(x[i])
+        return out
+
+
 def q_scaled(value: float, scale: Fraction, frac_bits: int) -> int:
     """User gain -> internal Q integer: ``round(value * scale * 2**frac_bits)`` from its decimal."""
-    return round(Fraction(repr(float(value))) * scale * (1 << frac_bits))
+    return QScale(scale, frac_bits)(value)
+
+
+KP_Q12, KI_Q24, KD_Q16 = QScale(Fraction(1), KP_FRAC_BITS), QScale(PID_DT_S, KI_FRAC_BITS), \
+    QScale(1 / PID_DT_S, KD_FRAC_BITS)  # M301's gains into the law's integers
+
+
+def i_max_q5(ki_q24: int) -> int:
+    """Marlin's iState ceiling MAX_POW / Ki in Q.5 with Ki in Q.24: floor(255 * 2**29 / ki_q24). A negative Ki
+    gives a negative ceiling, which constrain() returns for any sum >= 0, as on the AVR."""
+    return clamp(I_MAX_FULL_SCALE // ki_q24, -I_SUM_CAP_Q5, I_SUM_CAP_Q5) if ki_q24 else I_SUM_CAP_Q5
 
 
 class PidFixed:
@@ -92,13 +141,10 @@ class PidFixed:
     def set_gains(self, gains: PidGains) -> None:
         """M301: scale user gains into Q integers (configuration time) and reset the loop."""
         self.gains = gains
-        self.kp_q12 = q_scaled(gains.kp, Fraction(1), KP_FRAC_BITS)  # <= 2**22
-        self.ki_q24 = q_scaled(gains.ki, PID_DT_S, KI_FRAC_BITS)  # <= 2**28
-        self.kd_q16 = q_scaled(gains.kd, 1 / PID_DT_S, KD_FRAC_BITS)  # < 2**31
-        # Marlin: iState <= MAX_POW / Ki. In Q.5 with Ki in Q.24: floor(255 * 2**29 / ki_q24). A negative
-        # Ki gives a negative ceiling, which constrain() returns for any sum >= 0, as on the AVR.
-        full_scale = PID_MAX << (KI_FRAC_BITS + TEMP_FRAC_BITS)
-        self.i_max_q5 = clamp(full_scale // self.ki_q24, -I_SUM_CAP_Q5, I_SUM_CAP_Q5) if self.ki_q24 else I_SUM_CAP_Q5
+        self.kp_q12 = KP_Q12(gains.kp)  # <= 2**22
+        self.ki_q24 = KI_Q24(gains.ki)  # <= 2**28
+        self.kd_q16 = KD_Q16(gains.kd)  # < 2**31
+        self.i_max_q5 = i_max_q5(self.ki_q24)
         self.reset()
 
     def reset(self) -> None:

@@ -1,5 +1,8 @@
 """The vectorised firmware equals the scalar firmware, lane by lane; the compiled kernel equals both."""
 
+import math
+from fractions import Fraction
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -8,7 +11,7 @@ from hypothesis import strategies as st
 from firmware_port.marlin.lanes import HotendLanes, PidLanes, div_round, lookup_q5, trunc_c
 from firmware_port.marlin.softpwm import SoftPwm
 from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
-from firmware_port.marlin.pid import PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidFixed, PidGains
+from firmware_port.marlin.pid import KD_Q16, KI_Q24, KP_Q12, PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidFixed, PidGains
 from firmware_port.fixed import div_round as scalar_div_round
 from firmware_port.thermistor import B3950, B3950_TABLE, KLIPPER_SENSORS, MAX_RAW_THERMISTOR_VALUE, Divider
 from twin.adc_table import adc_edges_c
@@ -56,6 +59,28 @@ def test_pid_lanes_equal_scalar_pids(gains, mode, steps, rnd):
             expected = pid.update_q8(temps[k], target) if active[k] else 0
             assert out[k] == expected
             assert (lanes.i_sum_q5[k], lanes.d_term_q8[k], lanes.prev_q5[k]) == (pid.i_sum_q5, pid.d_term_q8, pid.prev_q5)
+
+
+@given(st.lists(st.tuples(st.integers(-(2**20), 2**20), st.integers(-2, 2), st.sampled_from(range(3))), min_size=1,
+                max_size=8), gains_st)
+def test_pid_lanes_scale_gains_as_the_scalar_pid(near_halves, other):
+    """Each lane's integer constants are PidFixed's, also for gains whose scaled value lies on or next to a
+    half (where a float product alone could round the other way) and for zero or negative Ki."""
+    gains = [other, PidGains(other.kp, 0.0, other.kd), PidGains(other.kp, -abs(other.ki), other.kd)]
+    for k, nudge, term in near_halves:
+        scale = (KP_Q12, KI_Q24, KD_Q16)[term]
+        value = float((k + Fraction(1, 2)) / scale.exact)
+        for _ in range(abs(nudge)):
+            value = math.nextafter(value, math.inf if nudge > 0 else -math.inf)
+        top = (KP_MAX, KI_MAX, KD_MAX)[term]
+        values = [other.kp, other.ki, other.kd]
+        values[term] = min(max(value, -top), top)
+        gains.append(PidGains(*values))
+    lanes = PidLanes(gains)
+    for k, g in enumerate(gains):
+        pid = PidFixed(g)
+        assert (lanes.kp_q12[k], lanes.ki_q24[k], lanes.kd_q16[k], lanes.i_max_q5[k]) == \
+            (pid.kp_q12, pid.ki_q24, pid.kd_q16, pid.i_max_q5)
 
 
 @given(

@@ -1,5 +1,8 @@
 """Properties 2-4: the fixed-point PID never overflows, agrees with float32, keeps its clamp."""
 
+import math
+from fractions import Fraction
+
 import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
@@ -13,7 +16,9 @@ from firmware_port.marlin.pid import (
     PREV_TEMP_IN_BAND,
     PidFixed,
     float_error_bound_counts,
+    q_scaled,
 )
+from firmware_port.marlin.constants import PID_DT_S
 from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX, PidGains
 from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.thermistor import B3950_TABLE, MAX_RAW_THERMISTOR_VALUE
@@ -139,3 +144,35 @@ def test_stale_previous_temperature_kick_of_marlin_2_1():
 def test_gains_outside_the_documented_range_are_rejected():
     with pytest.raises(ValueError, match="kd"):
         PidGains(10, 1, KD_MAX + 1)
+
+
+# The scalings the PID and the fuzzy-PID use: (scale, fraction bits).
+SCALINGS = [(Fraction(1), 12), (PID_DT_S, 24), (1 / PID_DT_S, 16), (1 / PID_DT_S, 12)]
+
+
+def exact_q(value: float, scale: Fraction, frac_bits: int) -> int:
+    """The definition: the decimal the user typed (repr), scaled exactly, rounded half to even."""
+    return round(Fraction(repr(float(value))) * scale * (1 << frac_bits))
+
+
+@given(value=st.floats(allow_nan=False, allow_infinity=False, min_value=-1e12, max_value=1e12),
+       scaling=st.sampled_from(SCALINGS))
+def test_q_scaled_is_the_exact_rounding_of_the_decimal(value, scaling):
+    assert q_scaled(value, *scaling) == exact_q(value, *scaling)
+
+
+@given(k=st.integers(-(2**40), 2**40), nudge=st.integers(-3, 3), scaling=st.sampled_from(SCALINGS))
+def test_q_scaled_is_exact_next_to_a_half(k, nudge, scaling):
+    """Values whose scaled product lies on or a few ulps from k + 1/2, where a float product alone
+    could round the wrong way: the exact path decides."""
+    scale, bits = scaling
+    near_half = float((k + Fraction(1, 2)) / (scale * (1 << bits)))
+    value = near_half
+    for _ in range(abs(nudge)):
+        value = math.nextafter(value, math.inf if nudge > 0 else -math.inf)
+    assert q_scaled(value, scale, bits) == exact_q(value, scale, bits)
+
+
+def test_q_scaled_rounds_an_exact_half_to_even():
+    assert q_scaled(2.5, Fraction(1), 0) == 2 and q_scaled(3.5, Fraction(1), 0) == 4
+    assert q_scaled(-2.5, Fraction(1), 0) == -2

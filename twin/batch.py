@@ -510,7 +510,7 @@ class BatchTwin:
             bk.W_PERIOD_MS: lanes.watch_period_ms, bk.P_SHIFT: P_SHIFT, bk.I_SHIFT: I_SHIFT, bk.D_SHIFT: D_SHIFT,
             bk.D_LIMIT_Q8: D_RAW_LIMIT_Q8, bk.RANGE_Q5: FUNCTIONAL_RANGE_Q5,
             bk.OUT_MAX_Q8: OUT_MAX_Q8, bk.OUT_FRAC_BITS: OUT_FRAC_BITS, bk.TEMP_FRAC_BITS: TEMP_FRAC_BITS,
-            bk.PWM_PERIOD: SOFT_PWM_PERIOD_TICKS, bk.ADC_MAX: ADC_MAX, bk.SAMPLE_EVERY: MIN_ADC_ISR_LOOPS,
+            bk.PWM_PERIOD: SOFT_PWM_PERIOD_TICKS, bk.ADC_MAX: ADC_MAX,
             bk.CONTROL: self.control_kind, bk.BANG_MAX: BANG_MAX, bk.DELAY: self._delay, bk.RECORD: self.record,
             bk.SCORE: self.score is not None, bk.SKIP_ROWS: 0 if self.score is None else self.score.skip_rows,
             bk.ROW_BASE: self._rows, bk.FZ_BR_BITS: BR_BITS, bk.FZ_GRID_BITS: GRID_BITS,

@@ -46,7 +46,7 @@ import numpy as np
 
 from firmware_port.fuzzy_pid import FACTOR_BITS as FP_FACTOR_BITS, GRID as FP_GRID, GRID_MAX as FP_GRID_MAX, \
     HALF as FP_HALF, N_SETS as FP_SETS, POS_BITS as FP_POS_BITS, SPAN_BITS as FP_SPAN_BITS
-from firmware_port.marlin.constants import TICKS_PER_READING
+from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, TICKS_PER_READING  # frozen in: constant divisors
 from firmware_port.marlin.pid import D_FILTER_DIVISOR  # 20: frozen into the code, a constant divisor is a multiply
 from firmware_port.marlin.lanes import (
     FIRST_HEATING,
@@ -83,10 +83,10 @@ N_CPARAMS = 8
 # Firmware constants, the entries of ``fw``: passed in, not frozen into the cached machine code.
 (TARGET, RAW_MAX, RAW_MIN, MINTEMP_Q5, MAXTEMP_Q5, R_PERIOD_MS, R_HYST_C, W_INC_C, W_HYST_C, W_PERIOD_MS,
  P_SHIFT, I_SHIFT, D_SHIFT, D_LIMIT_Q8, RANGE_Q5, OUT_MAX_Q8, OUT_FRAC_BITS, TEMP_FRAC_BITS,
- PWM_PERIOD, ADC_MAX, SAMPLE_EVERY, CONTROL, BANG_MAX, DELAY, BIN_LO, RADIATING, RECORD, SCORE, SKIP_ROWS,
+ PWM_PERIOD, ADC_MAX, CONTROL, BANG_MAX, DELAY, BIN_LO, RADIATING, RECORD, SCORE, SKIP_ROWS,
  ROW_BASE, FZ_BR_BITS, FZ_GRID_BITS, FZ_CENTROID_BITS, FZ_DUTY_BITS, FP_POS_SHIFT, FP_P_SHIFT, FP_I_SHIFT,
- FP_D_SHIFT) = range(38)
-N_FW = 38
+ FP_D_SHIFT) = range(37)
+N_FW = 37
 # The plan of a stretch, one row per period: its columns.
 (N_TICKS, FIRST_SAMPLE, READING, PWM_COUNT, MILLIS, KIND, TICK, ROW, FLAGS, Z_FIRST, FIRST_WRAP,
  LAST_PHASE) = range(12)
@@ -647,8 +647,8 @@ def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, 
                 beta, edges, fw, ys, noise_lsb, z, z0, slopes, bounds, sensor_p):
     """The ADC counts of the sensor node at ticks s0, s0 + 10, ... < n, summed (a noisy lane's each
     with its noise)."""
-    step, adc_max = fw[SAMPLE_EVERY], fw[ADC_MAX]
-    n_samples = (n - s0 + step - 1) // step if n > s0 else 0
+    adc_max = fw[ADC_MAX]
+    n_samples = (n - s0 + MIN_ADC_ISR_LOOPS - 1) // MIN_ADC_ISR_LOOPS if n > s0 else 0  # a constant divisor
     if n_samples == 0:
         return 0
     if n_samples == ys.shape[0]:

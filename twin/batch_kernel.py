@@ -100,6 +100,7 @@ N_SCORE = 4
 S_TARGET, S_SIGN, S_BAND = range(3)
 # ``sensor_p``: the thermistor's beta model for a noisy sample's analog value.
 SP_C1, SP_C2, SP_KELVIN, SP_PULLUP, SP_COUNTS = range(5)
+UNROLLED_STATES = 3  # the plant size whose loops are compiled unrolled (hotend_stock, hotend_cartridge)
 MAX_PULSES = 4  # a run of <= 160 ticks holds the tail of a pulse and at most two 127-tick wraps (and a spare)
 ROW_OFFSET = TICKS_PER_READING  # ``rows``: row o + ROW_OFFSET is the sensor step at each sample, o = s0 - pulse edge
 CHORD_MARGIN_C = 1e-9  # the chord shortcut's band: beyond the float rounding of a sample (about 1e-12 C)
@@ -565,13 +566,24 @@ def _sample(xl, px, pdd, rows, m, kind, s0, j, n_pulses, alpha, beta):
 @inline
 def _chord(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, kind, s0, n_pulses, alpha, beta, edges,
            adc_max, n_samples):
+    """``_chord_states`` with the loops over the states unrolled for the common plant."""
+    if xl.shape[0] == UNROLLED_STATES:
+        return _chord_states(UNROLLED_STATES, st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, kind,
+                             s0, n_pulses, alpha, beta, edges, adc_max, n_samples)
+    return _chord_states(xl.shape[0], st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, kind, s0,
+                         n_pulses, alpha, beta, edges, adc_max, n_samples)
+
+
+@inline
+def _chord_states(n_x, st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, kind, s0, n_pulses, alpha,
+                  beta, edges, adc_max, n_samples):
     """(the count at the band's hot end, at its cold end, the first sample, the last, the band): the chord
     through a full period's first and last samples, widened by the band the maps let a sample stray
     from it (``Tables.chords``), holds every sample."""
     last = n_samples - 1  # the two samples and the band: independent sums (in any order: the band's margin
     y0, y1 = pdd[m, kind, 0], pdd[m, kind, last]  # covers the rounding)
     band = CHORD_MARGIN_C + chord_d[m, kind] + chord_sum[m, kind] * abs(xl[0])
-    for i in range(xl.shape[0]):
+    for i in range(n_x):
         y0 += px[m, kind, i, 0] * xl[i]
         y1 += px[m, kind, i, last] * xl[i]
         band += chord_x[m, kind, i] * abs(xl[i] - xl[0])
@@ -674,9 +686,18 @@ def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, 
 @inline
 def _advance(xl, xn, fx, fdd, steps, m, kind, n, n_pulses, alpha, beta):
     """The state after n ticks: free response, ambient, then each pulse's step response."""
-    for i in range(xl.shape[0]):
+    if xl.shape[0] == UNROLLED_STATES:
+        _advance_states(UNROLLED_STATES, xl, xn, fx, fdd, steps, m, kind, n, n_pulses, alpha, beta)
+    else:
+        _advance_states(xl.shape[0], xl, xn, fx, fdd, steps, m, kind, n, n_pulses, alpha, beta)
+
+
+@inline
+def _advance_states(n_x, xl, xn, fx, fdd, steps, m, kind, n, n_pulses, alpha, beta):
+    """``_advance`` on n_x states (a constant where the caller names it: the loops unrolled)."""
+    for i in range(n_x):
         v = fx[m, kind, i, 0] * xl[0]
-        for k in range(1, xl.shape[0]):
+        for k in range(1, n_x):
             v = v + fx[m, kind, i, k] * xl[k]
         v = v + fdd[m, kind, i]
         for p in range(n_pulses):

@@ -39,7 +39,7 @@ import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -110,21 +110,18 @@ def _pool(workers: int) -> ThreadPoolExecutor:
 
 def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str) -> tuple[int, PidLanes | ScalarLanes]:
     """The lanes' controller family (a ``batch_kernel`` code) and its lanes; TypeError names a lane it cannot run."""
-    gains = [c for c in controllers if isinstance(c, PidGains)]
-    if len(gains) == len(controllers):
-        return bk.PID, PidLanes(gains, prev_temp_mode)  # scaled on arrays, as PidFixed scales each
-    items: list[Any] = [PidFixed(c, prev_temp_mode) if isinstance(c, PidGains) else c for c in controllers]
-    for lane, item in enumerate(items):
-        if not BatchTwin.accepts(item):
+    families = [PidFixed if isinstance(c, PidGains) else type(c) for c in controllers]  # PidGains: a PID lane
+    for lane, (item, family) in enumerate(zip(controllers, families)):
+        if family not in CONTROLS:
             raise TypeError(f"lane {lane}: a batch runs {', '.join(c.__name__ for c in CONTROLS)} controllers "
                             f"(or PidGains), not {item!r}")
-        if type(item) is not type(items[0]):
-            raise TypeError(f"lane {lane}: one controller family per batch, {type(items[0]).__name__} in lane 0, "
-                            f"not {type(item).__name__}")
-    kind = CONTROLS[type(items[0])]
-    if kind == bk.PID:
-        return kind, PidLanes(items)
-    own = [copy.deepcopy(item) for item in items]  # each lane its own state, reset as a Twin resets it
+        if family is not families[0]:
+            raise TypeError(f"lane {lane}: one controller family per batch, {families[0].__name__} in lane 0, "
+                            f"not {family.__name__}")
+    kind = CONTROLS[families[0]]
+    if kind == bk.PID:  # PidGains scaled on arrays (as PidFixed scales each), in prev_temp_mode
+        return kind, PidLanes(cast(list[PidGains | PidFixed], list(controllers)), prev_temp_mode)
+    own: list[Any] = [copy.deepcopy(item) for item in controllers]  # each lane its own state, reset as a Twin resets it
     for item in own:
         item.reset()
     return kind, ScalarLanes(own)

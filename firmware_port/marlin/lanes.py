@@ -25,9 +25,7 @@ from firmware_port.marlin.pid import (
     D_RAW_LIMIT_Q8,
     D_SHIFT,
     FUNCTIONAL_RANGE_Q5,
-    I_MAX_FULL_SCALE,
     I_SHIFT,
-    I_SUM_CAP_Q5,
     KD_Q16,
     KI_Q24,
     KP_Q12,
@@ -38,6 +36,7 @@ from firmware_port.marlin.pid import (
     PREV_TEMP_IN_BAND,
     PidFixed,
     PidGains,
+    i_max_q5,
 )
 from firmware_port.marlin.protection import HeaterWatch, RunawayMonitor, TempRange
 from firmware_port.thermistor import B3950_TABLE, TEMP_FRAC_BITS, TempTable
@@ -89,8 +88,7 @@ class PidLanes:
         user = np.array([(p.kp, p.ki, p.kd) for p in (g.gains if isinstance(g, PidFixed) else g for g in gains)],
                         dtype=float).reshape(-1, 3)
         self.kp_q12, self.ki_q24, self.kd_q16 = (q.many(user[:, i]) for i, q in enumerate((KP_Q12, KI_Q24, KD_Q16)))
-        self.i_max_q5 = np.where(self.ki_q24 == 0, I_SUM_CAP_Q5, np.clip(
-            I_MAX_FULL_SCALE // np.where(self.ki_q24 == 0, 1, self.ki_q24), -I_SUM_CAP_Q5, I_SUM_CAP_Q5))
+        self.i_max_q5 = np.array([i_max_q5(int(ki)) for ki in self.ki_q24], dtype=np.int64)
         n = len(gains)
         self.i_sum_q5 = np.zeros(n, np.int64)
         self.d_term_q8 = np.zeros(n, np.int64)

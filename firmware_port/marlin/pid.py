@@ -16,7 +16,6 @@ checks the bounds over the whole documented domain):
 
 from __future__ import annotations
 
-import math
 from fractions import Fraction
 
 import numpy as np
@@ -71,9 +70,16 @@ HALF_MARGIN = 1e-13  # relative: 250 times the float product's error bound
 FLOAT_EXACT_BELOW = 2.0**52  # where a float still has a fractional part to look at
 
 
+def float_decides(v):
+    """Whether the float product v (a float or an array) rounds as the exact one does: finite, below
+    2**52, and not within its rounding error of a half."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(v) & (np.abs(v) < FLOAT_EXACT_BELOW) & (np.abs(v - np.floor(v) - 0.5) > HALF_MARGIN * np.abs(v))
+
+
 class QScale:
     """``round(value * scale * 2**frac_bits)`` from the value's decimal (half to even), exactly: in
-    floats unless the product lies within its rounding error of a half, then in fractions."""
+    floats where ``float_decides``, else in fractions."""
 
     def __init__(self, scale: Fraction, frac_bits: int):
         self.exact = scale * (1 << frac_bits)
@@ -82,17 +88,14 @@ class QScale:
     def __call__(self, value: float) -> int:
         x = float(value)
         v = x * self.factor
-        if math.isfinite(v) and abs(v) < FLOAT_EXACT_BELOW and abs(v - math.floor(v) - 0.5) > HALF_MARGIN * abs(v):
-            return round(v)
-        return round(Fraction(repr(x)) * self.exact)
+        return round(v) if float_decides(v) else round(Fraction(repr(x)) * self.exact)
 
     def many(self, values: np.ndarray) -> np.ndarray:
         """The same on an array, int64: each element as ``self(value)`` gives it."""
         x = np.asarray(values, dtype=float)
-        with np.errstate(over="ignore", invalid="ignore"):
+        with np.errstate(over="ignore"):
             v = x * self.factor
-            sure = np.isfinite(v) & (np.abs(v) < FLOAT_EXACT_BELOW) & \
-                (np.abs(v - np.floor(v) - 0.5) > HALF_MARGIN * np.abs(v))
+        sure = float_decides(v)
         out = np.zeros(x.shape, np.int64)
         out[sure] = np.rint(v[sure])  # no half among them: rint and round agree
         for i in np.flatnonzero(~sure):

@@ -13,8 +13,9 @@
   it (no trace kept: the heater objective's inputs streamed; lanes on every CPU): the cost of one
   600-s firmware-in-the-loop evaluation, against one evaluation of seed 000's idealised loop
   (its second-order plant closed with a PID by scipy.signal, step over 50 s, 1000 points), and
-  their ratio; firmware control periods per second; memory per lane; the same batch on the
-  numpy lanes for comparison;
+  their ratio; firmware control periods per second; the share of the lanes' periods run once for
+  all (the heat-up before the PID band, ``BatchTwin``'s shared prefix); memory per lane; the same
+  batch on the numpy lanes (which run every lane's every period) for comparison;
 - the wall time of a differential-evolution tune of the three gains (population 45, 100
   generations, every population one batch) with twin-tune's heater objective on its default
   scenario;
@@ -211,6 +212,8 @@ def bench_evaluation_cost(plant, n_lanes: int, duration_s: float, seed: int, n_s
         f"{SEED000_POINTS} points, mean of {n_seed000}): ratio {seed000_ms / twin_ms:.1f} x (target >= 20)",
         f"  {periods / wall_s:,.0f} firmware control periods per second ({wall_s:.3f} s wall, {cpu_s:.3f} s CPU "
         f"for the batch; numpy lanes {wall_numpy_s:.3f} s, {wall_numpy_s / wall_s:.1f} x slower)",
+        f"  {batch.shared_lane_periods / periods:.1%} of the lanes' periods taken from another lane's run (the heat-up "
+        f"at full power before the PID band, the same for every lane: run once)",
         f"  memory per lane: {batch.bytes_per_lane() / 1024:.2f} KiB (plant and firmware state, constants and the "
         f"objective's accumulators: no trace, whatever the horizon)",
     ]

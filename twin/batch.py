@@ -17,6 +17,11 @@ tests keep each lane equal to a scalar ``Twin`` (tests/twin/test_batch_paths.py,
   order; ``SeedSequence(seed).spawn``'s first stream, ``twin.sensor.seeded_chains``). So a lane with
   seed s and noise n reads what that scalar twin reads, and all candidates in a group see the same
   noise. Without a seed, a ``sensor`` chain with noise lends its own generator as the one stream.
+- Shared prefix (the compiled loop, linear plants): lanes in the same state, on the same noise and
+  with the same parameters outside their controllers' tuning run the same periods until each
+  controller first reads its own tuning (a PID's heat-up at full power, before its band): one lane
+  runs them and the others take its state there (``_shared_prefix``; ``shared_lane_periods``
+  counts them). Each lane still equals itself run alone, bit for bit (tests/twin/test_shared_prefix.py).
 - Records (``record=True``): one row per reading, arrays (rows, N). With ``score=ScoreSpec(...)``
   the lanes also accumulate the heater objective's inputs (twin/streaming.py); ``record=False``
   then keeps no trace: memory per lane independent of the horizon.
@@ -80,6 +85,17 @@ THREADS_ENV = "HEATER_TWIN_THREADS"
 MIN_LANES_PER_THREAD = 4  # fewer lanes than this per thread run on the calling thread
 BIN_MARGIN = 40  # radiating plants: bins (of 0.5 C) built beyond the ones the lanes need, each way
 TARGET_HEADROOM_C = 20.0  # radiating plants: bins built up front to this far above the target (the block leads)
+
+
+@dataclass
+class LaneState:
+    """What the kernel advances per lane: integer state, plant states (n_x, lanes), dead-time ring, objective."""
+
+    istate: np.ndarray
+    x: np.ndarray
+    ring: np.ndarray
+    score_i: np.ndarray
+    score_f: np.ndarray
 
 
 @dataclass
@@ -186,6 +202,7 @@ class BatchTwin:
         self.score_i = np.zeros((n, bk.N_SCORE), np.int64)
         self.score_f = np.zeros((n, bk.N_SCORE))
         self.score_f[:, bk.MAX_BEYOND] = -np.inf
+        self.shared_lane_periods = 0  # periods lanes took from another lane's run (``_shared_prefix``)
 
     # -- construction --------------------------------------------------------------------------------
     def _group(self, plant) -> list[LaneGroup]:
@@ -441,17 +458,65 @@ class BatchTwin:
             assert g.bins is not None  # set by run_group
             return bin_tables(g.plant, g.plant.d, kinds, TICKS_PER_READING, *g.bins)
 
-        def run_part(part: np.ndarray, q_start: np.ndarray, t: Tables, stop: np.ndarray, need: np.ndarray) -> None:
+        def run_part(part: np.ndarray, q_start: np.ndarray, t: Tables, stop: np.ndarray, need: np.ndarray,
+                     periods: np.ndarray = plan, probe: bool = False, state: LaneState | None = None) -> None:
             fw_part = fw.copy()
             fw_part[bk.BIN_LO], fw_part[bk.RADIATING] = t.bin_lo, int(not group.plant.linear)
+            fw_part[bk.PROBE] = probe
+            lane_state = state or LaneState(istate, group.x, self._ring, self.score_i, self.score_f)
             scratch = (np.zeros((2, 2, bk.MAX_PULSES), np.int64), np.zeros((2, group.x.shape[0])),
                        np.zeros(MAX_SAMPLES), np.zeros(7, np.int64))
-            bk.run_lanes(part, group.lanes, q_start, plan, t.px, t.pdd, t.fx, t.fdd, t.sample_rows, *t.chords, t.steps, t.io,
-                         *self._adc_tables(), _raw_lut(self.lanes.table), fw_part, self._cparams, _RULES, istate,
-                         group.x, self.noise_lsb, self.streams, z, self._ring, self.score_i, self.score_f,
-                         self._score_array(), *records, *scratch, stop, need)
+            bk.run_lanes(part, group.lanes, q_start, periods, t.px, t.pdd, t.fx, t.fdd, t.sample_rows, *t.chords,
+                         t.steps, t.io, *self._adc_tables(), _raw_lut(self.lanes.table), fw_part, self._cparams, _RULES,
+                         lane_state.istate, lane_state.x, self.noise_lsb, self.streams, z, lane_state.ring,
+                         lane_state.score_i, lane_state.score_f, self._score_array(), *records, *scratch, stop, need)
 
-        run_group(group, len(plan), self.lanes.target_c, tables_for, run_part, self.threads)
+        q_start = self._shared_prefix(group, plan, tables_for, run_part, istate, records)
+        run_group(group, len(plan), self.lanes.target_c, tables_for, run_part, self.threads, q_start)
+
+    def _shared_prefix(self, group: LaneGroup, plan: np.ndarray, tables_for: Callable[[LaneGroup], Tables],
+                       run_part: Callable[..., None], istate: np.ndarray, records: tuple) -> np.ndarray:
+        """Each lane's first period to run. Lanes of a linear plant in the same state, on the same noise and
+        with the same ``UNTUNED_PARAMS`` run the same periods until their controllers first read their own
+        tuning (a heat-up at full power, typically): one of them runs those periods, found by a probe on
+        a copy of the state, and the others take its state (and records) there."""
+        q_start = np.zeros(len(group.lanes), np.int64)
+        classes = _alike(self._untuned_keys(group, istate)) if group.plant.linear else []
+        if not classes:
+            return q_start
+        firsts = np.array([members[0] for members in classes])
+        tables = tables_for(group)
+        stop, need = np.zeros_like(q_start), np.zeros_like(q_start)
+        probe_state = LaneState(istate.copy(), group.x.copy(), self._ring.copy(), self.score_i.copy(),
+                                self.score_f.copy())
+        run_part(firsts, q_start, tables, stop, need, probe=True, state=probe_state)
+        for q in np.unique(stop[firsts]):
+            if q:
+                run_part(firsts[stop[firsts] == q], q_start, tables, np.zeros_like(q_start), need, periods=plan[:q])
+        n_rows = records[0].shape[1]
+        for members in classes:
+            q = int(stop[members[0]])
+            first, others = group.lanes[members[0]], group.lanes[members[1:]]
+            istate[others], self._ring[others] = istate[first], self._ring[first]
+            self.score_i[others], self.score_f[others] = self.score_i[first], self.score_f[first]
+            group.x[:, members[1:]] = group.x[:, members[:1]]
+            rows = int(plan[q, bk.ROW]) if q < len(plan) else n_rows
+            for record in records:
+                record[others, :rows] = record[first, :rows]
+            q_start[members] = q
+            self.shared_lane_periods += q * len(others)
+        return q_start
+
+    def _untuned_keys(self, group: LaneGroup, istate: np.ndarray) -> np.ndarray:
+        """Per lane of the group (rows): everything its periods depend on before its controller reads its
+        tuning, as int64 (floats by their bits)."""
+        lanes = group.lanes
+        noisy = self.noise_lsb[lanes] != 0.0
+        columns = [istate[lanes], group.x.T.copy().view(np.int64), self._ring[lanes].reshape(len(lanes), -1),
+                   self.score_i[lanes], self.score_f[lanes].view(np.int64),
+                   self.noise_lsb[lanes, None].view(np.int64), np.where(noisy, self.streams[lanes], -1)[:, None],
+                   self._cparams[lanes][:, list(bk.UNTUNED_PARAMS[self.control_kind])]]
+        return np.hstack(columns)
 
     def _adc_tables(self) -> tuple:
         """edges, slopes, bounds and the thermistor's constants for the kernel's ADC."""
@@ -552,15 +617,17 @@ class BatchTwin:
 
 
 def run_group(group: LaneGroup, n_ops: int, target_c: float, tables_for: Callable[[LaneGroup], object],
-              run_part: Callable[..., None], threads: int) -> None:
-    """A kernel over every lane of a group, from each lane's start to the plan's end, over threads.
+              run_part: Callable[..., None], threads: int, q_start: np.ndarray | None = None) -> None:
+    """A kernel over every lane of a group, from each lane's start (``q_start``, else the first period)
+    to the plan's end, over threads.
 
     A radiating plant's lanes stop where they need a block bin the tables lack (the kernel's ``stop``
     and ``need_bin``): the tables grow to cover it and those lanes go on from where they stopped. The
     first tables reach from the lanes' blocks to ``TARGET_HEADROOM_C`` above the target."""
     n_g = len(group.lanes)
-    q_start, stop, need = np.zeros(n_g, np.int64), np.zeros(n_g, np.int64), np.zeros(n_g, np.int64)
-    todo = np.arange(n_g)
+    q_start = np.zeros(n_g, np.int64) if q_start is None else q_start
+    stop, need = np.zeros(n_g, np.int64), np.zeros(n_g, np.int64)
+    todo = np.flatnonzero(q_start < n_ops)
     if not group.plant.linear:
         lti = group.plant.model.lti
         blocks = lti.c[BLOCK] @ group.x + lti.f[BLOCK] @ group.plant.d
@@ -580,6 +647,14 @@ def run_group(group: LaneGroup, n_ops: int, target_c: float, tables_for: Callabl
             group.bins = _bin_range(need[stopped], group.bins)
             q_start[stopped] = stop[stopped]
         todo = stopped
+
+
+def _alike(keys: np.ndarray) -> list[np.ndarray]:
+    """The classes of two or more equal rows of keys, each as its row numbers (ascending)."""
+    classes: dict[bytes, list[int]] = {}
+    for row, key in enumerate(keys):
+        classes.setdefault(key.tobytes(), []).append(row)
+    return [np.array(rows) for rows in classes.values() if len(rows) > 1]
 
 
 def _bin_range(need: np.ndarray, current: tuple[int, int] | None) -> tuple[int, int]:

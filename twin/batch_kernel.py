@@ -80,13 +80,17 @@ KP, KI, KD, I_MAX, EVERY = range(5)  # PID: PidFixed's scales; EVERY: prev tempe
 N_SETS, ERR_RANGE, DERR_RANGE, DU_RANGE, OUT_MAX = range(5)  # fuzzy PI: FuzzyPi's fields
 KE, KEC, SPAN, FKP, FKI, FKD, LITERAL = range(7)  # fuzzy-PID: FixedConstants, reading literal
 N_CPARAMS = 8
+# Per family, the ``cparams`` columns its law reads where ``_tuned`` is false: lanes that agree on these
+# and on their state run the same periods up to their first tuned reading (``BatchTwin``'s shared prefix):
+# a PID's heat-up at full power; a bang-bang's whole run; a fuzzy controller's only with its very twin.
+UNTUNED_PARAMS = {PID: (EVERY,), BANG_BANG: (), FUZZY_PI: tuple(range(N_CPARAMS)), FUZZY_PID: tuple(range(N_CPARAMS))}
 # Firmware constants, the entries of ``fw``: passed in, not frozen into the cached machine code.
 (TARGET, RAW_MAX, RAW_MIN, MINTEMP_Q5, MAXTEMP_Q5, R_PERIOD_MS, R_HYST_C, W_INC_C, W_HYST_C, W_PERIOD_MS,
  P_SHIFT, I_SHIFT, D_SHIFT, D_LIMIT_Q8, RANGE_Q5, OUT_MAX_Q8, OUT_FRAC_BITS, TEMP_FRAC_BITS,
  PWM_PERIOD, ADC_MAX, CONTROL, BANG_MAX, DELAY, BIN_LO, RADIATING, RECORD, SCORE, SKIP_ROWS,
  ROW_BASE, FZ_BR_BITS, FZ_GRID_BITS, FZ_CENTROID_BITS, FZ_DUTY_BITS, FP_POS_SHIFT, FP_P_SHIFT, FP_I_SHIFT,
- FP_D_SHIFT) = range(37)
-N_FW = 37
+ FP_D_SHIFT, PROBE) = range(38)
+N_FW = 38  # PROBE: stop a lane at its first reading whose control reads the lane's own parameters (``_tuned``)
 # The plan of a stretch, one row per period: its columns.
 (N_TICKS, FIRST_SAMPLE, READING, PWM_COUNT, MILLIS, KIND, TICK, ROW, FLAGS, Z_FIRST, FIRST_WRAP,
  LAST_PHASE) = range(12)
@@ -187,10 +191,16 @@ def _pid_band(st, temp, e, cp, fw):
 
 
 @inline
+def _in_band(e, target, fw):
+    """Whether the PID's error e (Q5) lies in its functional range: the law that reads the gains."""
+    return -fw[RANGE_Q5] <= e <= fw[RANGE_Q5] and target != 0
+
+
+@inline
 def _pid(st, temp, target, cp, fw):
     """``PidFixed.update_q8`` on one active lane: Q.8 output."""
     e = (target << fw[TEMP_FRAC_BITS]) - temp
-    if -fw[RANGE_Q5] <= e <= fw[RANGE_Q5] and target != 0:
+    if _in_band(e, target, fw):
         return _pid_band(st, temp, e, cp, fw)
     st[C3] = 1
     if cp[EVERY]:
@@ -382,6 +392,13 @@ def _control(st, temp, target, cp, fw, rules, strengths):
     return _fuzzy_pid(st, temp, target, cp, fw, rules, strengths) >> fw[OUT_FRAC_BITS]
 
 
+@inline
+def _tuned(temp, target, fw):
+    """Whether the lane's controller reads its own tuning at this reading, parameters beyond
+    ``UNTUNED_PARAMS``: the PID in its band (the other families have every parameter there)."""
+    return fw[CONTROL] == PID and _in_band((target << fw[TEMP_FRAC_BITS]) - temp, target, fw)
+
+
 # -- protection and the main loop ---------------------------------------------------------------
 @inline
 def _runaway(st, temp, target, now, fw):
@@ -420,7 +437,8 @@ def _watch(st, temp, target, now, fw):
 
 @inline
 def _task(st, raw, now, lut, cp, fw, rules, strengths):
-    """``HotendLanes.task`` on one lane with a fresh reading."""
+    """``HotendLanes.task`` on one lane with a fresh reading; True, having stopped before the control,
+    when probing (``fw[PROBE]``) and the control would read the lane's tuning."""
     target = fw[TARGET]
     if st[HALTED] == 0:
         st[TEMP] = lut[raw]
@@ -433,8 +451,11 @@ def _task(st, raw, now, lut, cp, fw, rules, strengths):
         _trip(st, MAXTEMP_TRIP)
     _runaway(st, temp, target, now, fw)
     in_range = st[HALTED] == 0 and fw[MINTEMP_Q5] < temp < fw[MAXTEMP_Q5]
+    if fw[PROBE] and in_range and _tuned(temp, target, fw):
+        return True
     st[AMOUNT] = _control(st, temp, target, cp, fw, rules, strengths) >> 1 if in_range else 0
     _watch(st, temp, target, now, fw)
+    return False
 
 
 # -- the soft PWM and the plant -------------------------------------------------------------------
@@ -778,7 +799,8 @@ def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, ch
               score_f, score_p, rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair, ys, strengths, stop,
               need_bin):
     """Every period of ``plan`` from ``q_start[k]`` on each lane k of ``todo`` (its column of ``x``;
-    ``lane_ids[k]`` its row of the per-lane arrays); ``stop[k]``: where it stopped (len(plan) when done).
+    ``lane_ids[k]`` its row of the per-lane arrays); ``stop[k]``: where it stopped (len(plan) when done,
+    else the period whose block bin the tables lack, or, probing, the first tuned reading's).
 
     plan (P, PLAN_COLUMNS) int64 (see the columns above). Tables by model m (the radiating bin from
     ``fw[BIN_LO]``; one model when linear) and period kind: px (M, kinds, n_x, samples) and pdd the
@@ -814,7 +836,8 @@ def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, ch
             pins_before = st[PINS]
             if plan[q, READING]:
                 raw, st[ACC] = st[ACC], 0
-                _task(st, raw, plan[q, MILLIS], lut, cp, fw, rules, strengths)
+                if _task(st, raw, plan[q, MILLIS], lut, cp, fw, rules, strengths):
+                    break  # a probe: its state is left mid-period
             _advance(xl, xn, fx, fdd, steps, m, plan[q, KIND], n, n_seen, a, b)
             if fw[DELAY] and pins_before and not st[PINS]:
                 _ring_cut_last(st, ring[lane])  # the main loop switched the pin off for the last tick

@@ -9,19 +9,16 @@ matters (a prev-temperature mode, a noise stream).
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from firmware_port.fuzzy_pi import SEED004_HOTEND, FuzzyPi
 from firmware_port.marlin.bangbang import BangBangHotend
 from firmware_port.marlin.pid import PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidFixed, PidGains
-from twin import batch_kernel
 from twin.batch import BatchTwin
 from twin.plants import make_plant
 from twin.streaming import ScoreSpec
 
 TARGET_C = 210
 READING_S = 0.16384
-pytestmark = pytest.mark.skipif(not batch_kernel.compiled(), reason="the shared prefix is the compiled kernel's")
 
 
 def _run(controllers, preset: str = "hotend_cartridge", events=((0.5, TARGET_C),), duration_s: float = 160.0,

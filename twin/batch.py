@@ -17,7 +17,7 @@ tests keep each lane equal to a scalar ``Twin`` (tests/twin/test_batch_paths.py,
   order; ``SeedSequence(seed).spawn``'s first stream, ``twin.sensor.seeded_chains``). So a lane with
   seed s and noise n reads what that scalar twin reads, and all candidates in a group see the same
   noise. Without a seed, a ``sensor`` chain with noise lends its own generator as the one stream.
-- Shared prefix (the compiled loop, linear plants): lanes in the same state, on the same noise and
+- Shared prefix (the compiled loop): lanes in the same state, on the same noise and
   with the same parameters outside their controllers' tuning run the same periods until each
   controller first reads its own tuning (a PID's heat-up at full power, before its band): one lane
   runs them and the others take its state there (``_shared_prefix``; ``shared_lane_periods``
@@ -471,28 +471,36 @@ class BatchTwin:
                          lane_state.istate, lane_state.x, self.noise_lsb, self.streams, z, lane_state.ring,
                          lane_state.score_i, lane_state.score_f, self._score_array(), *records, *scratch, stop, need)
 
-        q_start = self._shared_prefix(group, plan, tables_for, run_part, istate, records)
-        run_group(group, len(plan), self.lanes.target_c, tables_for, run_part, self.threads, q_start)
+        def run(q_start: np.ndarray, threads: int, **options) -> np.ndarray:
+            """Each lane of the group from q_start to the end of ``options["periods"]`` (else the plan)."""
+            n_ops = len(options.get("periods", plan))
+            return run_group(group, n_ops, self.lanes.target_c, tables_for, functools.partial(run_part, **options),
+                             threads, q_start)
 
-    def _shared_prefix(self, group: LaneGroup, plan: np.ndarray, tables_for: Callable[[LaneGroup], Tables],
-                       run_part: Callable[..., None], istate: np.ndarray, records: tuple) -> np.ndarray:
-        """Each lane's first period to run. Lanes of a linear plant in the same state, on the same noise and
-        with the same ``UNTUNED_PARAMS`` run the same periods until their controllers first read their own
-        tuning (a heat-up at full power, typically): one of them runs those periods, found by a probe on
-        a copy of the state, and the others take its state (and records) there."""
+        run(self._shared_prefix(group, plan, run, istate, records), self.threads)
+
+    def _shared_prefix(self, group: LaneGroup, plan: np.ndarray, run: Callable[..., np.ndarray], istate: np.ndarray,
+                       records: tuple) -> np.ndarray:
+        """Each lane's first period to run. Lanes in the same state, on the same noise and with the same
+        ``UNTUNED_PARAMS`` run the same periods until their controllers first read their own tuning (a
+        heat-up at full power, typically): one of them runs those periods, found by a probe on a copy of
+        the state, and the others take its state (and records) there."""
         q_start = np.zeros(len(group.lanes), np.int64)
-        classes = _alike(self._untuned_keys(group, istate)) if group.plant.linear else []
+        classes = _alike(self._untuned_keys(group, istate))
         if not classes:
             return q_start
         firsts = np.array([members[0] for members in classes])
-        tables = tables_for(group)
-        stop, need = np.zeros_like(q_start), np.zeros_like(q_start)
+
+        def only(lanes: np.ndarray, end: int) -> np.ndarray:
+            """A start for the given lanes, the end for the others (they sit out)."""
+            return np.where(np.isin(np.arange(len(q_start)), lanes), 0, end)
+
         probe_state = LaneState(istate.copy(), group.x.copy(), self._ring.copy(), self.score_i.copy(),
                                 self.score_f.copy())
-        run_part(firsts, q_start, tables, stop, need, probe=True, state=probe_state)
+        stop = run(only(firsts, len(plan)), 1, probe=True, state=probe_state)
         for q in np.unique(stop[firsts]):
             if q:
-                run_part(firsts[stop[firsts] == q], q_start, tables, np.zeros_like(q_start), need, periods=plan[:q])
+                run(only(firsts[stop[firsts] == q], q), 1, periods=plan[:q])
         n_rows = records[0].shape[1]
         for members in classes:
             q = int(stop[members[0]])
@@ -617,16 +625,16 @@ class BatchTwin:
 
 
 def run_group(group: LaneGroup, n_ops: int, target_c: float, tables_for: Callable[[LaneGroup], object],
-              run_part: Callable[..., None], threads: int, q_start: np.ndarray | None = None) -> None:
+              run_part: Callable[..., None], threads: int, q_start: np.ndarray | None = None) -> np.ndarray:
     """A kernel over every lane of a group, from each lane's start (``q_start``, else the first period)
-    to the plan's end, over threads.
+    to the plan's end, over threads; where each lane stopped (n_ops, or where a probe stopped it).
 
     A radiating plant's lanes stop where they need a block bin the tables lack (the kernel's ``stop``
     and ``need_bin``): the tables grow to cover it and those lanes go on from where they stopped. The
     first tables reach from the lanes' blocks to ``TARGET_HEADROOM_C`` above the target."""
     n_g = len(group.lanes)
     q_start = np.zeros(n_g, np.int64) if q_start is None else q_start
-    stop, need = np.zeros(n_g, np.int64), np.zeros(n_g, np.int64)
+    stop, need = q_start.copy(), np.zeros(n_g, np.int64)
     todo = np.flatnonzero(q_start < n_ops)
     if not group.plant.linear:
         lti = group.plant.model.lti
@@ -642,11 +650,12 @@ def run_group(group: LaneGroup, n_ops: int, target_c: float, tables_for: Callabl
             calls[0]()
         else:
             list(_pool(n_parts).map(lambda call: call(), calls))
-        stopped = todo[stop[todo] < n_ops]
+        stopped = todo[(stop[todo] < n_ops) & (need[todo] != bk.PROBED)]
         if stopped.size:
             group.bins = _bin_range(need[stopped], group.bins)
             q_start[stopped] = stop[stopped]
         todo = stopped
+    return stop
 
 
 def _alike(keys: np.ndarray) -> list[np.ndarray]:

@@ -91,6 +91,7 @@ UNTUNED_PARAMS = {PID: (EVERY,), BANG_BANG: (), FUZZY_PI: tuple(range(N_CPARAMS)
  ROW_BASE, FZ_BR_BITS, FZ_GRID_BITS, FZ_CENTROID_BITS, FZ_DUTY_BITS, FP_POS_SHIFT, FP_P_SHIFT, FP_I_SHIFT,
  FP_D_SHIFT, PROBE) = range(38)
 N_FW = 38  # PROBE: stop a lane at its first reading whose control reads the lane's own parameters (``_tuned``)
+PROBED = -(1 << 62)  # ``need_bin`` of a lane the probe stopped (not a bin: no block is that cold)
 # The plan of a stretch, one row per period: its columns.
 (N_TICKS, FIRST_SAMPLE, READING, PWM_COUNT, MILLIS, KIND, TICK, ROW, FLAGS, Z_FIRST, FIRST_WRAP,
  LAST_PHASE) = range(12)
@@ -800,7 +801,8 @@ def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, ch
               need_bin):
     """Every period of ``plan`` from ``q_start[k]`` on each lane k of ``todo`` (its column of ``x``;
     ``lane_ids[k]`` its row of the per-lane arrays); ``stop[k]``: where it stopped (len(plan) when done,
-    else the period whose block bin the tables lack, or, probing, the first tuned reading's).
+    else the period whose block bin ``need_bin[k]`` the tables lack, or, probing, the first tuned
+    reading's, ``need_bin[k]`` then ``PROBED``).
 
     plan (P, PLAN_COLUMNS) int64 (see the columns above). Tables by model m (the radiating bin from
     ``fw[BIN_LO]``; one model when linear) and period kind: px (M, kinds, n_x, samples) and pdd the
@@ -837,7 +839,8 @@ def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, ch
             if plan[q, READING]:
                 raw, st[ACC] = st[ACC], 0
                 if _task(st, raw, plan[q, MILLIS], lut, cp, fw, rules, strengths):
-                    break  # a probe: its state is left mid-period
+                    need_bin[k] = PROBED  # its state is left mid-period
+                    break
             _advance(xl, xn, fx, fdd, steps, m, plan[q, KIND], n, n_seen, a, b)
             if fw[DELAY] and pins_before and not st[PINS]:
                 _ring_cut_last(st, ring[lane])  # the main loop switched the pin off for the last tick

@@ -9,12 +9,14 @@ matters (a prev-temperature mode, a noise stream).
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from firmware_port.fuzzy_pi import SEED004_HOTEND, FuzzyPi
 from firmware_port.marlin.bangbang import BangBangHotend
 from firmware_port.marlin.pid import PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND, PidFixed, PidGains
+from twin import batch as batch_module
 from twin.batch import BatchTwin
-from twin.plants import make_plant
+from twin.plants import ONION_RADIATING_PARAMS, make_plant
 from twin.streaming import ScoreSpec
 
 TARGET_C = 210
@@ -22,8 +24,8 @@ READING_S = 0.16384
 
 
 def _run(controllers, preset: str = "hotend_cartridge", events=((0.5, TARGET_C),), duration_s: float = 160.0,
-         **options) -> BatchTwin:
-    batch = BatchTwin(make_plant(preset), controllers, kernel="numba",
+         plant_params: dict | None = None, **options) -> BatchTwin:
+    batch = BatchTwin(make_plant(preset, **(plant_params or {})), controllers, kernel="numba",
                       score=ScoreSpec(TARGET_C, 25.0, 100.0, 2.0, 1), threads=1, **options)
     for at_s, target_c in events:
         batch.schedule(at_s, lambda b, c=target_c: b.set_target(c))
@@ -66,6 +68,16 @@ def test_pid_lanes_share_their_heat_up_and_each_runs_as_alone():
 def test_a_dead_time_plant_shares_its_ring_of_pulses():
     batch = _assert_each_lane_runs_as_alone(_pids, 3, preset="seed001_fopdt")
     assert batch.shared_lane_periods > 0
+
+
+@pytest.mark.parametrize("headroom_c", [batch_module.TARGET_HEADROOM_C, -40.0])
+def test_a_radiating_plant_shares_its_heat_up(monkeypatch, headroom_c):
+    """With tables built up front past the target, and with tables that end below the band (-40 C of
+    headroom: bins to 190 C), so that the probe and the shared run stop for a bin, grow the tables
+    and go on, as every lane does."""
+    monkeypatch.setattr(batch_module, "TARGET_HEADROOM_C", headroom_c)
+    batch = _assert_each_lane_runs_as_alone(_pids, 3, plant_params=ONION_RADIATING_PARAMS)
+    assert batch.shared_lane_periods > 2 * 0.5 * 160.0 / READING_S
 
 
 def test_lanes_apart_before_their_tuning_matters_do_not_share():

@@ -660,9 +660,6 @@ def _chord_sum(hot, cold, y0, y1, band, n_samples, xl, px, pdd, rows, m, kind, s
         if count < 0:  # the chord cannot tell: this sample itself
             y = _sample(xl, px, pdd, rows, m, kind, s0, j, n_pulses, alpha, beta)
             count = cold if y < edge else hot
-        if noise_lsb == 0.0:
-            total += count
-            continue
         noise = noise_lsb * z[z0 + j]
         width = bounds[count] + (band if y == yc else 0.0) * slopes[count]
         v = count + (edges[count] - y) * slopes[count] + noise

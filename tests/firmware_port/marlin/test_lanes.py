@@ -1,12 +1,10 @@
 """The vectorised firmware equals the scalar firmware, lane by lane; the compiled kernel equals both."""
 
-import math
-from fractions import Fraction
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tests.helpers.near_half import value_near_half
 
 from firmware_port.marlin.lanes import HotendLanes, PidLanes, div_round, lookup_q5, trunc_c
 from firmware_port.marlin.softpwm import SoftPwm
@@ -68,10 +66,7 @@ def test_pid_lanes_scale_gains_as_the_scalar_pid(near_halves, other):
     half (where a float product alone could round the other way) and for zero or negative Ki."""
     gains = [other, PidGains(other.kp, 0.0, other.kd), PidGains(other.kp, -abs(other.ki), other.kd)]
     for k, nudge, term in near_halves:
-        scale = (KP_Q12, KI_Q24, KD_Q16)[term]
-        value = float((k + Fraction(1, 2)) / scale.exact)
-        for _ in range(abs(nudge)):
-            value = math.nextafter(value, math.inf if nudge > 0 else -math.inf)
+        value = value_near_half(k, nudge, (KP_Q12, KI_Q24, KD_Q16)[term].exact)
         top = (KP_MAX, KI_MAX, KD_MAX)[term]
         values = [other.kp, other.ki, other.kd]
         values[term] = min(max(value, -top), top)

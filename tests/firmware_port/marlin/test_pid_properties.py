@@ -1,11 +1,11 @@
 """Properties 2-4: the fixed-point PID never overflows, agrees with float32, keeps its clamp."""
 
-import math
 from fractions import Fraction
 
 import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
+from tests.helpers.near_half import value_near_half
 
 from firmware_port.marlin.pid import (
     D_RAW_LIMIT_Q8,
@@ -166,10 +166,7 @@ def test_q_scaled_is_exact_next_to_a_half(k, nudge, scaling):
     """Values whose scaled product lies on or a few ulps from k + 1/2, where a float product alone
     could round the wrong way: the exact path decides."""
     scale, bits = scaling
-    near_half = float((k + Fraction(1, 2)) / (scale * (1 << bits)))
-    value = near_half
-    for _ in range(abs(nudge)):
-        value = math.nextafter(value, math.inf if nudge > 0 else -math.inf)
+    value = value_near_half(k, nudge, scale * (1 << bits))
     assert q_scaled(value, scale, bits) == exact_q(value, scale, bits)
 
 

@@ -1,8 +1,9 @@
-"""A model's reading for a logged duty: the twin's own plants stepped on the firmware tick.
+"""A model's reading for a logged duty: the twin's own plants, their exact zero-order hold on the tick.
 
 The logged duty is held from each sample to the next (zero-order hold) and run through the twin's
-plants (twin/linear.py ``LinearPlant``, exact for these linear models; no second integrator). Dead
-time is whole ticks (1.024 ms); a delay_s between two whole ticks interpolates the two responses
+plants (twin/linear.py ``LinearPlant``'s model and state, stepped exactly from one breakpoint to the
+next as its tick maps would step them tick by tick; no second integrator). Dead time is whole ticks
+(1.024 ms); a delay_s between two whole ticks interpolates the two responses
 linearly, so the residuals are a smooth function of delay_s for an optimiser. A radiating plant is
 stepped by ``radiating_response``.
 """
@@ -10,6 +11,7 @@ stepped by ``radiating_response``.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import scipy.linalg
@@ -19,45 +21,124 @@ from twin.plants import Lumped, Plant, Spec, TransferFunction
 
 def zoh_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.ndarray:
     """The plant's sensor at the instants t_s (from t_s[0]), its heater at duty[i] from t_s[i] to
-    t_s[i + 1]; instants on the tick grid (1.024 ms). A radiating plant: ``radiating_response``."""
+    t_s[i + 1]; instants on the tick grid (1.024 ms), the dead time in whole ticks after the plant's own
+    history of inputs; the plant is left at t_s[-1]. A radiating plant: ``radiating_response``.
+
+    Exact for a linear plant as the engine's tick maps are (the same zero-order hold), but stepped from
+    breakpoint to breakpoint (a reading, or a change of the delayed input) with one map per distinct
+    interval length, not tick by tick: a fit evaluates it hundreds of times."""
     if not plant.linear:
         return radiating_response(plant, t_s, duty)
-    ticks = np.rint((t_s - t_s[0]) / TICK_S).astype(int)
-    out = np.empty(len(t_s))
-    out[0] = plant.temps_c()[SENSOR]
-    for i, n in enumerate(np.diff(ticks)):
-        plant.advance(np.full(n, duty[i]))
-        plant.relinearise()
-        out[i + 1] = plant.temps_c()[SENSOR]
-    return out
+    ticks = np.rint((np.asarray(t_s, float) - t_s[0]) / TICK_S).astype(np.int64)
+    duty = np.asarray(duty, float)
+    delay = plant.delay_ticks
+    history = plant._u_history  # the inputs of the delay_ticks ticks before t_s[0], oldest first
+    runs = np.flatnonzero(np.r_[True, np.diff(history) != 0]) if delay else np.zeros(0, np.int64)
+    change_at = np.r_[runs, ticks[:-1] + delay]  # where the delayed input takes each new value
+    change_to = np.r_[history[runs], duty[:-1]]
+    points = np.union1d(ticks, change_at[change_at <= ticks[-1]])
+    source = np.searchsorted(change_at, points[:-1], side="right") - 1
+    u = change_to[source]
+    lengths, which = np.unique(np.diff(points), return_inverse=True)
+    lti = plant.model.lti
+    phi, g, h = _interval_maps(lti, lengths * TICK_S)
+    hd = h @ plant.d
+    x = plant.x.copy()
+    states = np.empty((len(points), len(x)))
+    states[0] = x
+    for k, (j, u_k) in enumerate(zip(which, u)):
+        x = phi[j] @ x + g[j] * u_k + hd[j]
+        states[k + 1] = x
+    plant.x = x
+    if delay:  # the raw inputs of the last delay ticks: the history of what follows
+        tail = np.arange(ticks[-1] - delay, ticks[-1])
+        sample = np.searchsorted(ticks, tail, side="right") - 1
+        plant._u_history = np.where(tail >= 0, duty[np.maximum(sample, 0)], history[np.clip(tail + delay, 0, delay - 1)])
+    return states[np.searchsorted(points, ticks)] @ lti.c[SENSOR] + lti.f[SENSOR] @ plant.d
+
+
+def _interval_maps(models: Lti | list[Lti], lengths_s: np.ndarray, repeat: int = 1
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Zero-order hold of x' = A x + b u + E d over each interval length: (Phi, g, H) stacked per length;
+    with a list of models, each taken for ``repeat`` consecutive lengths."""
+    models = [models] if isinstance(models, Lti) else models
+    n, m = models[0].a.shape[0], models[0].e.shape[1]
+    aug = np.zeros((len(lengths_s), n + 1 + m, n + 1 + m))
+    for i, lti in enumerate(models):
+        rows = slice(i * repeat, (i + 1) * repeat) if len(models) > 1 else slice(None)
+        aug[rows, :n, :n], aug[rows, :n, n], aug[rows, :n, n + 1:] = lti.a, lti.b, lti.e
+    disc = scipy.linalg.expm(aug * np.asarray(lengths_s, float)[:, None, None])
+    return disc[:, :n, :n], disc[:, :n, n], disc[:, :n, n + 1:]
 
 
 def radiating_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.ndarray:
-    """A radiating lumped plant's sensor at the instants t_s, from its state now: over each sample
-    interval the plant's own model (``Lumped.lti``) linearised at the block's temperature at the
-    interval's start (the secant radiation conductance, docs/plants.md "Radiation"), stepped exactly
-    for that interval's duty by one matrix exponential of the model augmented with its constant input.
+    """A radiating lumped plant's sensor at the instants t_s (on the tick grid), from its state now: over
+    each sample interval the plant's own model (``Lumped.lti``) linearised at the block's temperature at
+    the interval's start (the secant radiation conductance, docs/plants.md "Radiation") and stepped
+    exactly for that interval's duty.
 
-    The engine relinearises the same model between its runs (at most 160 ticks) in 0.5 C bins, each
-    bin a discretisation of its own; per sample, unbinned, the residuals are smooth in the radiation
-    parameter and a fit does not rebuild a tick model for every bin (about 5 s against 0.05 s per
-    evaluation on the onionheater pulse)."""
+    The interval's map (zero-order hold of the linearised model) is interpolated linearly between the
+    maps at the two nearest points of a RADIATING_MAP_STEP_C grid of block temperatures, built as the
+    run reaches them (one batched matrix exponential per GRID_CHUNK points and interval length): the
+    residuals stay continuous in the block temperature and smooth in the parameters, as a fit needs,
+    and a run costs a few hundred exponentials, not one per sample. The interpolation's error is
+    second order in the grid step (tests/tools/ident/test_response.py bounds it against exponentials
+    taken at every sample)."""
     spec = plant.spec
     assert isinstance(spec, Lumped)  # the radiating term is a lumped model's
+    ticks = np.rint((np.asarray(t_s, float) - t_s[0]) / TICK_S).astype(np.int64)
+    lengths, which = np.unique(np.diff(ticks), return_inverse=True)
+    grid = _RadiatingMaps(plant, lengths * TICK_S)
     x = plant.x.copy()
-    n = len(x)
-    out = np.empty(len(t_s))
-    out[0] = plant.temps_c()[SENSOR]
-    augmented = np.zeros((n + 1, n + 1))
-    for i, step_s in enumerate(np.diff(t_s)):
-        lti = spec.lti(spec.conditions(plant.fan, plant.flow_mm_s, plant.ambient_c, float(x[0]))._replace(
-            block_bin_c=float(x[0])))
-        augmented[:n, :n] = lti.a
-        augmented[:n, n] = lti.b * duty[i] + lti.e @ plant.d
-        x = (scipy.linalg.expm(augmented * step_s) @ np.r_[x, 1.0])[:n]
-        out[i + 1] = lti.c[SENSOR] @ x
+    c = plant.model.lti.c[SENSOR]
+    out = np.empty(len(ticks))
+    out[0] = c @ x
+    for i, (j, u) in enumerate(zip(which, np.asarray(duty, float))):
+        phi, g, hd = grid.at(float(x[0]), j)
+        x = phi @ x + g * u + hd
+        out[i + 1] = c @ x
     plant.x = x
     return out
+
+
+RADIATING_MAP_STEP_C = 2.0  # radiating_response's grid of linearisation temperatures
+GRID_CHUNK = 16  # grid points built at once
+
+
+class _RadiatingMaps:
+    """The interval maps of a radiating plant at grid points of block temperature, built on demand."""
+
+    def __init__(self, plant: Plant, lengths_s: np.ndarray):
+        self.plant, self.lengths_s = plant, lengths_s
+        self.maps: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # grid point -> per length
+
+    def at(self, block_c: float, length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Phi, g, H d) for an interval of the given length index starting with the block at block_c."""
+        where = block_c / RADIATING_MAP_STEP_C
+        k = math.floor(where)
+        w = where - k
+        low, high = self._point(k), self._point(k + 1)
+        phi, g, hd = ((1.0 - w) * a[length] + w * b[length] for a, b in zip(low, high))
+        return phi, g, hd
+
+    def _point(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if k not in self.maps:
+            first = k - GRID_CHUNK // 2
+            points = [p for p in range(first, first + GRID_CHUNK) if p not in self.maps]
+            self._build(points)
+        return self.maps[k]
+
+    def _build(self, points: list[int]) -> None:
+        plant, spec = self.plant, self.plant.spec
+        assert isinstance(spec, Lumped)
+        models = [spec.lti(spec.conditions(plant.fan, plant.flow_mm_s, plant.ambient_c, p * RADIATING_MAP_STEP_C)
+                           ._replace(block_bin_c=p * RADIATING_MAP_STEP_C)) for p in points]
+        n_len = len(self.lengths_s)
+        phi, g, h = _interval_maps(models, np.tile(self.lengths_s, len(points)), repeat=n_len)
+        hd = h @ plant.d
+        for i, p in enumerate(points):
+            part = slice(i * n_len, (i + 1) * n_len)
+            self.maps[p] = (phi[part], g[part], hd[part])
 
 
 # --- the models ----------------------------------------------------------------------------------

@@ -417,19 +417,21 @@ def _dwell(p: PrinterContext, ms: int):
 
 
 def _synchronize(p: PrinterContext):
-    """planner.synchronize(): idle until every block has run."""
-    while p.planner.blocks:
+    """planner.synchronize(): idle until every block has run and a quickstop's cleaning window is over."""
+    while p.planner.busy:
         yield _next_block_end(p)
 
 
 def m410(p: PrinterContext, cmd: Command):
-    """Quickstop: the moves are dropped (already done when the line arrived)."""
-    p.planner.clear()
+    """quickstop_stepper() once more (the line's arrival ran it first): the moves are dropped, the
+    position is where the steppers stopped, and the ok waits out the cleaning window."""
+    p.planner.quickstop()
+    return _synchronize(p)
 
 
 def m400(p: PrinterContext, cmd: Command):
     """Wait for the moves to finish."""
-    return _synchronize(p) if p.planner.blocks else None
+    return _synchronize(p) if p.planner.busy else None
 
 
 def g92(p: PrinterContext, cmd: Command):

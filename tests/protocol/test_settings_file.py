@@ -7,12 +7,14 @@ from __future__ import annotations
 import json
 import os
 import re
+import subprocess
 
 import pytest
 
 from firmware_port.marlin.pid import PidGains
 from protocol.build import build_printer
 from protocol.settings import MAX_FILE_BYTES, TEMP_SUFFIX, Settings, crc16
+from tests.helpers.serial_host import CLI, ROOT, START_TIMEOUT_S
 
 STORED = re.compile(r"echo:Settings Stored \((\d+) bytes; crc (\d+)\)")
 CRC_MISMATCH = re.compile(r"Error:EEPROM CRC mismatch - \(stored\) (\d+) != (\d+) \(calculated\)!")
@@ -174,3 +176,16 @@ def test_files_a_crash_left_before_their_rename_are_removed_at_start(eeprom):
         other.write_text("keep me\n")
     build_printer(settings=str(eeprom))
     assert not leftover.exists() and all(other.read_text() == "keep me\n" for other in others)
+
+
+@pytest.mark.slow
+def test_twin_serial_keeps_a_damaged_file_when_asked(eeprom):
+    _stored_printer(eeprom)
+    damaged = eeprom.read_text().replace('"kp": 15.0', '"kp": 51.0')
+    eeprom.write_text(damaged)
+    proc = subprocess.run([*CLI, "--settings", str(eeprom), "--keep-corrupt-settings"], capture_output=True,
+                          text=True, cwd=ROOT, timeout=START_TIMEOUT_S)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert re.fullmatch(rf"twin-serial: error: settings file {eeprom}: does not load \(CRC mismatch, stored \d+, "
+                        r"calculated \d+\); kept as it is, as asked\n", proc.stderr)
+    assert eeprom.read_text() == damaged

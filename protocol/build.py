@@ -14,17 +14,18 @@ SERIAL_SCENARIO = parse_scenario('name = "serial"\nduration_s = 86400\n', "seria
 
 def build_printer(*, firmware: str = "pid", plant: str | None = None, bed_plant: str | None = None,
                   with_bed: bool = True, scenario: str | None = None, settings: str | None = None,
-                  ok_after_resend: bool = True) -> VirtualPrinter:
+                  ok_after_resend: bool = True, keep_corrupt_settings: bool = False) -> VirtualPrinter:
     """The printer twin-serial and twin:// serve; ValueError names a bad option.
 
     ``scenario`` (a preset name or TOML file) brings faults, ambient and plant overrides;
-    ``settings`` is the file M500 writes (the EEPROM), by default kept in memory only.
+    ``settings`` is the file M500 writes (the EEPROM), by default kept in memory only;
+    ``keep_corrupt_settings`` refuses one that does not load instead of loading the defaults.
     """
     chosen = scenario_for(scenario) if scenario else SERIAL_SCENARIO
     # firmware and plant names are checked where they are used (build_controllers, make_plant)
     presets: dict[str, dict[str, float | str]] = {heater: {"preset": name} for heater, name in (("hotend", plant), ("bed", bed_plant)) if name}
     if presets:
         chosen = with_overrides(chosen, plant=presets)
-    eeprom = Eeprom.open(settings) if settings else None
+    eeprom = Eeprom.open(settings, keep_corrupt=keep_corrupt_settings) if settings else None
     return VirtualPrinter(lambda: build_twin(chosen, firmware, with_bed=with_bed, engine="fast"),
                           eeprom=eeprom, ok_after_resend=ok_after_resend)

@@ -9,6 +9,8 @@ M105.cpp, M303.cpp, Marlin/src/gcode/queue.cpp, Marlin/src/module/temperature.cp
 
 from __future__ import annotations
 
+import logging
+
 from firmware_port.fixed import wrap_s32
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
 from firmware_port.marlin.constants import (
@@ -22,7 +24,7 @@ from firmware_port.marlin.serial import format_float
 from protocol.context import PrinterContext
 from protocol.gcode import Command, float_to_u32, unknown_command_text
 from protocol.mpc_commands import MPC_HANDLERS, load_constants, settings_report, stored_constants
-from protocol.settings import EEPROM_VERSION, Settings, crc16
+from protocol.settings import EEPROM_VERSION, CrcMismatch, Settings, VersionMismatch, crc16, load_image
 
 NO_OK = object()
 
@@ -51,6 +53,7 @@ DWELL_MAX_MS = 1 << 31  # dwell(): PENDING() compares as int32
 STR_INVALID_EXTRUDER = "Invalid extruder"
 STR_PID_BAD_HEATER_ID = "PID Autotune failed! Bad heater id"
 STR_ERR_EEPROM_WRITE = "Error writing to EEPROM!"  # core/language.h
+LOG = logging.getLogger(__name__)
 
 
 def banner(p: PrinterContext, power_up: bool) -> str:
@@ -289,17 +292,28 @@ def _apply_settings(p: PrinterContext, settings: Settings) -> None:
 
 
 def _load_settings(p: PrinterContext) -> str:
-    """settings.load(): the stored image if it is valid, else the defaults."""
-    data = p.eeprom.read()
+    """settings.load(): the stored image if it is valid, else the defaults after Marlin's line for
+    what is wrong (module/settings.cpp _load(): the version, then the CRC). A file the EEPROM
+    refuses to read now (a link, a device) reads as a blank EEPROM; the log says why."""
+    try:
+        data = p.eeprom.read()
+    except OSError as exc:
+        LOG.warning("settings not read: %s", exc)
+        data = b""
     if data is None:
         _apply_settings(p, _hardcoded_settings(p))
         return "echo:Hardcoded Default Settings Loaded\n"
     try:
-        _apply_settings(p, Settings.from_bytes(data))
-    except ValueError:
-        _apply_settings(p, _hardcoded_settings(p))
-        return f"echo:EEPROM version mismatch (EEPROM=? Marlin={EEPROM_VERSION})\necho:Hardcoded Default Settings Loaded\n"
-    return f"echo:{EEPROM_VERSION} stored settings retrieved ({len(data)} bytes; crc {crc16(data)})\n"
+        settings, payload = load_image(data)
+    except VersionMismatch as exc:
+        why = f"echo:EEPROM version mismatch (EEPROM={exc.shown} Marlin={EEPROM_VERSION})\n"
+    except CrcMismatch as exc:
+        why = f"Error:EEPROM CRC mismatch - (stored) {exc.stored} != {exc.calculated} (calculated)!\n"
+    else:
+        _apply_settings(p, settings)
+        return f"echo:{EEPROM_VERSION} stored settings retrieved ({len(payload)} bytes; crc {crc16(payload)})\n"
+    _apply_settings(p, _hardcoded_settings(p))
+    return why + "echo:Hardcoded Default Settings Loaded\n"
 
 
 def _settings_report(p: PrinterContext) -> str:
@@ -313,14 +327,17 @@ def _settings_report(p: PrinterContext) -> str:
 
 
 def m500(p: PrinterContext, cmd: Command):
-    """settings.save(). A failed write prints STR_ERR_EEPROM_WRITE (the HAL's write_data), and the
-    report follows it as on the board: Marlin 2.1's EEPROM_WRITE ignores write_data's result."""
-    data = _current_settings(p).to_bytes()
+    """settings.save(). A failed write (or one the EEPROM refuses: a link, a file M500 did not
+    write) prints STR_ERR_EEPROM_WRITE (the HAL's write_data), and the report follows it as on the
+    board: Marlin 2.1's EEPROM_WRITE ignores write_data's result. The log says why."""
+    settings = _current_settings(p)
     try:
-        p.eeprom.write(data)
-    except OSError:
+        p.eeprom.write(settings.to_bytes())
+    except OSError as exc:
+        LOG.warning("M500 not written: %s", exc)
         p.write(f"echo:{STR_ERR_EEPROM_WRITE}\n")
-    p.write(f"echo:Settings Stored ({len(data)} bytes; crc {crc16(data)})\n")
+    payload = settings.payload()
+    p.write(f"echo:Settings Stored ({len(payload)} bytes; crc {crc16(payload)})\n")
 
 
 def m501(p: PrinterContext, cmd: Command):
@@ -417,19 +434,21 @@ def _dwell(p: PrinterContext, ms: int):
 
 
 def _synchronize(p: PrinterContext):
-    """planner.synchronize(): idle until every block has run."""
-    while p.planner.blocks:
+    """planner.synchronize(): idle until every block has run and a quickstop's cleaning window is over."""
+    while p.planner.busy:
         yield _next_block_end(p)
 
 
 def m410(p: PrinterContext, cmd: Command):
-    """Quickstop: the moves are dropped (already done when the line arrived)."""
-    p.planner.clear()
+    """quickstop_stepper() once more (the line's arrival ran it first): the moves are dropped, the
+    position is where the steppers stopped, and the ok waits out the cleaning window."""
+    p.planner.quickstop()
+    return _synchronize(p)
 
 
 def m400(p: PrinterContext, cmd: Command):
     """Wait for the moves to finish."""
-    return _synchronize(p) if p.planner.blocks else None
+    return _synchronize(p) if p.planner.busy else None
 
 
 def g92(p: PrinterContext, cmd: Command):

@@ -66,7 +66,7 @@ def m306(p: PrinterContext, cmd: Command):
 def _autotune(p: PrinterContext):
     """MPC_autotune(): home (the moves finish first), to the tuning position, the loops (no
     idle(): no busy lines, no auto-reports), then the Z clearance."""
-    while p.planner.blocks:  # gcode.home_all_axes(): planner.synchronize()
+    while p.planner.busy:  # gcode.home_all_axes(): planner.synchronize()
         yield p.now_tick + 1
     board = p.twin.board
     p.planner.set_position(MPC_TUNING_POS_MM)  # G28, then do_blocking_move_to(MPC_TUNING_POS)

@@ -28,6 +28,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from firmware_port.fixed import INT32_MAX, INT32_MIN, wrap_s32
+from firmware_port.marlin.constants import TEMP_TIMER_FREQUENCY
 from protocol.gcode import float32
 from twin.clock import TICK_S
 
@@ -42,6 +43,7 @@ HOMED_AXES = "XYZ"
 SOFT_MIN_MM = {"X": 0.0, "Y": 0.0, "Z": 0.0}  # Configuration.h X_MIN_POS, Y_MIN_POS, Z_MIN_POS
 SOFT_MAX_MM = {"X": 200.0, "Y": 200.0, "Z": 200.0}  # X_MAX_POS = X_BED_SIZE, Y_MAX_POS = Y_BED_SIZE, Z_MAX_POS
 STR_ERR_LONG_EXTRUDE_STOP = "echo: too long extrusion prevented\n"  # language.h, via SERIAL_ECHO_MSG
+CLEANING_S = TEMP_TIMER_FREQUENCY * TICK_S  # quick_stop(): cleaning_buffer_counter, counted down by the temperature ISR
 
 
 def lround32(x: float) -> int:
@@ -58,6 +60,20 @@ def lround32(x: float) -> int:
 class Block:
     duration_s: float
     flow_mm_s: float  # filament feed during the block (negative: retraction)
+    start_steps: dict[str, int]  # the steppers' position (int32 counts) when the block begins
+    delta_steps: dict[str, int]  # what the block steps on each axis
+    step_events: int  # the largest of those: the block's step event count
+
+    def stepped(self, fraction: float) -> dict[str, int]:
+        """Where the steppers are after ``fraction`` of the block's time: each axis's Bresenham
+        count after that share of the step events (the stepper ISR's delta_error, starting at
+        -step_event_count and adding 2 x steps per event, steps on reaching 0)."""
+        events = min(self.step_events, math.floor(fraction * self.step_events))
+        position = {}
+        for axis, delta in self.delta_steps.items():
+            steps = (2 * events * abs(delta) + self.step_events) // (2 * self.step_events)
+            position[axis] = wrap_s32(self.start_steps[axis] + (steps if delta >= 0 else -steps))
+        return position
 
 
 class Planner:
@@ -73,6 +89,13 @@ class Planner:
         self.block_left_s = 0.0  # time left in the block at the head of the queue
         self.homed: set[str] = set()  # axis_homed: axes G28 homed since the reset
         self.soft_endstops = True  # soft_endstop._enabled
+        self.stepper_end = dict(self.steps)  # the steppers' position once every queued block has run
+        self.cleaning_s = 0.0  # left of quick_stop()'s cleaning window
+
+    @property
+    def busy(self) -> bool:
+        """Planner::busy(): blocks queued or the cleaning window still open (what synchronize() waits for)."""
+        return bool(self.blocks) or self.cleaning_s > 0
 
     @property
     def full(self) -> bool:
@@ -118,7 +141,9 @@ class Planner:
         for axis in AXES:  # limit_and_warn / the speed factor: no axis beyond its maximum
             duration_s = max(duration_s, abs(mm[axis]) / MAX_FEEDRATE_MM_S[axis])
         duration_s = min(duration_s, step_events / MINIMAL_STEP_RATE)
-        self.blocks.append(Block(duration_s, mm["E"] / duration_s))
+        start = self.stepper_end
+        self.stepper_end = {axis: wrap_s32(start[axis] + delta_steps[axis]) for axis in AXES}
+        self.blocks.append(Block(duration_s, mm["E"] / duration_s, start, delta_steps, step_events))
         if len(self.blocks) == 1:
             self.block_left_s = duration_s
 
@@ -147,13 +172,20 @@ class Planner:
             if axis in params or not params:
                 self.position[axis] = params.get(axis, 0.0)
                 self.steps[axis] = lround32(self.position[axis] * STEPS_PER_MM[axis])
+        self.stepper_end = dict(self.steps)  # the steppers take it when the blocks before it have run
 
     def ticks_to_next_change(self) -> int | None:
-        """Clock ticks until the head block ends (the flow may change then; at least 1), or None when idle."""
-        return max(1, round(self.block_left_s / TICK_S)) if self.blocks else None
+        """Clock ticks until the head block ends (the flow may change then) or the cleaning window
+        closes, at least 1; None when the planner is not busy."""
+        if self.blocks:
+            return max(1, round(self.block_left_s / TICK_S))
+        return max(1, round(self.cleaning_s / TICK_S)) if self.cleaning_s else None
 
     def advance(self, seconds: float) -> None:
         """Let ``seconds`` of motion pass (the printer never crosses a block boundary within)."""
+        self.cleaning_s = max(0.0, self.cleaning_s - seconds)
+        if self.cleaning_s <= 1e-12:
+            self.cleaning_s = 0.0
         while self.blocks and seconds > 0:
             step = min(seconds, self.block_left_s)
             self.block_left_s -= step
@@ -163,6 +195,18 @@ class Planner:
                 self.block_left_s = self.blocks[0].duration_s if self.blocks else 0.0
 
     def clear(self) -> None:
-        """Kill, reset or quickstop (M410): the queue is gone."""
+        """Kill (M112): the queue is gone."""
         self.blocks.clear()
         self.block_left_s = 0.0
+
+    def quickstop(self) -> None:
+        """quickstop_stepper() (M410): the blocks are dropped, the steppers stop where they are,
+        and the position becomes theirs (set_current_from_steppers_for_axis(ALL_AXES_ENUM): steps
+        times the float mm_per_step; sync_plan_position()). The cleaning window opens."""
+        if self.blocks:
+            head = self.blocks[0]
+            self.stepper_end = head.stepped(1.0 - self.block_left_s / head.duration_s)
+        self.clear()
+        self.steps = dict(self.stepper_end)
+        self.position = {axis: float32(float32(self.steps[axis]) * float32(1.0 / STEPS_PER_MM[axis])) for axis in AXES}
+        self.cleaning_s = CLEANING_S

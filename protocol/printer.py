@@ -236,9 +236,17 @@ class VirtualPrinter:
             self.twin.board.kill_m112()
             self.planner.clear()
             return
-        elif line.emergency == "M410":  # quickstop_stepper()
-            self.planner.clear()
+        elif line.emergency == "M410":
+            self._quickstop()
         self.queue.append(line)
+
+    def _quickstop(self) -> None:
+        """quickstop_stepper() run by the read of an M410 line, inside the main loop's idle(): its
+        planner.synchronize() holds the command that was executing until the cleaning window
+        closes, and that command then looks again (an M400, G4 or G1 waiting on the moves goes on)."""
+        self.planner.quickstop()
+        if self.current is not None:
+            self.wake_tick = self.twin.tick + (self.planner.ticks_to_next_change() or 0)
 
     def _dispatch(self) -> None:
         """Start queued commands while none is executing; instant ones finish at once."""

@@ -20,8 +20,9 @@ from protocol.corruption import RxCorruptor
 from protocol.pacing import MAX, Pacer, parse_idle_speed, parse_speed
 from protocol.pty_server import PtyServer
 from protocol.server import Server
-from protocol.tcp_server import TcpServer
+from protocol.tcp_server import SECRET_LINE_MAX, TAKEOVER_AFTER_S, TcpServer
 from protocol.transcript import Transcript
+from tools.cli.args import ranged_float
 from tools.entry import OneLineParser, run_main
 from twin.plants import PRESETS as PLANT_PRESETS
 
@@ -46,6 +47,8 @@ EXAMPLES = """examples:
   twin-serial --link /tmp/printer          OctoPrint or Pronterface: connect to /tmp/printer, any baud;
                                            M109/M303 finish in seconds, an idle printer runs in real time
   twin-serial --tcp 127.0.0.1:8250         pyserial socket://127.0.0.1:8250, or Pronterface's host:port
+  twin-serial --tcp 0.0.0.0:8250 --secret-file key
+                                           on the network: every client sends key's first line first
   twin-serial --idle-speed 10              idle heating and M155 reports at 10 x real time
   twin-serial --idle-speed 0 --log s.log   host-driven clock (stops while the host is idle): a session
                                            is a pure function of the bytes sent; transcript in s.log
@@ -60,6 +63,19 @@ def _tcp_address(text: str) -> tuple[str, int]:
     if not sep or not port.isdigit() or int(port) > 65535:
         raise argparse.ArgumentTypeError(f"expected HOST:PORT, e.g. 127.0.0.1:8250, not {text!r}")
     return host.strip("[]") or DEFAULT_TCP_HOST, int(port)
+
+
+def _secret(path: str) -> bytes:
+    """The first line of FILE (only its first SECRET_LINE_MAX + 1 bytes are read)."""
+    try:
+        with open(path, "rb") as file:
+            head = file.read(SECRET_LINE_MAX + 1)
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"cannot read {path}: {exc.strerror or exc}") from None
+    line = head.split(b"\n", 1)[0].rstrip(b"\r")
+    if not line or len(line) > SECRET_LINE_MAX:
+        raise argparse.ArgumentTypeError(f"the first line of {path} must hold the secret, 1 to {SECRET_LINE_MAX} bytes")
+    return line
 
 
 def build_parser() -> OneLineParser:
@@ -96,9 +112,23 @@ def build_parser() -> OneLineParser:
     where.add_argument("--link", metavar="PATH",
                        help="also make PATH a symlink to the pty (replaced if it is one; removed on exit)")
     where.add_argument("--tcp", type=_tcp_address, metavar="HOST:PORT",
-                       help="serve on TCP instead of a pty, one client at a time (port 0: any free port)")
+                       help="serve on TCP instead of a pty, one client at a time (port 0: any free port); "
+                            "an address other than loopback needs --secret-file or --allow-remote")
+    parser.add_argument("--secret-file", type=_secret, metavar="FILE", dest="secret",
+                        help="--tcp: every client must send FILE's first line as its own first line; one that "
+                             "does takes the printer over at once (docs/serial.md, Connections)")
+    parser.add_argument("--allow-remote", action="store_true",
+                        help="--tcp: listen beyond loopback without a secret (anyone who reaches the port can "
+                             "drive the printer)")
+    parser.add_argument("--takeover-after", type=ranged_float(1.0, 86400.0, "s"), default=TAKEOVER_AFTER_S,
+                        metavar="S", help="--tcp without a secret: a new client takes the printer over only once the "
+                                          "current one has left it waiting S wall seconds (default %(default)g)")
     parser.add_argument("--settings", metavar="FILE", help="EEPROM file that M500 writes and M501 reads; "
                         "an existing file must be one M500 wrote (default: in memory, lost on exit)")
+    parser.add_argument("--keep-corrupt-settings", action="store_true",
+                        help="a --settings file that does not load (CRC or version mismatch) stops twin-serial "
+                             "at start and is left as it is (default: the defaults load, as Marlin's do, and the "
+                             "next M500 replaces it)")
     parser.add_argument("--log", metavar="FILE", help="transcript of both directions with virtual and wall times")
     parser.add_argument("--no-ok-after-resend", dest="ok_after_resend", action="store_false",
                         help="no 'ok' after 'Resend:' (a buggy firmware, to test a host's handling; "
@@ -120,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
     printer = build_printer(
         firmware=args.firmware, plant=args.plant, bed_plant=args.bed_plant, with_bed=not args.no_bed,
         scenario=args.scenario, settings=args.settings, ok_after_resend=args.ok_after_resend,
+        keep_corrupt_settings=args.keep_corrupt_settings,
     )
     transcript = Transcript(args.log) if args.log else None
     corruptor = RxCorruptor(args.corrupt_rx, args.seed) if args.corrupt_rx else None
@@ -129,7 +160,9 @@ def run(args: argparse.Namespace) -> int:
         if args.tcp:
             host, port = args.tcp
             try:
-                server = TcpServer(printer, pacer, host, port, transcript=transcript, corruptor=corruptor)
+                server = TcpServer(printer, pacer, host, port, transcript=transcript, corruptor=corruptor,
+                                   secret=args.secret, allow_remote=args.allow_remote,
+                                   takeover_after_s=args.takeover_after)
             except OSError as exc:
                 raise OSError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         else:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from protocol.klipper_mcu.board import FAN_PIN, PULLUP_OHM, TwinBoard
 
+CONFIG_END = "# end of the twin MCU's sections"  # the last line: a reader of the server's stdout stops there
 # config/example-cartesian.cfg's [extruder] PID gains (a starting point: PID_CALIBRATE finds the plant's own)
 EXAMPLE_PID = (22.2, 1.08, 114.0)
 
@@ -28,4 +29,4 @@ def printer_cfg(serial: str, board: TwinBoard) -> str:
         lines += ["min_temp: 0", f"max_temp: {wiring.max_temp_c:g}", ""]
     if "hotend" in board.heaters:
         lines += ["[fan]", f"pin: {FAN_PIN}", ""]
-    return "\n".join(lines)
+    return "\n".join([*lines, CONFIG_END])

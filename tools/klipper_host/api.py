@@ -4,6 +4,9 @@
     api.wait_ready(timeout_s=60)
     lines = api.gcode("PID_CALIBRATE HEATER=hotend TARGET=200", timeout_s=600)
 
+From a shell: ``python -m tools.klipper_host.api /tmp/klippy.sock "PID_CALIBRATE HEATER=hotend TARGET=200"``
+prints the responses, one per line (exit 2 with klippy's message if it refuses the script).
+
 ``gcode`` returns the G-code responses the script produced (klippy sends them to the clients
 that called ``gcode/subscribe_output``), and raises KlippyError with klippy's own message when
 the script fails. Every wait has a timeout.
@@ -15,7 +18,10 @@ import itertools
 import json
 import select
 import socket
+import sys
 import time
+
+from tools.entry import OneLineParser, run_cli
 
 TERMINATOR = b"\x03"
 OUTPUT_KEY = "heater-twin-output"  # marks the subscription's messages (the response_template)
@@ -111,3 +117,24 @@ class KlippyApi:
         if message.get("key") == OUTPUT_KEY:
             self.output.extend(message["params"]["response"].split("\n"))
         return message
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = OneLineParser(prog="python -m tools.klipper_host.api", description="Run a G-code script through "
+                           "klippy's API socket and print its responses.")
+    parser.add_argument("socket", help="klippy's API socket (klippy -a PATH)")
+    parser.add_argument("script", help='G-code, e.g. "PID_CALIBRATE HEATER=hotend TARGET=200"')
+    parser.add_argument("--timeout", type=float, default=3600.0, help="seconds to wait (default: %(default)s)")
+
+    def run(args) -> int:
+        with KlippyApi(args.socket) as api:
+            api.wait_ready(args.timeout)
+            for line in api.gcode(args.script, args.timeout):
+                print(line)
+        return 0
+
+    return run_cli(parser, run, argv, errors=(KlippyError, ValueError))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

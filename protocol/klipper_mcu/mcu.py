@@ -377,17 +377,22 @@ class KlipperMcu:
             raise Shutdown(d.CYCLE_WHILE_PENDING)
         out.cycle_ticks = args["cycle_ticks"]
 
+    def _queue(self, out: _DigitalOut | _PwmOut, clock32: int, value: int, exceeds: str, load: Callable) -> None:
+        """Queue a value for a clock; the first in an empty queue is scheduled (a pending max_duration
+        deadline before it: ``exceeds``), the others load as the one before them ends."""
+        self._move_alloc()
+        clock = self.world_clock(clock32)
+        out.queue.append((clock, value))
+        if len(out.queue) > 1:
+            return
+        if out.end_time is not None and out.end_time < clock:
+            raise Shutdown(exceeds)
+        out.end_time = clock if isinstance(out, _DigitalOut) else None
+        self._schedule(clock, load, out)
+
     def _cmd_queue_digital_out(self, args: dict) -> None:
         out = self._lookup(args["oid"], _DigitalOut)
-        self._move_alloc()
-        clock = self.world_clock(args["clock"])
-        out.queue.append((clock, args["on_ticks"]))
-        if len(out.queue) > 1:
-            return  # loaded when the one before it ends
-        if out.end_time is not None and out.end_time < clock:
-            raise Shutdown(d.DIGITAL_OUT_EXCEEDS)
-        out.end_time = clock
-        self._schedule(clock, self._digital_load, out)
+        self._queue(out, args["clock"], args["on_ticks"], d.DIGITAL_OUT_EXCEEDS, self._digital_load)
 
     def _digital_load(self, out: _DigitalOut, version: int) -> None:
         """digital_load_event: apply the next queued value, set the next deadline."""
@@ -438,15 +443,7 @@ class KlipperMcu:
 
     def _cmd_queue_pwm_out(self, args: dict) -> None:
         out = self._lookup(args["oid"], _PwmOut)
-        self._move_alloc()
-        clock = self.world_clock(args["clock"])
-        out.queue.append((clock, args["value"]))
-        if len(out.queue) > 1:
-            return
-        if out.end_time is not None and out.end_time < clock:
-            raise Shutdown(d.PWM_EXCEEDS)
-        out.end_time = None
-        self._schedule(clock, self._pwm_event, out)
+        self._queue(out, args["clock"], args["value"], d.PWM_EXCEEDS, self._pwm_event)
 
     def _pwm_event(self, out: _PwmOut, version: int) -> None:
         if version != out.timer:

@@ -13,12 +13,11 @@ import errno
 import os
 import select
 import time
-import tty
 from collections.abc import Callable
 
 from protocol.klipper_mcu.dictionary import CLOCK_FREQ
 from protocol.klipper_mcu.mcu import KlipperMcu
-from protocol.pty_server import _make_link, _OpenWatch
+from protocol.pty_server import Pty
 from protocol.server import READ_SIZE, poll_ms
 
 MAX_WAIT_S = 0.5  # the loop looks at the wall at least this often, even with no timer pending
@@ -33,23 +32,10 @@ class McuServer:
             raise ValueError(f"speed must be above 0, not {speed!r}")
         self.mcu, self.speed, self.clock = mcu, speed, clock
         self._start_s = clock()
-        self._master, slave = os.openpty()
-        try:
-            tty.setraw(slave)
-            self.path = os.ttyname(slave)
-        finally:
-            os.close(slave)
-        os.set_blocking(self._master, False)
-        self.link: str | None = None
-        self._watch: _OpenWatch | None = None
-        try:
-            self._watch = _OpenWatch(self.path)
-            if link:
-                _make_link(self.path, link)
-                self.link = link
-        except OSError:
-            self.close()
-            raise
+        self._pty = Pty(link)
+        self.path, self.link = self._pty.path, self._pty.link
+        self._master = self._pty.master
+        self._watch = self._pty.watch
         self._poller = select.poll()
         self._poller.register(self._watch.fd, select.POLLIN)
         self._holders = 0
@@ -80,9 +66,8 @@ class McuServer:
         if self._holders:
             self._poller.modify(self._master, select.POLLIN | (select.POLLOUT if self._unsent else 0))
         events = dict(self._poller.poll(poll_ms(wait_s)))
-        watch = self._watch
-        if watch is not None and watch.fd in events:
-            for change in watch.changes():
+        if self._watch.fd in events:
+            for change in self._watch.changes():
                 self._holders += change
                 if change > 0 and self._holders == 1:
                     self._poller.register(self._master, select.POLLIN)
@@ -97,15 +82,7 @@ class McuServer:
             self._read()
 
     def close(self) -> None:
-        if self.link and os.path.islink(self.link) and os.readlink(self.link) == self.path:
-            os.remove(self.link)
-        self.link = None
-        if self._watch is not None:
-            self._watch.close()
-            self._watch = None
-        if self._master >= 0:
-            os.close(self._master)
-            self._master = -1
+        self._pty.close()
 
     def __enter__(self) -> McuServer:
         return self

@@ -202,3 +202,18 @@ def test_unwired_adc_pin_reads_open_and_a_non_adc_pin_is_refused():
     assert host.board.adc("PF3", 0) == 1023
     host.send(0, f"config_analog_in oid=1 pin={pin_number('PB4')}")
     assert [s["static_string_id"] for s in host.named("shutdown")] == [reason_id(host, "Not a valid ADC pin")]
+
+
+def test_hardware_pwm_sets_the_fan_and_keeps_its_max_duration():
+    host = TestHost(strict=True)
+    fan = pin_number("PH6")
+    host.send(0, "allocate_oids count=1",
+              f"config_pwm_out oid=0 pin={fan} cycle_ticks=1600 value=0 default_value=0 max_duration={2 * S}",
+              "finalize_config crc=1", f"queue_pwm_out oid=0 clock={S} value=128")
+    host.run(S + TICK_CLOCKS)
+    host.board.advance(S // TICK_CLOCKS + 2)
+    assert host.board.heaters["hotend"].plant.fan == pytest.approx(128 / 255)
+    host.run(4 * S)  # nothing after the 128 within 2 s
+    assert [s["static_string_id"] for s in host.named("shutdown")] == [
+        reason_id(host, "Missed scheduling of next hard pwm event")]
+    assert host.board.fan.duty() == 0.0  # back to its default value

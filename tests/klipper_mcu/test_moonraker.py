@@ -16,7 +16,7 @@ import urllib.request
 import pytest
 
 from tests.conftest import unavailable
-from tools.klipper_host.session import MOONRAKER_VENV_ENV, STOP_TIMEOUT_S, Missing, venv_command
+from tools.klipper_host.session import MOONRAKER_VENV_ENV, Missing, venv_command
 
 pytestmark = pytest.mark.slow
 
@@ -54,7 +54,7 @@ def http(url: str, body: dict | None = None) -> dict:
 
 
 @pytest.fixture
-def moonraker(klipper, tmp_path):
+def moonraker(klipper, spawn, tmp_path):
     try:
         command = venv_command(MOONRAKER_VENV_ENV)
     except Missing as exc:
@@ -63,28 +63,19 @@ def moonraker(klipper, tmp_path):
     port = free_port()
     (tmp_path / "moonraker.conf").write_text(CONFIG.format(port=port, socket=session.api_path))
     with open(tmp_path / "moonraker.out", "w") as out:
-        proc = subprocess.Popen([str(command), "-d", str(tmp_path / "data"), "-c", str(tmp_path / "moonraker.conf"),
-                                 "-l", str(tmp_path / "moonraker.log")], stdout=out, stderr=subprocess.STDOUT)
+        proc = spawn([str(command), "-d", str(tmp_path / "data"), "-c", str(tmp_path / "moonraker.conf"),
+                      "-l", str(tmp_path / "moonraker.log")], stdout=out, stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while True:
-            try:
-                if http(base + "/printer/info")["state"] == "ready":
-                    break
-            except (OSError, urllib.error.URLError, KeyError):
-                pass
-            assert proc.poll() is None, (tmp_path / "moonraker.out").read_text()
-            assert time.monotonic() < deadline, "Moonraker never saw klippy ready"
-            time.sleep(0.2)
-        yield base
-    finally:
-        proc.terminate()
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while True:
         try:
-            proc.wait(timeout=STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+            if http(base + "/printer/info")["state"] == "ready":
+                return base
+        except (OSError, urllib.error.URLError, KeyError):
+            pass
+        assert proc.poll() is None, (tmp_path / "moonraker.out").read_text()
+        assert time.monotonic() < deadline, "Moonraker never saw klippy ready"
+        time.sleep(0.2)
 
 
 def test_moonraker_sets_a_target_and_the_twin_heats(moonraker):

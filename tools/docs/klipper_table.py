@@ -18,7 +18,7 @@ from pathlib import Path
 from tools.entry import OneLineParser, run_cli
 from tools.klipper_host.calibration import BAND_REL, parse_pid_reply, twin_pid_calibrate, within_band
 from tools.klipper_host.session import KlipperSession
-from tools.validation.doc_compare import write_section
+from tools.validation.doc_compare import publish_section
 
 BEGIN, END = "<!-- klipper_table: begin", "<!-- klipper_table: end -->"
 COMMAND = "python -m tools.docs.klipper_table --doc docs/klipper.md"
@@ -66,11 +66,7 @@ def build_parser() -> OneLineParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    body = markdown(PLANTS, args.runs)
-    if args.doc is not None:
-        write_section(args.doc, body, BEGIN, END)
-    print(body)
-    return 0
+    return publish_section(markdown(PLANTS, args.runs), args.doc, BEGIN, END)
 
 
 def main(argv: list[str] | None = None) -> int:

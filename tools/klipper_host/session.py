@@ -53,6 +53,17 @@ def faketime_env(speed: float) -> dict[str, str]:
     return {"LD_PRELOAD": str(LIBFAKETIME), "FAKETIME": f"+0 x{speed:g}"}
 
 
+def stop_process(proc: subprocess.Popen, timeout_s: float = STOP_TIMEOUT_S) -> None:
+    """Terminate ``proc`` and wait; kill it if it has not exited within ``timeout_s``."""
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=timeout_s)
+
+
 class KlipperSession:
     """twin-klipper-mcu and klippy, started in ``workdir``; ``api`` is klippy's API socket once ready.
 
@@ -117,13 +128,7 @@ class KlipperSession:
         if api is not None:
             api.close()
         for proc in reversed(self._processes):
-            if proc.poll() is None:
-                proc.terminate()
-            try:
-                proc.wait(timeout=STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            stop_process(proc)
             if proc.stdout is not None:
                 proc.stdout.close()
         self._processes.clear()

@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 from tools.entry import OneLineParser, run_cli
-from tools.klipper_host.calibration import BAND_REL, parse_pid_reply, twin_pid_calibrate, within_band
+from tools.klipper_host.calibration import BAND_SLACK_REL, band, parse_pid_reply, twin_pid_calibrate, within_band
 from tools.klipper_host.session import KlipperSession
 from tools.validation.doc_compare import publish_section
 
@@ -38,23 +38,24 @@ def rows(plants: tuple[str, ...], runs: int) -> list[str]:
     lines = []
     for plant in plants:
         twin = twin_pid_calibrate(TARGET_C, plant)
-        ours = (twin.kp, twin.ki, twin.kd)
-        lines.append(f"| {plant} | twin port | {twin.kp:.3f} | {twin.ki:.3f} | {twin.kd:.3f} | {twin.tu_s:.1f} | |")
+        ranges = " / ".join(f"{low:.2f}-{high:.2f}" for low, high in band(twin))
+        lines.append(f"| {plant} | twin port | {twin.kp:.3f} | {twin.ki:.3f} | {twin.kd:.3f} | {twin.tu_s:.1f} | "
+                     f"{ranges} |")
         for run in range(runs):
             with tempfile.TemporaryDirectory(prefix="klipper_table") as workdir:
                 got = klippy_gains(plant, Path(workdir))
-            worst = max(abs(g - t) / abs(t) for g, t in zip(got, ours))
-            verdict = "in band" if within_band(got, ours) else "OUT OF BAND"
+            verdict = "in the band" if within_band(got, twin) else "OUT OF THE BAND"
             lines.append(f"| {plant} | klippy run {run + 1} | {got[0]:.3f} | {got[1]:.3f} | {got[2]:.3f} | "
-                         f"{8 * got[2] / got[0]:.1f} | {100 * worst:.2f} % ({verdict}) |")
+                         f"{8 * got[2] / got[0]:.1f} | {verdict} |")
     return lines
 
 
 def markdown(plants: tuple[str, ...], runs: int) -> str:
     head = [f"Written by `{COMMAND}`: `PID_CALIBRATE HEATER=hotend TARGET={TARGET_C:g}` from cold, {runs} runs of "
             f"klippy 0.12.0.dev276 on twin-klipper-mcu at {SPEED:g} x real time per plant, against the twin's "
-            f"port (KlipperTwin, KLIPPY_0_12). Tu = 8 Kd / Kp; the band is {100 * BAND_REL:g} % per gain.", "",
-            "| plant | by | pid_Kp | pid_Ki | pid_Kd | Tu s | largest difference |", "|---|---|---|---|---|---|---|"]
+            f"port (KlipperTwin, KLIPPY_0_12). Tu = 8 Kd / Kp. The band: Kp / Ki / Kd over the port's cycles "
+            f"within one report of the median length, +-{100 * BAND_SLACK_REL:g} % (tools/klipper_host/calibration.py).",
+            "", "| plant | by | pid_Kp | pid_Ki | pid_Kd | Tu s | band / verdict |", "|---|---|---|---|---|---|---|"]
     return "\n".join(head + rows(plants, runs)) + "\n"
 
 

@@ -8,6 +8,7 @@ import os
 import select
 import struct
 import tty
+from collections.abc import Iterator
 
 from protocol.corruption import RxCorruptor
 from protocol.pacing import Pacer
@@ -72,16 +73,7 @@ class PtyServer(Server):
             self._read()
 
     def _read(self) -> None:
-        """Everything the host sent, until EAGAIN (or EIO once nobody holds the port)."""
-        while True:
-            try:
-                data = os.read(self._master, READ_SIZE)
-            except BlockingIOError:
-                return
-            except OSError as exc:
-                if exc.errno == errno.EIO:
-                    return
-                raise
+        for data in self._pty.chunks():
             self._from_host(data)
 
     def _drop_host(self) -> None:
@@ -116,6 +108,21 @@ class Pty:
         except OSError:
             self.close()
             raise
+
+    def chunks(self) -> Iterator[bytes]:
+        """Everything the host sent, until EAGAIN (or EIO once nobody holds the port)."""
+        while True:
+            try:
+                data = os.read(self.master, READ_SIZE)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                if exc.errno == errno.EIO:
+                    return
+                raise
+            if not data:
+                return
+            yield data
 
     def close(self) -> None:
         """Close the master and the watch; remove the link if it still points at the pty."""

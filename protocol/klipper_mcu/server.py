@@ -9,7 +9,6 @@ output nobody holds the port for is dropped, as a USB link down loses it.
 
 from __future__ import annotations
 
-import errno
 import os
 import select
 import time
@@ -18,7 +17,7 @@ from collections.abc import Callable
 from protocol.klipper_mcu.dictionary import CLOCK_FREQ
 from protocol.klipper_mcu.mcu import KlipperMcu
 from protocol.pty_server import Pty
-from protocol.server import READ_SIZE, poll_ms
+from protocol.server import poll_ms
 
 MAX_WAIT_S = 0.5  # the loop looks at the wall at least this often, even with no timer pending
 
@@ -91,17 +90,7 @@ class McuServer:
         self.close()
 
     def _read(self) -> None:
-        while True:
-            try:
-                data = os.read(self._master, READ_SIZE)
-            except BlockingIOError:
-                return
-            except OSError as exc:
-                if exc.errno == errno.EIO:  # nobody holds the port
-                    return
-                raise
-            if not data:
-                return
+        for data in self._pty.chunks():
             self.mcu.receive(data, self.world_clock())
             self._unsent += self.mcu.take_output()
             self._flush()

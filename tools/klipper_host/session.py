@@ -16,10 +16,11 @@ import os
 import select
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from protocol.klipper_mcu.printer_cfg import CONFIG_END
-from tools.klipper_host.api import KlippyApi
+from tools.klipper_host.api import KlippyApi, KlippyError
 
 ROOT = Path(__file__).resolve().parents[2]
 KLIPPY_VENV_ENV = "HEATER_TWIN_KLIPPY_VENV"
@@ -114,11 +115,19 @@ class KlipperSession:
         return text.decode().split("\n", 1)[1]  # the first line is the port
 
     def reconnect(self) -> KlippyApi:
-        """A new API connection (klippy closes its clients on a restart), once klippy is ready."""
-        self.api.close()
-        self.api = KlippyApi(str(self.api_path), START_TIMEOUT_S)
-        self.api.wait_ready(START_TIMEOUT_S)
-        return self.api
+        """A new API connection once klippy is ready again: klippy closes its clients on a restart,
+        and a connection made just before it does is lost too, so each failure starts over."""
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while True:
+            self.api.close()
+            try:
+                self.api = KlippyApi(str(self.api_path), START_TIMEOUT_S)
+                self.api.wait_ready(START_TIMEOUT_S)
+                return self.api
+            except KlippyError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
 
     def klippy_log(self) -> str:
         return self.log_path.read_text() if self.log_path.exists() else ""

@@ -6,10 +6,19 @@ from __future__ import annotations
 from protocol.printer import VirtualPrinter
 from protocol.settings import Eeprom
 from twin.build import build_twin
-from twin.scenario import parse_scenario, scenario_for, with_overrides
+from twin.scenario import Scenario, parse_scenario, scenario_for, with_overrides
 
 # A serial printer has no setpoints of its own: the host sets them.
 SERIAL_SCENARIO = parse_scenario('name = "serial"\nduration_s = 86400\n', "serial")
+
+
+def serial_scenario(scenario: str | None, plant: str | None = None, bed_plant: str | None = None) -> Scenario:
+    """The scenario a served printer runs: a preset or TOML file (else none: the host sets every
+    target), with the hotend and bed plant presets given on the command line in place of its own."""
+    chosen = scenario_for(scenario) if scenario else SERIAL_SCENARIO
+    # plant names are checked where they are used (make_plant)
+    presets: dict[str, dict[str, float | str]] = {heater: {"preset": name} for heater, name in (("hotend", plant), ("bed", bed_plant)) if name}
+    return with_overrides(chosen, plant=presets) if presets else chosen
 
 
 def build_printer(*, firmware: str = "pid", plant: str | None = None, bed_plant: str | None = None,
@@ -21,11 +30,7 @@ def build_printer(*, firmware: str = "pid", plant: str | None = None, bed_plant:
     ``settings`` is the file M500 writes (the EEPROM), by default kept in memory only;
     ``keep_corrupt_settings`` refuses one that does not load instead of loading the defaults.
     """
-    chosen = scenario_for(scenario) if scenario else SERIAL_SCENARIO
-    # firmware and plant names are checked where they are used (build_controllers, make_plant)
-    presets: dict[str, dict[str, float | str]] = {heater: {"preset": name} for heater, name in (("hotend", plant), ("bed", bed_plant)) if name}
-    if presets:
-        chosen = with_overrides(chosen, plant=presets)
+    chosen = serial_scenario(scenario, plant, bed_plant)  # the firmware name is checked by build_controllers
     eeprom = Eeprom.open(settings, keep_corrupt=keep_corrupt_settings) if settings else None
     return VirtualPrinter(lambda: build_twin(chosen, firmware, with_bed=with_bed, engine="fast"),
                           eeprom=eeprom, ok_after_resend=ok_after_resend)

@@ -8,6 +8,7 @@ import os
 import select
 import struct
 import tty
+from collections.abc import Iterator
 
 from protocol.corruption import RxCorruptor
 from protocol.pacing import Pacer
@@ -27,25 +28,12 @@ class PtyServer(Server):
     def __init__(self, printer: VirtualPrinter, pacer: Pacer | None = None, *, link: str | None = None,
                  transcript: Transcript | None = None, corruptor: RxCorruptor | None = None):
         super().__init__(printer, pacer, transcript, corruptor)
-        self._master, slave = os.openpty()
-        try:
-            tty.setraw(slave)  # no echo, no CR/LF translation, 8 bits; the setting outlives the fd
-            self.path = os.ttyname(slave)
-        finally:
-            os.close(slave)  # before the watch starts: from now on only hosts hold it
-        os.set_blocking(self._master, False)
-        self._watch: _OpenWatch | None = None
-        self.link = None
-        try:
-            self._watch = _OpenWatch(self.path)
-            if link:
-                _make_link(self.path, link)
-                self.link = link
-        except OSError:
-            self.close()
-            raise
+        self._pty = Pty(link)
+        self.path, self.link = self._pty.path, self._pty.link
+        self._master = self._pty.master
+        self._watch: _OpenWatch | None = self._pty.watch
         self._poller = select.poll()
-        self._poller.register(self._watch.fd, select.POLLIN)
+        self._poller.register(self._pty.watch.fd, select.POLLIN)
         self._holders = 0  # open file descriptions of the slave: hosts (usually one)
 
     @property
@@ -54,15 +42,8 @@ class PtyServer(Server):
 
     def close(self) -> None:
         """Close the pty and the watch; remove the link if it still points at the pty."""
-        if self.link and os.path.islink(self.link) and os.readlink(self.link) == self.path:
-            os.remove(self.link)
-        self.link = None
-        if self._watch is not None:
-            self._watch.close()
-            self._watch = None
-        if self._master >= 0:
-            os.close(self._master)
-            self._master = -1
+        self._pty.close()
+        self.link, self._watch, self._master = None, None, -1
 
     def _write(self, data: bytes | bytearray) -> int:
         return os.write(self._master, data)
@@ -92,22 +73,66 @@ class PtyServer(Server):
             self._read()
 
     def _read(self) -> None:
-        """Everything the host sent, until EAGAIN (or EIO once nobody holds the port)."""
-        while True:
-            try:
-                data = os.read(self._master, READ_SIZE)
-            except BlockingIOError:
-                return
-            except OSError as exc:
-                if exc.errno == errno.EIO:
-                    return
-                raise
+        for data in self._pty.chunks():
             self._from_host(data)
 
     def _drop_host(self) -> None:
         """The last holder closed the port (the master would report POLLHUP at every poll)."""
         self._poller.unregister(self._master)
         self._host_left()
+
+
+class Pty:
+    """A pseudo-terminal a host opens like a USB port: the master (non-blocking), the slave's path
+    (raw: no echo, no CR/LF translation, 8 bits), the inotify watch of who holds the slave open, and
+    an optional symlink to it. ``close`` releases them all."""
+
+    def __init__(self, link: str | None = None):
+        self.master, slave = os.openpty()
+        try:
+            tty.setraw(slave)  # the setting outlives the fd
+            self.path = os.ttyname(slave)
+        finally:
+            os.close(slave)  # before the watch starts: from now on only hosts hold it
+        os.set_blocking(self.master, False)
+        self.link: str | None = None
+        try:
+            self.watch = _OpenWatch(self.path)
+        except OSError:
+            os.close(self.master)
+            raise
+        try:
+            if link:
+                _make_link(self.path, link)
+                self.link = link
+        except OSError:
+            self.close()
+            raise
+
+    def chunks(self) -> Iterator[bytes]:
+        """Everything the host sent, until EAGAIN (or EIO once nobody holds the port)."""
+        while True:
+            try:
+                data = os.read(self.master, READ_SIZE)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                if exc.errno == errno.EIO:
+                    return
+                raise
+            if not data:
+                return
+            yield data
+
+    def close(self) -> None:
+        """Close the master and the watch; remove the link if it still points at the pty."""
+        if self.link and os.path.islink(self.link) and os.readlink(self.link) == self.path:
+            os.remove(self.link)
+        self.link = None
+        if self.master >= 0:
+            self.watch.close()
+            os.close(self.master)
+            self.master = -1
 
 
 class _OpenWatch:

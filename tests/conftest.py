@@ -14,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 from firmware_port.avr.toolchain import Toolchain, ToolchainMissing, find_toolchain
+from tools.klipper_host.session import stop_process
 from tools.logs.location import hardware_logs_dir
 
 STOP_TIMEOUT_S = 20  # a test's server gets this long to exit after SIGTERM, then SIGKILL
@@ -95,10 +96,4 @@ def spawn():
 
     yield start
     for proc in processes:
-        if proc.poll() is None:
-            proc.terminate()
-        try:
-            proc.wait(timeout=STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=STOP_TIMEOUT_S)
+        stop_process(proc, STOP_TIMEOUT_S)

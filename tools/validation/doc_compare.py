@@ -77,3 +77,11 @@ def write_section(path: Path, body: str, begin: str, end: str) -> None:
     if new is None:
         raise ValueError(f"{path} lacks the '{begin} ... -->' / '{end}' markers")
     path.write_text(new)
+
+
+def publish_section(body: str, doc: Path | None, begin: str, end: str) -> int:
+    """A docs generator's output: the section rewritten in ``doc`` (if given) and printed; status 0."""
+    if doc is not None:
+        write_section(doc, body, begin, end)
+    print(body)
+    return 0

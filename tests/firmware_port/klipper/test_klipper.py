@@ -33,9 +33,14 @@ from firmware_port.klipper.heater import (
     MAX_HEAT_TIME,
     MIN_PWM_CHANGE_2026_03,
     MIN_PWM_CHANGE_BEFORE_2026_03,
+    PWM_GUARD_2024_03,
+    PWM_GUARD_2024_12,
+    PWM_GUARD_BEFORE_2024_03,
     PWM_RESEND_2025_04,
     PWM_RESEND_2025_08,
     PWM_RESEND_BEFORE_2025_04,
+    QUELL_STALE_2025_07,
+    QUELL_STALE_BEFORE_2025_07,
     REPORT_TIME,
     SAMPLE_COUNT,
     SAMPLE_TIME,
@@ -163,6 +168,35 @@ def test_pwm_forced_to_zero_without_target_or_watchdog():
     heater.handle_shutdown()
     heater.stats(6.0)  # no longer feeds the watchdog
     assert heater.verify_mainthread_time == -999.0
+
+
+@pytest.mark.parametrize(("guard", "without_stats", "after_shutdown"), [
+    (PWM_GUARD_2024_12, None, None), (PWM_GUARD_2024_03, PwmEvent(1.3, 1.0), PwmEvent(pytest.approx(2.3), 0.0)),
+    (PWM_GUARD_BEFORE_2024_03, PwmEvent(1.3, 1.0), PwmEvent(pytest.approx(2.3), 0.5))])
+def test_pwm_guard_versions(guard, without_stats, after_shutdown):
+    """2024-12: the watchdog (no stats(), no heat); 2024-03: only a shutdown forces 0; before: nothing does."""
+    heater = make_heater(pwm_guard=guard)
+    heater.set_target(200.0)
+    assert heater.set_pwm(1.0, 1.0) == without_stats
+    heater.stats(1.0)
+    heater.handle_shutdown()
+    assert heater.set_pwm(2.0, 0.5) == after_shutdown
+
+
+@pytest.mark.parametrize(("quell", "reads_c"), [(QUELL_STALE_2025_07, 150.0), (QUELL_STALE_BEFORE_2025_07, 0.0)])
+def test_stale_sensor_quell_versions(quell, reads_c):
+    """A last reading at 10.0 s: at 15.1 s Klipper 0.12 (5 s) reads 0, mainline since 2025-07 (7 s) still 150."""
+    heater = make_heater(quell_stale=quell, smooth_time_s=0.01)
+    heater.temperature_callback(10.0, 150.0)
+    assert heater.get_temp(15.1) == (reads_c, 0.0)
+    assert heater.get_temp(17.1)[0] == 0.0
+
+
+def test_version_switches_are_checked():
+    with pytest.raises(ValueError, match="quell_stale must be one of"):
+        make_heater(quell_stale="2030")
+    with pytest.raises(ValueError, match="pwm_guard must be one of"):
+        make_heater(pwm_guard="2030")
 
 
 @pytest.mark.parametrize(

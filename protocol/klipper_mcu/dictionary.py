@@ -1,0 +1,149 @@
+"""The twin MCU's data dictionary: the commands and responses it speaks, its pins, constants and
+shutdown reasons, served to the host by ``identify`` as zlib-compressed JSON.
+
+The format strings are those of klippy 0.12.0.dev276 (the host the tests run), which
+``lookup_command`` compares character for character; they drift between Klipper versions
+(``query_analog_in``'s ``range_check_count`` field, for one). Message ids are one byte
+(klippy's parser takes tags -32..95 only): identify_response is 0 and identify 1, as
+klippy/msgproto.py's DefaultMessages fix them; the rest are numbered from 2.
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import dataclass, field
+
+from protocol.klipper_mcu.codec import MessageFormat
+
+# The board: an ATmega2560 as Klipper builds it (src/avr): 16 MHz timer, 10-bit ADC, 8-bit PWM.
+CLOCK_FREQ = 16_000_000
+ADC_MAX = 1023
+PWM_MAX = 255
+STATS_SUMSQ_BASE = 256  # src/basecmd.c SUMSQ_BASE
+MOVE_COUNT = 1024  # src/basecmd.c move_finalize: the most queue slots alloc_chunks hands out
+MCU_NAME = "heater-twin"
+PORTS = "ABCDEFGHJKL"  # the ATmega2560's GPIO ports, 8 pins each: PA0 = 0, ... (src/avr/gpio.c GPIO())
+ADC_PINS = tuple(f"P{port}{n}" for port in "FK" for n in range(8))  # ADC0..15: PF0-7, PK0-7
+
+COMMANDS = (
+    "identify offset=%u count=%c",
+    "get_uptime",
+    "get_clock",
+    "get_config",
+    "allocate_oids count=%c",
+    "finalize_config crc=%u",
+    "emergency_stop",
+    "clear_shutdown",
+    "reset",
+    "config_reset",
+    "debug_nop",
+    "config_analog_in oid=%c pin=%u",
+    "query_analog_in oid=%c clock=%u sample_ticks=%u sample_count=%c rest_ticks=%u min_value=%hu"
+    " max_value=%hu range_check_count=%c",
+    "config_digital_out oid=%c pin=%u value=%c default_value=%c max_duration=%u",
+    "set_digital_out_pwm_cycle oid=%c cycle_ticks=%u",
+    "queue_digital_out oid=%c clock=%u on_ticks=%u",
+    "update_digital_out oid=%c value=%c",
+    "set_digital_out pin=%u value=%c",
+    "config_pwm_out oid=%c pin=%u cycle_ticks=%u value=%hu default_value=%hu max_duration=%u",
+    "queue_pwm_out oid=%c clock=%u value=%hu",
+    "set_pwm_out pin=%u cycle_ticks=%u value=%hu",
+)
+RESPONSES = (
+    "identify_response offset=%u data=%.*s",
+    "uptime high=%u clock=%u",
+    "clock clock=%u",
+    "config is_config=%c crc=%u is_shutdown=%c move_count=%hu",
+    "analog_in_state oid=%c next_clock=%u value=%hu",
+    "shutdown clock=%u static_string_id=%hu",
+    "is_shutdown static_string_id=%hu",
+    "stats count=%u sum=%u sumsq=%u",
+    "starting",
+)
+# Commands a shut-down MCU still runs (DECL_COMMAND_FLAGS(..., HF_IN_SHUTDOWN, ...)); the others
+# are answered with is_shutdown.
+IN_SHUTDOWN = frozenset({"identify", "get_uptime", "get_clock", "get_config", "emergency_stop", "clear_shutdown",
+                         "reset", "config_reset", "debug_nop"})
+
+# Shutdown reasons, worded as the C sources word them (klippy shows the text after "MCU 'mcu' shutdown: ").
+COMMAND_REQUEST = "Command request"  # src/basecmd.c emergency_stop
+ADC_OUT_OF_RANGE = "ADC out of range"  # src/adccmds.c
+TIMER_TOO_CLOSE = "Timer too close"  # src/sched.c sched_add_timer
+RESCHEDULED_IN_PAST = "Rescheduled timer in the past"  # src/avr/timer.c
+MISSED_DIGITAL_OUT = "Missed scheduling of next digital out event"  # src/gpiocmds.c
+DIGITAL_OUT_EXCEEDS = "Scheduled digital out event will exceed max_duration"
+CYCLE_WHILE_PENDING = "Can not set soft pwm cycle ticks while updates pending"
+UPDATE_WITH_QUEUE = "update_digital_out not valid with active queue"
+MISSED_PWM = "Missed scheduling of next hard pwm event"  # src/pwmcmds.c
+PWM_EXCEEDS = "Scheduled pwm event will exceed max_duration"
+CLEARED_WHEN_NOT_SHUTDOWN = "Shutdown cleared when not shutdown"  # src/sched.c
+CONFIG_RESET_NOT_SHUTDOWN = "config_reset only available when shutdown"  # src/basecmd.c
+OIDS_ALLOCATED = "oids already allocated"
+CANT_ASSIGN_OID = "Can't assign oid"
+INVALID_OID = "Invalid oid type"
+ALREADY_FINALIZED = "Already finalized"
+MOVE_QUEUE_OVERFLOW = "Move queue overflow"
+INVALID_COMMAND = "Invalid command"  # src/command.c
+PARSER_ERROR = "Command parser error"
+NOT_ADC_PIN = "Not a valid ADC pin"  # src/avr/adc.c
+STATIC_STRINGS = (COMMAND_REQUEST, ADC_OUT_OF_RANGE, TIMER_TOO_CLOSE, RESCHEDULED_IN_PAST, MISSED_DIGITAL_OUT,
+                  DIGITAL_OUT_EXCEEDS, CYCLE_WHILE_PENDING, UPDATE_WITH_QUEUE, MISSED_PWM, PWM_EXCEEDS,
+                  CLEARED_WHEN_NOT_SHUTDOWN, CONFIG_RESET_NOT_SHUTDOWN, OIDS_ALLOCATED, CANT_ASSIGN_OID, INVALID_OID,
+                  ALREADY_FINALIZED, MOVE_QUEUE_OVERFLOW, INVALID_COMMAND, PARSER_ERROR, NOT_ADC_PIN)
+
+
+def pin_number(name: str) -> int:
+    """The MCU's number of a pin name (PB4 -> 12); ValueError if it has no such pin."""
+    if len(name) == 3 and name[0] == "P" and name[1] in PORTS and name[2] in "01234567":
+        return (ord(name[1]) - ord("A")) * 8 + int(name[2])
+    raise ValueError(f"no pin {name!r} on the twin MCU (P<port><0-7>, ports {', '.join(PORTS)})")
+
+
+def pin_name(number: int) -> str:
+    port, bit = divmod(number, 8)
+    return f"P{chr(ord('A') + port)}{bit}"
+
+
+@dataclass(frozen=True)
+class Dictionary:
+    """The dictionary the MCU serves and parses by: formats by id and by name, static strings."""
+
+    version: str
+    commands: dict[str, MessageFormat] = field(default_factory=dict)  # by name
+    responses: dict[str, MessageFormat] = field(default_factory=dict)
+    static_string_ids: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def by_id(self) -> dict[int, MessageFormat]:
+        """The commands by message id (what the MCU parses)."""
+        return {fmt.msg_id: fmt for fmt in self.commands.values()}
+
+    def data(self) -> bytes:
+        """The compressed JSON that ``identify`` serves."""
+        doc = {
+            "version": self.version,
+            "build_versions": "heater-twin klippy-0.12 command set",
+            "commands": {fmt.text: fmt.msg_id for fmt in self.commands.values()},
+            "responses": {fmt.text: fmt.msg_id for fmt in self.responses.values()},
+            "output": {},
+            "enumerations": {
+                "pin": {f"P{port}0": [(ord(port) - ord("A")) * 8, 8] for port in PORTS},
+                "static_string_id": self.static_string_ids,
+            },
+            "config": {"CLOCK_FREQ": CLOCK_FREQ, "MCU": MCU_NAME, "ADC_MAX": ADC_MAX, "PWM_MAX": PWM_MAX,
+                       "STATS_SUMSQ_BASE": STATS_SUMSQ_BASE},
+        }
+        return zlib.compress(json.dumps(doc, sort_keys=True).encode())
+
+
+def build_dictionary(version: str) -> Dictionary:
+    """The twin MCU's dictionary: identify_response 0, identify 1, then the rest in order."""
+    texts = [RESPONSES[0], COMMANDS[0], *COMMANDS[1:], *RESPONSES[1:]]
+    formats = {text: MessageFormat(text, msg_id) for msg_id, text in enumerate(texts)}
+    return Dictionary(
+        version=version,
+        commands={formats[t].name: formats[t] for t in COMMANDS},
+        responses={formats[t].name: formats[t] for t in RESPONSES},
+        static_string_ids={text: number for number, text in enumerate(STATIC_STRINGS, start=1)},
+    )

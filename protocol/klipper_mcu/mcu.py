@@ -1,0 +1,470 @@
+"""The twin MCU's firmware: Klipper's MCU command set as src/basecmd.c, adccmds.c, gpiocmds.c,
+pwmcmds.c and sched.c run it, on a clock given from outside (no wall clock here).
+
+Everything happens at an MCU clock: a host block at the clock it arrived (``receive``), a timer at
+the clock it was scheduled for (``run_until``), so what the pins and the ADC see depends only on
+the clocks, never on when the process got to run. Clocks are the world's (see board.py): the
+MCU's own clock is the world clock less the clock of its last boot, sent as 32 bits.
+
+Timing faults: in ``strict`` mode an event the host scheduled in the past shuts the MCU down
+("Timer too close", "Rescheduled timer in the past") and so does a heater pin left without a
+next value past its max_duration ("Missed scheduling of next digital out event"), as on a real
+MCU. Otherwise (lenient) such a late event takes effect as early as the plants allow and a
+missed max_duration is only counted (``late_events``, ``missed_deadlines``): a loaded host
+computer then cannot shut the twin down, while the heater safety is still klippy's to test.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from protocol.klipper_mcu import dictionary as d
+from protocol.klipper_mcu.board import TwinBoard
+from protocol.klipper_mcu.codec import (
+    MESSAGE_DEST,
+    MESSAGE_SEQ_MASK,
+    BlockReader,
+    ProtocolError,
+    UnknownMessage,
+    frame,
+    parse_messages,
+)
+from protocol.klipper_mcu.dictionary import Dictionary
+
+LOG = logging.getLogger(__name__)
+STATS_INTERVAL_CLOCKS = 5 * d.CLOCK_FREQ  # src/basecmd.c stats_update: every 5 s
+STATS_TASK_CLOCKS = 100  # the nominal cost the stats report per event handled (the twin has no real one)
+
+
+class Shutdown(Exception):
+    """src/sched.c shutdown(): unwinds the handler that called it."""
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass(eq=False)
+class _AnalogIn:
+    oid: int
+    pin: str
+    next_begin: int = 0  # world clock of the next group's first sample
+    sample_ticks: int = 0
+    sample_count: int = 0
+    rest_ticks: int = 0
+    min_value: int = 0
+    max_value: int = 0
+    range_check_count: int = 0
+    value: int = 0
+    state: int = 0  # samples taken in the current group
+    invalid_count: int = 0
+    timer: int = 0  # the version of its pending timer (a newer one cancels the older)
+
+
+@dataclass(eq=False)
+class _DigitalOut:
+    oid: int
+    pin: str
+    default_on: bool
+    max_duration: int
+    cycle_ticks: int = 0
+    queue: deque = field(default_factory=deque)  # (world clock, on_ticks)
+    end_time: int | None = None  # the max_duration deadline, or the next queued event's clock
+    timer: int = 0
+
+
+@dataclass(eq=False)
+class _PwmOut:
+    oid: int
+    pin: str
+    default_value: int
+    max_duration: int
+    queue: deque = field(default_factory=deque)  # (world clock, value)
+    end_time: int | None = None
+    timer: int = 0
+
+
+class KlipperMcu:
+    """One MCU: the host's blocks in, response blocks out; timers on world clocks."""
+
+    def __init__(self, board: TwinBoard, dictionary: Dictionary, *, strict: bool = False):
+        self.board, self.dictionary, self.strict = board, dictionary, strict
+        self._identify = dictionary.data()
+        self._by_id = dictionary.by_id
+        self._output = bytearray()
+        self.shutdown_reason: str | None = None  # the reason reported since the last shutdown
+        self.late_events = 0  # lenient mode: events the host scheduled in the past
+        self.missed_deadlines = 0  # lenient mode: max_duration deadlines passed without a next event
+        self._handlers: dict[str, Callable[[dict], None]] = {
+            name: getattr(self, "_cmd_" + name) for name in dictionary.commands}
+        self.boot(0)
+
+    # -- the outside world -------------------------------------------------------------------
+    def boot(self, clock: int) -> None:
+        """Power-on or reset at world clock ``clock``: all state anew, pins low, clock from 0."""
+        self.boot_clock = self.now = clock
+        self._reader = BlockReader()
+        self._next_sequence = MESSAGE_DEST
+        self._timers: list[tuple[int, int, Callable, tuple]] = []
+        self._order = itertools.count()
+        self._oids: list[object] | None = None
+        self._finalized = False
+        self._config_crc = 0
+        self._moves_used = 0
+        self._shutdown = False
+        self._reason_id = 0
+        self._events_handled = 0
+        self._output.clear()
+        self.board.reset_pins(clock)
+        self._add_timer(clock + STATS_INTERVAL_CLOCKS, self._stats, None)
+
+    def receive(self, data: bytes, clock: int) -> None:
+        """Bytes from the host, arriving at world clock ``clock``: timers due first, then each block."""
+        self.run_until(clock)
+        reader = self._reader
+        for block in reader.feed(data):
+            if reader is not self._reader:
+                return  # a reset: the rest of the bytes went to the board that rebooted
+            if block is None or MESSAGE_DEST | block.sequence != self._next_sequence:
+                self._send_block(b"")  # nak: the sequence we still expect
+                continue
+            self._next_sequence = MESSAGE_DEST | ((block.sequence + 1) & MESSAGE_SEQ_MASK)
+            self._dispatch(block.payload)
+            if reader is self._reader:
+                self._send_block(b"")  # ack (none from a board that just rebooted)
+
+    def run_until(self, clock: int) -> None:
+        """Run the timers due up to world clock ``clock``, each at its own clock."""
+        while self._timers and self._timers[0][0] <= clock:
+            at, _, action, args = heapq.heappop(self._timers)
+            self.now = at
+            self._events_handled += 1
+            self._guarded(action, *args)
+        self.now = max(self.now, clock)
+
+    def next_timer(self) -> int | None:
+        """The world clock of the next timer (the server sleeps until then)."""
+        return self._timers[0][0] if self._timers else None
+
+    def take_output(self) -> bytes:
+        out = bytes(self._output)
+        self._output.clear()
+        return out
+
+    @property
+    def is_shutdown(self) -> bool:
+        return self._shutdown
+
+    def mcu_clock(self, clock: int) -> int:
+        """The MCU's 32-bit clock at world clock ``clock``."""
+        return (clock - self.boot_clock) & 0xFFFFFFFF
+
+    def world_clock(self, clock32: int) -> int:
+        """A 32-bit MCU clock from the host, as the world clock nearest to now (timer_is_before)."""
+        diff = (clock32 - self.mcu_clock(self.now)) & 0xFFFFFFFF
+        if diff & 0x80000000:
+            diff -= 1 << 32
+        return self.now + diff
+
+    # -- blocks and messages -------------------------------------------------------------------
+    def _send_block(self, payload: bytes) -> None:
+        self._output += frame(self._next_sequence, payload)
+
+    def _send(self, name: str, **values) -> None:
+        self._send_block(self.dictionary.responses[name].encode(**values))
+
+    def _dispatch(self, payload: bytes) -> None:
+        try:
+            messages = parse_messages(payload, self._by_id)
+        except ProtocolError as error:
+            LOG.warning("bad block from the host: %s", error)
+            self._guarded(self._fail, d.INVALID_COMMAND if isinstance(error, UnknownMessage) else d.PARSER_ERROR)
+            return
+        for fmt, values in messages:
+            if self._shutdown and fmt.name not in d.IN_SHUTDOWN:
+                self._send("is_shutdown", static_string_id=self._reason_id)
+                continue
+            self._guarded(self._handlers[fmt.name], values)
+
+    def _guarded(self, action: Callable, *args) -> None:
+        try:
+            action(*args)
+        except Shutdown as stop:
+            self._enter_shutdown(stop.reason)
+
+    @staticmethod
+    def _fail(reason: str) -> None:
+        raise Shutdown(reason)
+
+    def _enter_shutdown(self, reason: str) -> None:
+        """src/sched.c run_shutdown: outputs to their defaults, queues cleared, timers dropped
+        (ADC sampling goes on), then "shutdown" with the first reason since the last clear."""
+        if not self._shutdown:
+            self._reason_id = self.dictionary.static_string_ids[reason]
+            self.shutdown_reason = reason
+        self._shutdown = True
+        LOG.info("MCU shutdown at clock %d: %s", self.mcu_clock(self.now), reason)
+        self._timers = [t for t in self._timers if t[2] == self._stats]
+        heapq.heapify(self._timers)
+        for obj in self._oids or ():
+            if isinstance(obj, _AnalogIn) and obj.sample_count:  # analog_in_shutdown: sampling goes on
+                obj.state = 0
+                obj.next_begin += obj.rest_ticks
+                self._add_timer(obj.next_begin, self._analog_event, obj)
+            elif isinstance(obj, _DigitalOut):
+                obj.queue.clear()
+                obj.end_time = None
+                self.board.drive(obj.pin, self.now, int(obj.default_on), 1)
+            elif isinstance(obj, _PwmOut):
+                obj.queue.clear()
+                obj.end_time = None
+                self.board.drive(obj.pin, self.now, obj.default_value, d.PWM_MAX)
+        self._moves_used = 0
+        self._send("shutdown", clock=self.mcu_clock(self.now), static_string_id=self._reason_id)
+
+    # -- timers ----------------------------------------------------------------------------------
+    def _add_timer(self, clock: int, action: Callable, owner, *args) -> None:
+        """Schedule ``action(owner, version, *args)`` (owner None: ``action(*args)``); a newer timer
+        of the same owner makes this one a no-op."""
+        if owner is None:
+            heapq.heappush(self._timers, (clock, next(self._order), action, args))
+            return
+        owner.timer += 1
+        heapq.heappush(self._timers, (clock, next(self._order), action, (owner, owner.timer, *args)))
+
+    def _schedule(self, clock: int, action: Callable, owner, *, rescheduled: bool = False) -> None:
+        """sched_add_timer: a clock already past is "Timer too close" (a timer rescheduling itself:
+        "Rescheduled timer in the past") in strict mode, and a late event otherwise."""
+        if clock < self.now:
+            if self.strict:
+                raise Shutdown(d.RESCHEDULED_IN_PAST if rescheduled else d.TIMER_TOO_CLOSE)
+            self.late_events += 1
+        self._add_timer(clock, action, owner)
+
+    def _deadline_missed(self, reason: str) -> None:
+        if self.strict:
+            raise Shutdown(reason)
+        self.missed_deadlines += 1
+        LOG.warning("lenient MCU: %s at clock %d (ignored)", reason, self.mcu_clock(self.now))
+
+    def _stats(self) -> None:
+        count = self._events_handled
+        task = STATS_TASK_CLOCKS
+        self._send("stats", count=count, sum=count * task, sumsq=count * -(-task * task // d.STATS_SUMSQ_BASE))
+        self._events_handled = 0
+        self._add_timer(self.now + STATS_INTERVAL_CLOCKS, self._stats, None)
+
+    # -- oids and moves ----------------------------------------------------------------------------
+    def _alloc(self, oid: int, obj: object) -> None:
+        if self._oids is None or oid >= len(self._oids) or self._oids[oid] is not None or self._finalized:
+            raise Shutdown(d.CANT_ASSIGN_OID)
+        self._oids[oid] = obj
+
+    def _lookup(self, oid: int, kind: type):
+        obj = self._oids[oid] if self._oids is not None and oid < len(self._oids) else None
+        if not isinstance(obj, kind):
+            raise Shutdown(d.INVALID_OID)
+        return obj
+
+    def _move_alloc(self) -> None:
+        if self._moves_used >= d.MOVE_COUNT:
+            raise Shutdown(d.MOVE_QUEUE_OVERFLOW)
+        self._moves_used += 1
+
+    # -- src/basecmd.c, src/command.c, src/sched.c -----------------------------------------------
+    def _cmd_identify(self, args: dict) -> None:
+        offset = args["offset"]
+        self._send("identify_response", offset=offset, data=self._identify[offset:offset + args["count"]])
+
+    def _cmd_get_uptime(self, args: dict) -> None:
+        uptime = self.now - self.boot_clock
+        self._send("uptime", high=uptime >> 32, clock=uptime & 0xFFFFFFFF)
+
+    def _cmd_get_clock(self, args: dict) -> None:
+        self._send("clock", clock=self.mcu_clock(self.now))
+
+    def _cmd_get_config(self, args: dict) -> None:
+        self._send("config", is_config=int(self._finalized), crc=self._config_crc, is_shutdown=int(self._shutdown),
+                   move_count=d.MOVE_COUNT if self._finalized else 0)
+
+    def _cmd_allocate_oids(self, args: dict) -> None:
+        if self._oids is not None:
+            raise Shutdown(d.OIDS_ALLOCATED)
+        self._oids = [None] * args["count"]
+
+    def _cmd_finalize_config(self, args: dict) -> None:
+        if self._finalized:
+            raise Shutdown(d.ALREADY_FINALIZED)
+        self._finalized = True
+        self._config_crc = args["crc"]
+
+    def _cmd_emergency_stop(self, args: dict) -> None:
+        raise Shutdown(d.COMMAND_REQUEST)
+
+    def _cmd_clear_shutdown(self, args: dict) -> None:
+        if not self._shutdown:
+            raise Shutdown(d.CLEARED_WHEN_NOT_SHUTDOWN)
+        self._shutdown = False
+
+    def _cmd_reset(self, args: dict) -> None:
+        """The board reboots: the host sees its port go quiet and reconnects to a new boot."""
+        self.boot(self.now)
+
+    def _cmd_config_reset(self, args: dict) -> None:
+        if not self._shutdown:
+            raise Shutdown(d.CONFIG_RESET_NOT_SHUTDOWN)
+        self._oids, self._finalized, self._config_crc, self._moves_used = None, False, 0, 0
+        self._timers = [t for t in self._timers if t[2] == self._stats]
+        heapq.heapify(self._timers)
+        self._shutdown = False
+
+    def _cmd_debug_nop(self, args: dict) -> None:
+        pass
+
+    # -- src/adccmds.c ---------------------------------------------------------------------------------
+    def _cmd_config_analog_in(self, args: dict) -> None:
+        pin = d.pin_name(args["pin"])
+        if pin not in d.ADC_PINS:
+            raise Shutdown(d.NOT_ADC_PIN)
+        self._alloc(args["oid"], _AnalogIn(args["oid"], pin))
+
+    def _cmd_query_analog_in(self, args: dict) -> None:
+        a = self._lookup(args["oid"], _AnalogIn)
+        a.timer += 1  # sched_del_timer
+        a.next_begin = self.world_clock(args["clock"])
+        a.sample_ticks, a.sample_count, a.rest_ticks = args["sample_ticks"], args["sample_count"], args["rest_ticks"]
+        a.min_value, a.max_value, a.range_check_count = args["min_value"], args["max_value"], args["range_check_count"]
+        a.state = a.value = 0
+        if a.sample_count:
+            self._schedule(a.next_begin, self._analog_event, a)
+
+    def _analog_event(self, a: _AnalogIn, version: int) -> None:
+        """One conversion; after the group's last, the range check and the report (the sum)."""
+        if version != a.timer:
+            return
+        sample = self.board.adc(a.pin, self.now)
+        a.value = sample if a.state == 0 else a.value + sample
+        a.state += 1
+        if a.state < a.sample_count:
+            self._add_timer(self.now + a.sample_ticks, self._analog_event, a)
+            return
+        a.state = 0
+        if a.min_value <= a.value <= a.max_value:
+            a.invalid_count = 0
+        else:
+            a.invalid_count += 1
+            if a.invalid_count >= a.range_check_count and not self._shutdown:  # try_shutdown: no report
+                a.invalid_count = 0
+                raise Shutdown(d.ADC_OUT_OF_RANGE)
+        a.next_begin += a.rest_ticks
+        self._add_timer(a.next_begin, self._analog_event, a)
+        self._send("analog_in_state", oid=a.oid, next_clock=self.mcu_clock(a.next_begin), value=a.value & 0xFFFF)
+
+    # -- src/gpiocmds.c -------------------------------------------------------------------------------
+    def _cmd_config_digital_out(self, args: dict) -> None:
+        pin = d.pin_name(args["pin"])
+        self._alloc(args["oid"], _DigitalOut(args["oid"], pin, bool(args["default_value"]), args["max_duration"]))
+        self.board.drive(pin, self.now, int(bool(args["value"])), 1)
+
+    def _cmd_set_digital_out_pwm_cycle(self, args: dict) -> None:
+        out = self._lookup(args["oid"], _DigitalOut)
+        if out.queue:
+            raise Shutdown(d.CYCLE_WHILE_PENDING)
+        out.cycle_ticks = args["cycle_ticks"]
+
+    def _queue(self, out: _DigitalOut | _PwmOut, clock32: int, value: int, exceeds: str, load: Callable) -> None:
+        """Queue a value for a clock; the first in an empty queue is scheduled (a pending max_duration
+        deadline before it: ``exceeds``), the others load as the one before them ends."""
+        self._move_alloc()
+        clock = self.world_clock(clock32)
+        out.queue.append((clock, value))
+        if len(out.queue) > 1:
+            return
+        if out.end_time is not None and out.end_time < clock:
+            raise Shutdown(exceeds)
+        out.end_time = clock if isinstance(out, _DigitalOut) else None
+        self._schedule(clock, load, out)
+
+    def _cmd_queue_digital_out(self, args: dict) -> None:
+        out = self._lookup(args["oid"], _DigitalOut)
+        self._queue(out, args["clock"], args["on_ticks"], d.DIGITAL_OUT_EXCEEDS, self._digital_load)
+
+    def _digital_load(self, out: _DigitalOut, version: int) -> None:
+        """digital_load_event: apply the next queued value, set the next deadline."""
+        if version != out.timer:
+            return
+        if not out.queue:
+            self._deadline_missed(d.MISSED_DIGITAL_OUT)
+            out.end_time = None
+            return
+        _, on_ticks = out.queue.popleft()
+        self._moves_used -= 1
+        cycle = out.cycle_ticks
+        if cycle and 0 < on_ticks < cycle:
+            self.board.drive(out.pin, self.now, on_ticks, cycle)
+        else:
+            self.board.drive(out.pin, self.now, int(on_ticks > 0), 1)
+        steady_default = (on_ticks == 0 or on_ticks >= cycle) and bool(on_ticks) == out.default_on
+        end_time = None if steady_default or not out.max_duration else self.now + out.max_duration
+        if out.queue:
+            wake = out.queue[0][0]
+            if end_time is not None and end_time < wake:
+                raise Shutdown(d.DIGITAL_OUT_EXCEEDS)
+            end_time = wake
+        out.end_time = end_time
+        if end_time is not None:
+            self._schedule(end_time, self._digital_load, out, rescheduled=True)
+
+    def _cmd_update_digital_out(self, args: dict) -> None:
+        out = self._lookup(args["oid"], _DigitalOut)
+        out.timer += 1
+        if out.queue:
+            raise Shutdown(d.UPDATE_WITH_QUEUE)
+        value = bool(args["value"])
+        self.board.drive(out.pin, self.now, int(value), 1)
+        out.end_time = None
+        if value != out.default_on and out.max_duration:
+            out.end_time = self.now + out.max_duration
+            self._add_timer(out.end_time, self._digital_load, out)
+
+    def _cmd_set_digital_out(self, args: dict) -> None:
+        self.board.drive(d.pin_name(args["pin"]), self.now, int(bool(args["value"])), 1)
+
+    # -- src/pwmcmds.c ----------------------------------------------------------------------------------
+    def _cmd_config_pwm_out(self, args: dict) -> None:
+        pin = d.pin_name(args["pin"])
+        self._alloc(args["oid"], _PwmOut(args["oid"], pin, args["default_value"], args["max_duration"]))
+        self.board.drive(pin, self.now, args["value"], d.PWM_MAX)
+
+    def _cmd_queue_pwm_out(self, args: dict) -> None:
+        out = self._lookup(args["oid"], _PwmOut)
+        self._queue(out, args["clock"], args["value"], d.PWM_EXCEEDS, self._pwm_event)
+
+    def _pwm_event(self, out: _PwmOut, version: int) -> None:
+        if version != out.timer:
+            return
+        if not out.queue:  # pwm_end_event
+            self._deadline_missed(d.MISSED_PWM)
+            out.end_time = None
+            return
+        _, value = out.queue.popleft()
+        self._moves_used -= 1
+        self.board.drive(out.pin, self.now, value, d.PWM_MAX)
+        limited = value != out.default_value and out.max_duration
+        out.end_time = None
+        if out.queue:
+            wake = out.queue[0][0]
+            if limited and self.now + out.max_duration < wake:
+                raise Shutdown(d.PWM_EXCEEDS)
+            self._schedule(wake, self._pwm_event, out, rescheduled=True)
+        elif limited:
+            out.end_time = self.now + out.max_duration
+            self._add_timer(out.end_time, self._pwm_event, out)
+
+    def _cmd_set_pwm_out(self, args: dict) -> None:
+        self.board.drive(d.pin_name(args["pin"]), self.now, args["value"], d.PWM_MAX)

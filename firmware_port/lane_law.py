@@ -84,10 +84,12 @@ def attributes(controllers: Sequence[Any], dtype: np.dtype, names: Sequence[str]
 
 
 def set_attributes(controllers: Sequence[Any], state: np.ndarray, names: Sequence[str] | None = None) -> None:
-    """The records' fields (or ``names`` of them) into each controller's attributes of the same names."""
+    """The records' fields (or ``names`` of them) into each controller's attributes of the same names:
+    integers as Python ints, floats as numpy floats of the field's width (a float32 law's state stays so)."""
     for lane, c in enumerate(controllers):
         for name in field_names(state.dtype) if names is None else names:
-            setattr(c, name, state[name][lane].item())
+            value = state[name][lane]
+            setattr(c, name, value if state.dtype[name].kind == "f" else value.item())
 
 
 def scalar_lanes(controllers: Sequence[Any], prev_temp_mode: str) -> ScalarLanes:
@@ -126,6 +128,7 @@ class LaneLaw:
     read: Callable[[Any], np.ndarray] | None = None
     write: Callable[[Any, np.ndarray], None] | None = None
     reads_board: bool = False  # the step reads ``board`` (the fan and the E stepper: the batch tracks them)
+    fits: Callable[[Any], bool] | None = None  # which instances of ``controller`` the law runs (default: all)
     untuned: tuple[str, ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -165,5 +168,6 @@ def register(law: LaneLaw) -> LaneLaw:
 
 
 def law_for(controller: object) -> LaneLaw | None:
-    """The lane law registered for the controller's class, if any."""
-    return LAWS.get(type(controller))
+    """The lane law registered for the controller's class, if it runs this instance."""
+    law = LAWS.get(type(controller))
+    return law if law is not None and (law.fits is None or law.fits(controller)) else None

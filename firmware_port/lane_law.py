@@ -100,14 +100,6 @@ def scalar_lanes(controllers: Sequence[Any], prev_temp_mode: str) -> ScalarLanes
     return ScalarLanes(own)
 
 
-def _pack_attributes(law: LaneLaw, control: ScalarLanes) -> np.ndarray:
-    return attributes(control.controllers, law.params)
-
-
-def _read_attributes(law: LaneLaw, control: ScalarLanes) -> np.ndarray:
-    return attributes(control.controllers, law.state)
-
-
 @dataclass(frozen=True, eq=False)
 class LaneLaw:
     """One controller family's law on the batch's lanes (see the module docstring).
@@ -141,11 +133,11 @@ class LaneLaw:
 
     def pack_params(self, control: Any) -> np.ndarray:
         """The lanes' parameters, (N,) records of ``params``."""
-        return self.pack(control) if self.pack else _pack_attributes(self, control)
+        return self.pack(control) if self.pack else attributes(control.controllers, self.params)
 
     def read_state(self, control: Any) -> np.ndarray:
         """The lanes' state, (N,) records of ``state``."""
-        return self.read(control) if self.read else _read_attributes(self, control)
+        return self.read(control) if self.read else attributes(control.controllers, self.state)
 
     def write_state(self, control: Any, state: np.ndarray) -> None:
         """The state the compiled loop left, back into the numpy lanes' controllers."""

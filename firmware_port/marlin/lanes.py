@@ -26,8 +26,6 @@ from firmware_port.marlin.pid import PREV_TEMP_EVERY_SAMPLE, PidGains, PidLanes
 from firmware_port.marlin.protection import HeaterWatch, RunawayMonitor, TempRange
 from firmware_port.thermistor import B3950_TABLE, TEMP_FRAC_BITS, TempTable
 
-__all__ = ["HotendLanes", "PidLanes", "ScalarLanes", "div_round", "lookup_q5", "trunc_c"]
-
 INACTIVE, FIRST_HEATING, STABLE, RUNAWAY = 0, 1, 2, 3
 # What a lane died of: codes into TRIP_TEXTS (the TempError texts), 0 while it runs.
 MAXTEMP_TRIP, MINTEMP_TRIP, RUNAWAY_TRIP, WATCH_TRIP = 1, 2, 3, 4

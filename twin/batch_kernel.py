@@ -746,7 +746,10 @@ def law_source(law: LaneLaw) -> int:
         if fn in seen:
             return
         seen.add(fn)
-        parts.append(inspect.getsource(fn))
+        try:
+            parts.append(inspect.getsource(fn))
+        except OSError:  # defined where no source is kept (an interactive session): its bytecode
+            parts.append(fn.__code__.co_code.hex())
         for name, value in sorted(_globals_read(fn).items()):
             if isinstance(value, types.FunctionType):
                 walk(value)

@@ -121,15 +121,14 @@ def _pool(workers: int) -> ThreadPoolExecutor:
 def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str) -> tuple[LaneLaw, Any]:
     """The lanes' lane law and what the numpy lanes run; TypeError names a lane it cannot run."""
     laws = [PID_LAW if isinstance(c, PidGains) else law_for(c) for c in controllers]  # PidGains: a PID lane
-    for lane, (item, law) in enumerate(zip(controllers, laws)):
-        if law is None:
+    law = cast(LaneLaw, laws[0])  # (lane 0's: None raises below first)
+    for lane, (item, other) in enumerate(zip(controllers, laws)):
+        if other is None:
             raise TypeError(f"lane {lane}: a batch runs controllers with a lane law (firmware_port/lane_law.py: "
                             f"{', '.join(sorted(c.__name__ for c in LAWS))}, or PidGains), not {item!r}")
-        first = cast(LaneLaw, laws[0])
-        if law is not first:
-            raise TypeError(f"lane {lane}: one controller family per batch, {first.controller.__name__} in lane 0, "
-                            f"not {law.controller.__name__}")
-    law = cast(LaneLaw, laws[0])
+        if other is not law:
+            raise TypeError(f"lane {lane}: one controller family per batch, {law.controller.__name__} in lane 0, "
+                            f"not {other.controller.__name__}")
     return law, law.lanes(list(controllers), prev_temp_mode)
 
 

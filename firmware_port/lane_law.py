@@ -30,8 +30,8 @@ import numba), so it and every function it calls keep to the subset numba compil
   so keep every intermediate within the widths the scalar class declares.
 
 A family registers its law once (``register``); ``law_for`` finds it by the controller's class. A
-user's controller gets the compiled batch the same way (tests/twin/test_user_law.py declares an
-integer PI); a controller without a law runs one scalar twin per candidate.
+user's controller gets the compiled batch the same way (tests/helpers/integer_pi.py: an integer PI
+whose ``update`` runs its own step); a controller without a law runs one scalar twin per candidate.
 """
 
 from __future__ import annotations

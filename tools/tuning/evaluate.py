@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import warnings
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 
@@ -39,6 +40,7 @@ import scipy.linalg
 import scipy.signal
 
 from firmware_port.klipper import CommandError
+from firmware_port.lane_law import law_for
 from twin import batch_kernel
 from firmware_port.marlin.board import HOTEND_CHANNEL
 from firmware_port.marlin.mpc_autotune import MpcAutotune
@@ -143,7 +145,12 @@ class Problem:
             return False
         if not batch_kernel.compiled() and (self.loop == "klipper" or not self.spec.linear or self.spec.delay_ticks):
             return False
-        return self.loop == "klipper" or BatchTwin.accepts(self.controller.make(self.controller.defaults))
+        if self.loop == "klipper":
+            return True
+        controller = self.controller.make(self.controller.defaults)
+        if law_for(controller) is None:
+            _no_lane_law(type(controller))
+        return BatchTwin.accepts(controller)
 
     def plant_gains(self, params: np.ndarray) -> np.ndarray | None:
         """A PID family's gains (N, 3) on the 0..255 scale -> the plant's input units per degC (W/C for a
@@ -151,6 +158,13 @@ class Problem:
         if not self.controller.pid:
             return None
         return np.asarray(params, float) / COUNTS_PER_DUTY * self.input_full_scale
+
+
+@functools.cache
+def _no_lane_law(family: type) -> None:
+    """Say once per family that its candidates run one scalar twin each (``Problem.batched``)."""
+    warnings.warn(f"controller {family.__name__} declares no lane law (firmware_port/lane_law.py): each candidate "
+                  "runs on a scalar twin of its own, hundreds of times slower than on the batch", stacklevel=3)
 
 
 # -- the plant and its scenario ---------------------------------------------------------------------

@@ -58,6 +58,7 @@ from firmware_port.marlin.lanes import (
     STABLE,
     WATCH_TRIP,
 )
+from twin.numba_cache import cached_njit
 
 try:
     import numba
@@ -139,8 +140,8 @@ NUMBA_OPTIONS = {"_nrt": False, "error_model": "numpy"}
 
 
 def jit(fn):
-    """A kernel: compiled, cached, releasing the GIL (BatchTwin runs lanes on threads)."""
-    return numba.njit(cache=True, nogil=True, **NUMBA_OPTIONS)(fn) if numba is not None else fn
+    """A kernel: compiled, cached (twin/numba_cache.py), releasing the GIL (BatchTwin runs lanes on threads)."""
+    return cached_njit(fn, nogil=True, **NUMBA_OPTIONS) if numba is not None else fn
 
 
 def inline(fn):

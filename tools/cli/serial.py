@@ -22,10 +22,12 @@ from protocol.pty_server import PtyServer
 from protocol.server import Server
 from protocol.tcp_server import TcpServer
 from protocol.transcript import Transcript
+from tools.cli.args import ranged_float, ranged_int, seed_int
 from tools.entry import OneLineParser, run_main
 from twin.plants import PRESETS as PLANT_PRESETS
 
 DEFAULT_TCP_HOST = "127.0.0.1"
+BAUD_MAX = 2**31 - 1  # termios's speed_t; any rate up to it is accepted (and ignored)
 
 
 def _speed(text: str):
@@ -103,12 +105,13 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--no-ok-after-resend", dest="ok_after_resend", action="store_false",
                         help="no 'ok' after 'Resend:' (a buggy firmware, to test a host's handling; "
                              "default: 'ok' follows, as GCodeQueue::flush_and_request_resend() sends in Marlin 2.1)")
-    parser.add_argument("--corrupt-rx", type=float, default=0.0, metavar="P",
+    parser.add_argument("--corrupt-rx", type=ranged_float(0.0, 1.0, ""), default=0.0, metavar="P",
                         help="probability per received line of one flipped bit (default: %(default)s, a clean wire)")
-    parser.add_argument("--seed", type=int, default=0, metavar="N",
+    parser.add_argument("--seed", type=seed_int, default=0, metavar="N",
                         help="seed of --corrupt-rx's draws: a host sending the same lines gets the same "
                              "flips (default 0)")
-    parser.add_argument("--baud", type=int, metavar="N", help="accepted and ignored: any baud rate works")
+    parser.add_argument("--baud", type=ranged_int(1, BAUD_MAX), metavar="N",
+                        help="accepted and ignored: any baud rate works")
     return parser
 
 

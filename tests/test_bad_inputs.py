@@ -20,8 +20,9 @@ import pytest
 import serial
 
 import protocol  # noqa: F401  (registers twin://)
-from tools.cli import compare, firmware_report, fit, hold_check, sim, tune
+from tools.cli import benchfuncs, compare, firmware_report, fit, hold_check, sim, tune
 from tools.cli import serial as serial_cli
+from tools.docs import crossval, mpc_report, optimtable
 from tools.seeds import __main__ as seeds
 from twin import BatchTwin, KlipperTwin, PidGains, Twin, make_plant
 from twin.build import build_twin
@@ -33,7 +34,8 @@ from twin.sensor import SensorChain
 ROOT = Path(__file__).resolve().parents[1]
 CLIS = {"twin-sim": sim.main, "twin-serial": serial_cli.main, "twin-fit": fit.main, "twin-compare": compare.main,
         "twin-tune": tune.main, "twin-firmware-report": firmware_report.main, "hold_check": hold_check.main,
-        "tools.seeds": seeds.main}
+        "tools.seeds": seeds.main, "benchfuncs": benchfuncs.main, "tools.docs.crossval": crossval.main,
+        "tools.docs.mpc_report": mpc_report.main, "tools.docs.optimtable": optimtable.main}
 INTERNAL = ("Traceback", "internal error", "codec can't", "object has no attribute", "NoneType",
             "cannot convert float", "invalid literal")
 GAINS = ["--gains", "13,0.3,70"]
@@ -112,6 +114,7 @@ def _cases() -> list[tuple[str, list[str], str]]:
     add("twin-serial", "--baud", ["0", "-5", "x"])
     add("twin-serial", "--tcp", ["x", ":99999", "host:-1"])
     add("twin-serial", "--scenario", ["{fifo}", "nope"], (), "")
+    add("twin-serial", "--log", ["{fifo}", "/proc/x.log", "{dir}"])
     add("twin-serial", "--firmware", ["bogus"])
     add("twin-serial", "--plant", ["bogus"])
     # twin-fit on a small plain CSV
@@ -157,6 +160,12 @@ def _cases() -> list[tuple[str, list[str], str]]:
     add("tools.seeds", "--seeds", ["999", "x"])
     add("tools.seeds", "--out", ["/proc/x.md", "{dir}", "{binary}", "{fifo}"])
     cases.append(("tools.seeds", ["bogus"], "seed"))
+    # the docs' generators and the optimiser benchmark: their pages and outputs, checked before the runs
+    add("benchfuncs", "--out", ["/proc/x.md", "{dir}", "{fifo}"], ["--quick"])
+    add("benchfuncs", "--doc", ["{binary}", "{fifo}", "{page}", "{dir}/none.md"], ["--quick"])
+    add("benchfuncs", "--seed", ["-1"], ["--quick"])
+    for generator in ("tools.docs.crossval", "tools.docs.mpc_report", "tools.docs.optimtable"):
+        add(generator, "--doc", ["{binary}", "{fifo}", "{page}"])
     return cases
 
 

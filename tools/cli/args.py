@@ -10,6 +10,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from tools.validation.doc_compare import replace_section
 from twin.limits import SEED_MAX, check_regular_file
 
 
@@ -97,6 +98,29 @@ def read_text_file(path: str | Path) -> str:
         raise ValueError(f"not UTF-8 text (byte {exc.start})") from None
     except OSError as exc:
         raise ValueError(str(exc.strerror or exc)) from None
+
+
+def section_page(path: str | Path, begin: str, end: str) -> str:
+    """A page whose generated section a command rewrites (``--doc``), checked before any work: a regular
+    UTF-8 file we can write, with the section's markers; its text. ValueError says what is wrong."""
+    text = read_text_file(path)
+    check_output(path)
+    if replace_section(text, "", begin, end) is None:
+        raise ValueError(f"no '{begin} ... -->' / '{end}' markers")
+    return text
+
+
+def doc_page(begin: str, end: str) -> Callable[[str], Path]:
+    """An argparse type: a ``section_page`` with these markers (``--doc``)."""
+
+    def parse(text: str) -> Path:
+        try:
+            section_page(text, begin, end)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"{text}: {exc}") from None
+        return Path(text)
+
+    return parse
 
 
 def plot_path(text: str) -> Path:

@@ -17,6 +17,7 @@ from tools.seeds import seed002_benchmark
 from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME, FORMS, PLAIN
 from tools.tuning.optim import METHODS
 from tools.tuning.optim.benchmark import SEED_ITERATIONS, SEED_POPULATION, format_report, run_all, tasks_for
+from tools.cli.args import doc_page, output_file
 from tools.entry import OneLineParser, run_main
 from tools.validation.doc_compare import replace_section
 
@@ -42,8 +43,9 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--forms", default=PLAIN, help=f"comma-separated, of {','.join(FORMS)} "
                         "(shifted/rotated: F1-F7, F9-F13 only; default plain)")
     parser.add_argument("--quick", action="store_true", help="2 runs, population 10, 10 iterations")
-    parser.add_argument("--out", type=Path, help="write the markdown report here (default: stdout)")
-    parser.add_argument("--doc", type=Path, help="rewrite the report's section of this markdown file (docs/tuning.md)")
+    parser.add_argument("--out", type=output_file, help="write the markdown report here (default: stdout)")
+    parser.add_argument("--doc", type=doc_page(DOC_BEGIN, DOC_END),
+                        help="rewrite the report's section of this markdown file (docs/tuning.md)")
     return parser
 
 
@@ -64,6 +66,7 @@ def _problem(args: argparse.Namespace) -> str | None:
         (args.population < 5, "--population must be >= 5 (DE needs 5)"),
         (args.iterations < 3, "--iterations must be >= 3 (OCALO's start costs 2 populations)"),
         (args.workers < 1, "--workers must be >= 1"),
+        (args.seed < 0, "--seed must be >= 0"),
         (bool(unknown_methods), f"--methods: unknown {unknown_methods}, choose from {sorted(METHODS)}"),
         (bool(unknown_functions), f"--functions: unknown {unknown_functions}, choose from F1..F23"),
         (bool(unknown_forms), f"--forms: unknown {unknown_forms}, choose from {list(FORMS)}"),
@@ -111,12 +114,6 @@ def run(args: argparse.Namespace, command: str) -> int:
     problem = _problem(args)
     if problem:
         raise ValueError(problem)
-    if args.doc is not None:  # checked before the runs, so that a typo costs nothing
-        problem = _write_doc(args.doc, "", "") if not args.doc.is_file() else None
-        if problem is None and replace_section(args.doc.read_text(), "", DOC_BEGIN, DOC_END) is None:
-            problem = f"no '{DOC_BEGIN} ... -->' / '{DOC_END}' markers"
-        if problem:
-            raise ValueError(f"--doc {args.doc}: {problem}")
     text = report(args)
     if args.out is None and args.doc is None:
         print(text, end="")

@@ -30,7 +30,7 @@ from firmware_port.marlin.pid import (
 )
 from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.thermistor import B3950_TABLE, TABLE_ERROR_BOUND_C, TEMP_ONE, Divider
-from tools.cli.args import check_output, ranged_int, read_text_file, seed_int
+from tools.cli.args import ranged_int, section_page, seed_int
 from tools.entry import EXIT_USAGE, OneLineParser, run_main
 
 CALLS_MAX = 100_000  # --sequences, --steps: each law runs sequences x steps calls
@@ -153,16 +153,10 @@ def avr_markdown(footprints: list[Footprint], header: str, command: str) -> str:
 
 def read_doc(path: Path) -> str:
     """--doc's page, checked before any work: a UTF-8 text file we can write, with the table's markers."""
-    from tools.validation.doc_compare import replace_section
-
     try:
-        text = read_text_file(path)
-        check_output(path)
+        return section_page(path, AVR_DOC_BEGIN, AVR_DOC_END)
     except ValueError as exc:
         raise ValueError(f"--doc {path}: {exc}") from None
-    if replace_section(text, "", AVR_DOC_BEGIN, AVR_DOC_END) is None:
-        raise ValueError(f"--doc {path}: it lacks the '{AVR_DOC_BEGIN} ... -->' / '{AVR_DOC_END}' markers")
-    return text
 
 
 def write_avr_doc(path: Path, text: str, body: str) -> None:

@@ -22,7 +22,7 @@ from protocol.pty_server import PtyServer
 from protocol.server import Server
 from protocol.tcp_server import TcpServer
 from protocol.transcript import Transcript
-from tools.cli.args import ranged_float, ranged_int, seed_int
+from tools.cli.args import output_file, ranged_float, ranged_int, seed_int
 from tools.entry import OneLineParser, run_main
 from twin.plants import PRESETS as PLANT_PRESETS
 
@@ -101,7 +101,8 @@ def build_parser() -> OneLineParser:
                        help="serve on TCP instead of a pty, one client at a time (port 0: any free port)")
     parser.add_argument("--settings", metavar="FILE", help="EEPROM file that M500 writes and M501 reads; "
                         "an existing file must be one M500 wrote (default: in memory, lost on exit)")
-    parser.add_argument("--log", metavar="FILE", help="transcript of both directions with virtual and wall times")
+    parser.add_argument("--log", metavar="FILE", type=output_file,
+                        help="transcript of both directions with virtual and wall times")
     parser.add_argument("--no-ok-after-resend", dest="ok_after_resend", action="store_false",
                         help="no 'ok' after 'Resend:' (a buggy firmware, to test a host's handling; "
                              "default: 'ok' follows, as GCodeQueue::flush_and_request_resend() sends in Marlin 2.1)")

@@ -273,7 +273,8 @@ class BatchTwin:
         self._events.push(ticks_at(checked("at_s", at_s, 0.0, DURATION_MAX_S, "s")), action, self)
 
     def set_target(self, target_c: int) -> None:
-        self.lanes.set_target(int(checked("target_c", target_c, *TARGET_RANGE_C, "C")))
+        checked("target_c", target_c, *TARGET_RANGE_C, "C")
+        self.lanes.set_target(target_c)
 
     def run(self, seconds: float) -> RunResult:
         """Run ``seconds`` more; the result of every lane since time 0 (arrays (rows, lanes))."""

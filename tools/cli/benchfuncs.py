@@ -17,7 +17,7 @@ from tools.seeds import seed002_benchmark
 from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME, FORMS, PLAIN
 from tools.tuning.optim import METHODS
 from tools.tuning.optim.benchmark import SEED_ITERATIONS, SEED_POPULATION, format_report, run_all, tasks_for
-from tools.cli.args import doc_page, output_file
+from tools.cli.args import check_output, section_page
 from tools.entry import OneLineParser, run_main
 from tools.validation.doc_compare import replace_section
 
@@ -43,9 +43,8 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--forms", default=PLAIN, help=f"comma-separated, of {','.join(FORMS)} "
                         "(shifted/rotated: F1-F7, F9-F13 only; default plain)")
     parser.add_argument("--quick", action="store_true", help="2 runs, population 10, 10 iterations")
-    parser.add_argument("--out", type=output_file, help="write the markdown report here (default: stdout)")
-    parser.add_argument("--doc", type=doc_page(DOC_BEGIN, DOC_END),
-                        help="rewrite the report's section of this markdown file (docs/tuning.md)")
+    parser.add_argument("--out", type=Path, help="write the markdown report here (default: stdout)")
+    parser.add_argument("--doc", type=Path, help="rewrite the report's section of this markdown file (docs/tuning.md)")
     return parser
 
 
@@ -114,6 +113,13 @@ def run(args: argparse.Namespace, command: str) -> int:
     problem = _problem(args)
     if problem:
         raise ValueError(problem)
+    for flag, path, check in (("--out", args.out, check_output),  # before the runs: a typo costs nothing
+                              ("--doc", args.doc, lambda page: section_page(page, DOC_BEGIN, DOC_END))):
+        try:
+            if path is not None:
+                check(path)
+        except ValueError as exc:
+            raise ValueError(f"{flag} {path}: {exc}") from None
     text = report(args)
     if args.out is None and args.doc is None:
         print(text, end="")

@@ -221,3 +221,15 @@ def test_progress_goes_to_a_terminal_only(tmp_path):
         os.close(master)
         assert proc.wait(timeout=300) == 0
     assert b"60/60 s virtual" in shown
+
+
+@pytest.mark.parametrize(("engine", "said"), [("reference", "the tick-by-tick reference engine"),
+                                              ("avr", "the controllers' C compiled for the ATmega328P")])
+def test_a_non_default_engine_is_said_and_in_the_file_names(capsys, tmp_path, engine, said, request):
+    """--engine avr ran on simavr without saying so, and wrote over the fast engine's files."""
+    if engine == "avr":
+        request.getfixturevalue("avr_toolchain")
+    code, out, err = run(capsys, "--engine", engine, "--duration", "2", "--no-bed", "--out", str(tmp_path))
+    assert code == 0, err
+    assert out.startswith(f"twin-sim: heat_hold, firmware pid, 2 s virtual, seed 0, engine {engine} ({said}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"heat_hold_pid_{engine}_nobed.{kind}" for kind in ("csv", "png")]

@@ -64,6 +64,7 @@ from twin import adc_table, batch_kernel as bk
 from twin.clock import TICK_S, EventQueue, ticks_at
 from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import MAX_SAMPLES, Tables, bin_tables, block_bin, linear_tables
+from twin.limits import DURATION_MAX_S, TARGET_RANGE_C, check_trace_bytes, checked
 from twin.linear import BLOCK
 from twin.result import RunResult
 from twin.sensor import SensorChain
@@ -74,6 +75,8 @@ FAN_SPEED_MAX = 255  # fan_speed[0] at full speed (M106 S255): the board's value
 MIN_LANES_PER_THREAD = 4  # fewer lanes than this per thread run on the calling thread
 BIN_MARGIN = 40  # radiating plants: bins (of 0.5 C) built beyond the ones the lanes need, each way
 TARGET_HEADROOM_C = 20.0  # radiating plants: bins built up front to this far above the target (the block leads)
+# A record row's memory: per lane temp_q5 and amount (int16), block and sensor (float64); per row its time and target.
+RECORD_LANE_BYTES, RECORD_ROW_BYTES = 20, 16
 
 
 @dataclass
@@ -243,13 +246,15 @@ class BatchTwin:
 
     def schedule(self, at_s: float, action: Callable[[BatchTwin], None]) -> None:
         """Run ``action(batch)`` at the first tick at or after ``at_s``."""
-        self._events.push(ticks_at(at_s), action, self)
+        self._events.push(ticks_at(checked("at_s", at_s, 0.0, DURATION_MAX_S, "s")), action, self)
 
     def set_target(self, target_c: int) -> None:
+        checked("target_c", target_c, *TARGET_RANGE_C, "C")
         self.lanes.set_target(target_c)
 
     def run(self, seconds: float) -> RunResult:
         """Run ``seconds`` more; the result of every lane since time 0 (arrays (rows, lanes))."""
+        checked("seconds", seconds, 0.0, DURATION_MAX_S - self.tick * TICK_S, "s", above=True)
         self.run_until(self.tick * TICK_S + seconds)
         return self.result()
 
@@ -257,7 +262,7 @@ class BatchTwin:
         if not self.record:
             raise ValueError("this batch keeps no trace (record=False): read score_totals()")
         n = len(self._targets)
-        target = np.repeat(np.array(self._targets, dtype=float)[:, None], self.n_lanes, axis=1).reshape(n, -1)
+        target = np.repeat(np.array(self._targets, dtype=float).reshape(n, 1), self.n_lanes, axis=1)
         hotend = {"target_c": target, "measured_c": self._measured_c, "block_c": self._block_c,
                   "sensor_c": self._sensor_c, "duty": self._duty}
         return RunResult.from_columns(self._t_s, {"hotend": hotend}, label=f"{label}, {self.n_lanes} lanes")
@@ -276,6 +281,13 @@ class BatchTwin:
                            sf[:, bk.DUTY_STEP_SUM] / SOFT_PWM_MAX)
 
     def run_until(self, t_s: float) -> None:
+        """Advance every lane to ``t_s`` seconds (at most DURATION_MAX_S; ValueError if the records would
+        outgrow memory)."""
+        checked("t_s", t_s, 0.0, DURATION_MAX_S, "s")
+        if self.record:
+            rows = self._rows + max(0.0, t_s - self.tick * TICK_S) / (TICKS_PER_READING * TICK_S)
+            check_trace_bytes(t_s, rows * (RECORD_LANE_BYTES * self.n_lanes + RECORD_ROW_BYTES),
+                              "keep no trace (record=False, score=ScoreSpec(...)), run fewer lanes or run shorter")
         end = ticks_at(t_s)
         while self.tick < end:
             for _, action, args in self._events.pop_due(self.tick):

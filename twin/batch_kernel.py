@@ -65,6 +65,7 @@ from firmware_port.marlin.lanes import (
     WATCH_TRIP,
 )
 from firmware_port.thermistor import TEMP_FRAC_BITS
+from twin.numba_cache import cached_njit
 
 try:
     import numba
@@ -228,8 +229,8 @@ NUMBA_OPTIONS = {"_nrt": False, "error_model": "numpy"}
 
 
 def jit(fn):
-    """A kernel: compiled, cached, releasing the GIL (BatchTwin runs lanes on threads)."""
-    return numba.njit(cache=True, nogil=True, **NUMBA_OPTIONS)(fn) if numba is not None else fn
+    """A kernel: compiled, cached (twin/numba_cache.py), releasing the GIL (BatchTwin runs lanes on threads)."""
+    return cached_njit(fn, nogil=True, **NUMBA_OPTIONS) if numba is not None else fn
 
 
 def inline(fn):

@@ -47,12 +47,15 @@ from twin.klipper_twin import ADC_FIRST_SAMPLE_S, PRIO_ADC, PRIO_REPORT, PRIO_US
     STM32F103, HeaterSetup, Mcu, calc_adc, calc_temp
 from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import Tables, bin_tables, linear_tables
+from twin.limits import DURATION_MAX_S, check_trace_bytes, checked
 from twin.result import RunResult
 from twin.streaming import ScoreSpec, ScoreTotals
 
 INTERVALS = kk.MAX_INTERVALS
 KLIPPER_HOTTEST_C = 3000.0  # a 12-bit converter still counts 1 at 1000 C: its bisection's hot end
 DEFAULT_SEED = 0  # KlipperTwin's
+# A record row's memory: per lane the reading, duty, sensor and block (float64); per row its time and target.
+RECORD_LANE_BYTES, RECORD_ROW_BYTES = 32, 16
 
 
 def _config_without_gains(config: HeaterConfig) -> HeaterConfig:
@@ -266,18 +269,25 @@ class KlipperBatch:
 
     def set_target(self, temp_c: float) -> None:
         """SET_HEATER_TEMPERATURE on every lane (CommandError out of range, as Klipper)."""
+        checked("temp_c", temp_c)  # Klipper's range check lets NaN through: full power
         self.heaters[0].set_target(temp_c)
         self.cfg[kk.C_TARGET] = temp_c
 
     def schedule(self, at_s: float, action: Callable[[KlipperBatch], None]) -> None:
         """Run ``action(batch)`` at at_s, before the heater events due then; each plant first runs to the
         tick nearest at_s (as KlipperTwin's scenario events do)."""
+        checked("at_s", at_s, 0.0, DURATION_MAX_S, "s")
         if at_s < self.time_s:
             raise ValueError(f"cannot schedule at {at_s} s: the batch is at {self.time_s} s")
         self._events.push(at_s, action, self)
 
     def run_until(self, t_s: float) -> None:
-        """Advance to t_s seconds, running every event due up to and including it."""
+        """Advance to t_s seconds, running every event due up to and including it (at most DURATION_MAX_S;
+        ValueError if the records would outgrow memory)."""
+        checked("t_s", t_s, 0.0, DURATION_MAX_S, "s")
+        if self.record:
+            check_trace_bytes(t_s, t_s / REPORT_TIME * (RECORD_LANE_BYTES * self.n_lanes + RECORD_ROW_BYTES),
+                              "keep no trace (record=False, score=ScoreSpec(...)), run fewer lanes or run shorter")
         if t_s < self.time_s:
             raise ValueError(f"cannot run back to {t_s} s from {self.time_s} s")
         while (due := self._events.next_at()) is not None and due <= t_s:

@@ -30,6 +30,7 @@ latency, and the toolhead (``print_time`` in the Stats line is the twin's time).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -52,6 +53,7 @@ from firmware_port.klipper.heater import REPORT_TIME, SAMPLE_COUNT, SAMPLE_TIME
 from firmware_port.thermistor import KLIPPER_SENSORS, SteinhartHart
 from twin.clock import TICK_S, EventQueue, tick_near
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
+from twin.limits import DURATION_MAX_S, NOISE_MAX_LSB, PHYSICAL_RANGE_C, check_trace_bytes, checked, checked_seed
 from twin.linear import BLOCK, SENSOR
 from twin.plants import make_plant
 from twin.result import KLIPPER_NAMES, RunResult
@@ -70,6 +72,9 @@ KLIPPER_HEATERS = {klipper: ours for ours, klipper in KLIPPER_NAMES.items()}  # 
 PWM_CYCLE_TIME_S = 0.100  # pwm_cycle_time default; must be <= pwm_delay
 # klippy/extras/statistics.py
 STATS_INTERVAL_S = 1.0
+# What a heater's records (reports, Stats lines, replies) hold per virtual second: about 1.5 kB
+# (tracemalloc over 600 s of a heat-up); the bound that refuses a run whose records would not fit.
+RECORD_BYTES_PER_S = 1600
 # klippy/extras/heaters.py _wait_for_temperature: M109-style waits report once a second
 WAIT_REPORT_S = 1.0
 PID_CALIBRATE_TIMEOUT_S = 7200.0  # the twin's guard; Klipper waits until cancelled
@@ -129,12 +134,14 @@ class HeaterSetup:
     noise_lsb: float = 0.0  # Gaussian noise of each ADC conversion, in LSB of the MCU's converter
 
     def __post_init__(self):
+        for option in dataclasses.fields(self.config):  # Klipper's config reads floats as they come, NaN too
+            if isinstance(value := getattr(self.config, option.name), (int, float)):
+                checked(f"[{self.config.name}] {option.name}", value)
         if isinstance(self.sensor, str) and self.sensor not in KLIPPER_SENSORS:
             raise ValueError(f"unknown sensor_type {self.sensor!r}; valid: {', '.join(KLIPPER_SENSORS)}")
         if not 0.0 < self.pwm_cycle_time_s <= self.config.pwm_delay_s:
             raise ValueError(f"[{self.config.name}] pwm_cycle_time must be in (0, pwm_delay]")
-        if not self.noise_lsb >= 0:
-            raise ValueError(f"[{self.config.name}] noise_lsb must be >= 0, got {self.noise_lsb!r}")
+        checked(f"[{self.config.name}] noise_lsb", self.noise_lsb, 0.0, NOISE_MAX_LSB, "LSB")
 
     @property
     def part(self) -> SteinhartHart:
@@ -309,6 +316,7 @@ class KlipperTwin:
     """A Klipper printer's heaters on one clock: host control, MCU ADC and soft PWM, plants."""
 
     def __init__(self, heaters: Sequence[HeaterSetup], mcu: Mcu = STM32F103, seed: int = 0):
+        checked_seed("seed", seed)
         if SAMPLE_COUNT * mcu.adc_max >= ADC_SUM_LIMIT:
             raise ValueError(f"ADC sample_count={SAMPLE_COUNT} too large for MCU")
         self.mcu = mcu
@@ -340,12 +348,14 @@ class KlipperTwin:
 
     def schedule(self, at_s: float, action: Callable[[KlipperTwin], None]) -> None:
         """Run ``action(twin)`` at time at_s (before the sensor reports due then)."""
+        checked("at_s", at_s, 0.0, DURATION_MAX_S, "s")
         if at_s < self.time_s:
             raise ValueError(f"cannot schedule at {at_s} s: the twin is at {self.time_s} s")
         self._push(at_s, PRIO_USER, action, self)
 
     def set_target(self, name: str, temp_c: float, at_s: float | None = None) -> None:
         """SET_HEATER_TEMPERATURE HEATER=<name> TARGET=<temp_c>, now or at at_s."""
+        checked("temp_c", temp_c)  # Klipper's range check lets NaN through: full power
         heater = self.heater(name)
         if at_s is None:
             heater.set_target(temp_c)
@@ -380,6 +390,9 @@ class KlipperTwin:
     def set_plant_inputs(self, name: str, fan: float, flow_mm_s: float, ambient_c: float,
                          at_s: float | None = None) -> None:
         """The plant's part fan (0..1), filament flow (mm/s) and ambient (degC), now or at at_s."""
+        checked("fan", fan, 0.0, 1.0)
+        checked("flow_mm_s", flow_mm_s)
+        checked("ambient_c", ambient_c, *PHYSICAL_RANGE_C, "C", above=True)
         channel = self._channel(name)
 
         def apply(twin):
@@ -392,7 +405,10 @@ class KlipperTwin:
             self.schedule(at_s, apply)
 
     def run_until(self, t_s: float) -> None:
-        """Advance the clock to t_s seconds, running every event due up to and including it."""
+        """Advance the clock to t_s seconds, running every event due up to and including it (at most
+        DURATION_MAX_S; ValueError if the records would outgrow memory)."""
+        checked("t_s", t_s, 0.0, DURATION_MAX_S, "s")
+        check_trace_bytes(t_s, t_s * RECORD_BYTES_PER_S * len(self.channels), "the Klipper twin keeps every report: run shorter")
         if t_s < self.time_s:
             raise ValueError(f"cannot run back to {t_s} s from {self.time_s} s")
         with self._klippy_logging():
@@ -417,6 +433,8 @@ class KlipperTwin:
 
         Waits as Klipper does (a check and an M105-style reply every second). Raises CommandError
         ("pid_calibrate interrupted") on a shutdown or after timeout_s."""
+        checked("target_c", target_c)
+        checked("timeout_s", timeout_s, 0.0, DURATION_MAX_S, "s")
         heater = self.heater(name)
         started_s = self.time_s
         with self._klippy_logging():

@@ -175,7 +175,7 @@ def test_a_noisy_conversions_analog_value_is_calc_adcs(sensor):
 
 def test_bad_noise_and_seeds_are_refused():
     setups = gains_setups(extruder_setup(make_plant("hotend_cartridge")), GAINS)
-    with pytest.raises(ValueError, match="noise_lsb must be finite and >= 0"):
+    with pytest.raises(ValueError, match=r"\[extruder\] noise_lsb=inf: must be a finite number"):
         KlipperBatch([dataclasses.replace(setups[0], noise_lsb=np.inf), *setups[1:]])
     with pytest.raises(ValueError, match=r"seed: one value, or one per lane \(3\), not 2"):
         KlipperBatch(setups, seed=[1, 2])

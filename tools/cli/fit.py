@@ -41,6 +41,7 @@ from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog
 from tools.tuning.evaluate import Candidate
 from tools.tuning.problems import build_problem, fitted_source, suggest
+from twin.limits import AMBIENT_RANGE_C
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 EXIT_DEGENERATE = 3
@@ -70,7 +71,6 @@ EXAMPLES = """examples:
   twin-fit pid_results.txt --segment 3                  a PID_CALIBRATE result: Tu and swing, gain held
   twin-fit heattest.csv --model three_node --loss auto  with a radiation-like loss too, if AIC prefers it
 """
-AMBIENT_RANGE_C = (-40.0, 100.0)  # a room, a heated enclosure: a wider value is a typo
 POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
 TARGET_RANGE_C = (1.0, 500.0)  # a relay target: above freezing, below any hotend's limit
 

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.cli.args import finite_float, plot_path
+from tools.cli.args import check_output, finite_float, plot_path
+from twin.limits import NOISE_MAX_LSB, SEED_MAX
 from tools.entry import OneLineParser, run_main
 from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
@@ -37,6 +38,8 @@ from twin.metrics import step_metrics
 from twin.plants import SPECS
 
 BOTH = "both"  # --loop both: tune and prove on Marlin's loop, then on Klipper's
+BUDGET_MAX = 1_000_000  # optimiser evaluations: a thousand times the default, days of CPU
+PROOF_MAX = 10_000  # noise seeds in the proof
 MODELS = ("two_node", "three_node", "fopdt", "sopdt")
 EPILOG = """examples:
   twin-tune --plant hotend_cartridge --target 210            # rules, then DE, against M303 C8
@@ -265,23 +268,35 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def check_args(args: argparse.Namespace) -> None:
     if args.objective not in OBJECTIVES:
         raise ValueError(f"--objective {args.objective!r}: choose one of: {', '.join(OBJECTIVES)}")
-    if args.budget < 1:
-        raise ValueError(f"--budget {args.budget}: must be at least 1")
-    if args.noise is not None and args.noise < 0:
-        raise ValueError(f"--noise {args.noise:g}: must be >= 0 LSB")
+    if not 1 <= args.budget <= BUDGET_MAX:
+        raise ValueError(f"--budget {args.budget}: must be within 1 .. {BUDGET_MAX}")
+    if args.noise is not None and not 0 <= args.noise <= NOISE_MAX_LSB:
+        raise ValueError(f"--noise {args.noise:g}: must be within 0 .. {NOISE_MAX_LSB:g} LSB")
     if not 0 <= args.spread < 1:
         raise ValueError(f"--spread {args.spread:g}: must be within 0 .. 1 (a fraction)")
-    if args.proof < 0:
-        raise ValueError(f"--proof {args.proof}: must be >= 0 seeds")
+    if not 0 <= args.proof <= PROOF_MAX:
+        raise ValueError(f"--proof {args.proof}: must be within 0 .. {PROOF_MAX} seeds")
+    if not 0 <= args.seed <= SEED_MAX:
+        raise ValueError(f"--seed {args.seed}: must be a whole number >= 0 (below 2**63)")
     if args.method not in methods():
         raise ValueError(f"--method {args.method!r}: choose one of: {', '.join(methods())}")
     if args.model is not None and args.model not in MODELS:
         raise ValueError(f"--model {args.model!r}: choose one of: {', '.join(MODELS)}")
-    if args.plot not in (None, "none"):
-        try:
-            plot_path(args.plot)
-        except argparse.ArgumentTypeError as exc:
-            raise ValueError(f"--plot {args.plot}: {exc}") from None
+    path = plot_file(args)
+    try:
+        if path is not None and args.plot is None and not path.parent.exists():
+            check_output(path.parent)  # the default folder, made at the end: it can be
+        elif path is not None:
+            plot_path(str(path))
+    except (argparse.ArgumentTypeError, ValueError) as exc:
+        raise ValueError(f"--plot {path}: {exc}") from None
+
+
+def plot_file(args: argparse.Namespace) -> Path | None:
+    """Where the plot goes (a comparison adds each problem's name to it), or None for --plot none."""
+    if args.plot == "none":
+        return None
+    return Path(args.plot or f"twin-out/twin-tune-{args.plant or Path(args.from_log).stem}.png")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -311,10 +326,9 @@ def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client
         print(f"twin-tune: {note}", file=sys.stderr)
     proof = proven(result, args.proof) if args.proof and problem.loop != "ideal" else None
     status = report(result, proof, args.proof, is_bed)
-    if args.plot != "none":
+    if (path := plot_file(args)) is not None:
         several = args.loop == BOTH or "," in args.controller
         suffix = f"-{problem.controller.name}-{problem.loop}" if several else ""
-        path = Path(args.plot or f"twin-out/twin-tune-{args.plant or Path(args.from_log).stem}.png")
         path = path.with_name(f"{path.stem}{suffix}{path.suffix}")
         write_plot(path, result, f"{problem.name}: {problem.controller.name}, {args.objective} on the "
                                  f"{problem.loop} loop")

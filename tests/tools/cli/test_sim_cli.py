@@ -8,7 +8,10 @@ from tools.cli.sim import main
 
 
 def run(capsys, *argv):
-    code = main(list(argv))
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:  # a flag argparse refuses
+        code = exc.code
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -118,9 +121,9 @@ def test_scenario_pid_timeline_changes_gains_like_m301(capsys, tmp_path):
     (["--gains", "1,2"], "--gains '1,2': expected three numbers KP,KI,KD"),
     (["--gains", "2000,1,1"], "gains.hotend.kp: must be in 0..1000"),
     (["--gains", "1,2,3", "--firmware", "bangbang"], "firmware 'bangbang' has no PID on that heater"),
-    (["--duration", "1e300"], "duration_s: must be at most 4.29497e+06 s"),
+    (["--duration", "1e300"], "argument --duration: 1e+300 s is outside 0.001024..4.29497e+06 s"),
     (["--set", "power_w=1e308"], "plant parameter power_w=1e+308: beyond"),
-    (["--noise", "nan"], "--noise nan: must be a number of LSB"),
+    (["--noise", "nan"], "argument --noise: expected a finite number, not 'nan'"),
     (["--plot", "x.svg"], "the plot is written as PNG"),
 ])
 def test_impossible_values_get_one_line_naming_the_field(capsys, tmp_path, argv, message):
@@ -160,7 +163,7 @@ def test_record_every_bounds_the_trace_and_keeps_the_run(capsys, tmp_path):
 
 def test_record_every_is_checked(capsys, tmp_path):
     code, _, err = run(capsys, "--record-every", "nan", "--out", str(tmp_path))
-    assert code == 2 and "--record-every nan" in err
+    assert code == 2 and "argument --record-every: expected a finite number, not 'nan'" in err
 
 
 def test_output_names_say_the_plant_and_gains_so_runs_do_not_overwrite_each_other(capsys, tmp_path):
@@ -218,3 +221,15 @@ def test_progress_goes_to_a_terminal_only(tmp_path):
         os.close(master)
         assert proc.wait(timeout=300) == 0
     assert b"60/60 s virtual" in shown
+
+
+@pytest.mark.parametrize(("engine", "said"), [("reference", "the tick-by-tick reference engine"),
+                                              ("avr", "the controllers' C compiled for the ATmega328P")])
+def test_a_non_default_engine_is_said_and_in_the_file_names(capsys, tmp_path, engine, said, request):
+    """--engine avr ran on simavr without saying so, and wrote over the fast engine's files."""
+    if engine == "avr":
+        request.getfixturevalue("avr_toolchain")
+    code, out, err = run(capsys, "--engine", engine, "--duration", "2", "--no-bed", "--out", str(tmp_path))
+    assert code == 0, err
+    assert out.startswith(f"twin-sim: heat_hold, firmware pid, 2 s virtual, seed 0, engine {engine} ({said}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"heat_hold_pid_{engine}_nobed.{kind}" for kind in ("csv", "png")]

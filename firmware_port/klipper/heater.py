@@ -13,7 +13,7 @@ module does: it also feeds the main-thread watchdog, without which every PWM is 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import ClassVar, NamedTuple, Protocol
 
 # adc_temperature.py: the MCU sums SAMPLE_COUNT conversions SAMPLE_TIME apart every REPORT_TIME;
 # the host calls temperature_callback with read_time = sample clock + SAMPLE_COUNT * SAMPLE_TIME.
@@ -34,6 +34,7 @@ PID_SETTLE_SLOPE = 0.1  # ControlPID.check_busy: |filtered derivative| in degC/s
 # ("Missed scheduling of next digital out event" if no PWM comes in time); an unchanged value is
 # sent again once read_time reaches next_pwm_time.
 PWM_RESEND_2025_08 = "2025-08"  # 2ddfa32dd: next = pwm_time + MAX_HEAT_TIME - (3*pwm_delay + 0.001)
+LOST_REPORTS_2025_08 = 3.0  # that rule's 3: reports that may be lost before the MCU's max_duration fires
 PWM_RESEND_2025_04 = "2025-04"  # 0f94f6c8e: MAX_HEAT_TIME 5 -> 3, next = pwm_time + 0.75*MAX_HEAT_TIME
 PWM_RESEND_BEFORE_2025_04 = "before 2025-04"  # MAX_HEAT_TIME 5, next = pwm_time + 0.75*MAX_HEAT_TIME
 MAX_HEAT_TIME = {PWM_RESEND_2025_08: 3.0, PWM_RESEND_2025_04: 3.0, PWM_RESEND_BEFORE_2025_04: 5.0}
@@ -62,6 +63,7 @@ class PwmEvent(NamedTuple):
 class HeaterConfig:
     """One [extruder] / [heater_bed] / [heater_generic ...] section, with Klipper's defaults."""
 
+    CONTROLS: ClassVar[tuple[str, ...]] = (CONTROL_WATERMARK, CONTROL_PID)  # the control options this firmware knows
     name: str  # section name; its last word is the short name ("extruder", "heater_bed")
     min_temp_c: float
     max_temp_c: float
@@ -83,8 +85,8 @@ class HeaterConfig:
             raise ValueError(f"[{self.name}] max_power must be in (0, 1]")
         if self.smooth_time_s <= 0.0 or self.max_delta_c <= 0.0 or self.pwm_delay_s <= 0.0:
             raise ValueError(f"[{self.name}] smooth_time, max_delta and pwm_delay must be above 0")
-        if self.control not in CONTROLS:
-            raise ValueError(f"[{self.name}] control must be one of {', '.join(CONTROLS)}")
+        if self.control not in self.CONTROLS:
+            raise ValueError(f"[{self.name}] control must be one of {', '.join(self.CONTROLS)}")
         if self.control == CONTROL_PID and None in (self.pid_kp, self.pid_ki, self.pid_kd):
             raise ValueError(f"[{self.name}] control: pid needs pid_kp, pid_ki and pid_kd")
         if self.pwm_resend not in MAX_HEAT_TIME:
@@ -124,13 +126,18 @@ class KlipperHeater:
             self.min_pwm_change = self.max_power * MIN_PWM_CHANGE_RATIO
         else:
             self.min_pwm_change = MIN_PWM_CHANGE_BEFORE_2026_03_VALUE
+        self.lost_reports = LOST_REPORTS_2025_08
         self.verify_mainthread_time = -999.0
         self.is_shutdown = False
         self.last_temp = self.smoothed_temp = self.target_temp = 0.0
         self.last_temp_time = 0.0
         self.next_pwm_time = 0.0
         self.last_pwm_value = 0.0  # the last value sent to the MCU
-        self.control: Control = CONTROLS[config.control](self, config)  # type: ignore[assignment]
+        self.control: Control = self.new_control(config)
+
+    def new_control(self, config: HeaterConfig) -> Control:
+        """The control object ``config.control`` names, for this heater."""
+        return CONTROLS[config.control](self, config)  # type: ignore[return-value]
 
     def set_pwm(self, read_time: float, value: float) -> PwmEvent | None:
         """Send ``value`` for ``read_time + pwm_delay`` unless the change is too small to send."""
@@ -141,7 +148,7 @@ class KlipperHeater:
             return None  # no significant change: suppressed
         pwm_time = read_time + self.pwm_delay
         if self.config.pwm_resend == PWM_RESEND_2025_08:
-            self.next_pwm_time = pwm_time + self.max_heat_time - (3.0 * self.pwm_delay + 0.001)
+            self.next_pwm_time = pwm_time + self.max_heat_time - (self.lost_reports * self.pwm_delay + 0.001)
         else:
             self.next_pwm_time = pwm_time + 0.75 * self.max_heat_time
         self.last_pwm_value = value

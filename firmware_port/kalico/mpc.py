@@ -454,14 +454,14 @@ class MpcCalibrate:
             return target_c, power_w, fan_powers
         for idx in range(self.fan_breakpoints):
             speed = idx / (self.fan_breakpoints - 1)
-            self.printer.set_part_fan(self.heater.name, speed)
+            self.printer.set_part_fan(self.heater.short_name, speed)
             self.printer.respond_info("Waiting for temperature to stabilize")
             self.wait_stable(FAN_CYCLES)
             self.printer.respond_info(f"Temperature stable, measuring power usage with {speed * 100.0:.0f}% fan speed")
             power_w = self.measure_power()
             self.printer.respond_info(f"{speed * 100.0:.0f}% fan average power: {power_w:.2f} W")
             fan_powers.append((speed, power_w))
-        self.printer.set_part_fan(self.heater.name, 0.0)
+        self.printer.set_part_fan(self.heater.short_name, 0.0)
         return target_c, fan_powers[0][1], fan_powers
 
     def wait_stable(self, cycles: int) -> None:

@@ -10,7 +10,8 @@ from firmware_port.kalico.heater import (
     KalicoHeater,
     KalicoHeaterConfig,
 )
-from firmware_port.kalico.mpc import ControlMPC, MpcCalibrate, MpcCalibration, MpcConfig, TuningControl
+from firmware_port.kalico.mpc import ControlMPC, MpcConfig
+from firmware_port.kalico.mpc_calibrate import MpcCalibrate, MpcCalibration, TuningControl
 from firmware_port.kalico.pid_calibrate import ControlAutoTune, PidCalibration, pid_calibrate
 from firmware_port.kalico.printer import Printer, wait_for_temperature
 from firmware_port.kalico.save_config import mpc_options, pid_options, section

@@ -7,12 +7,14 @@ the same order, on the same interpreter.
   a second): ControlPID, pid_v, MPC (with an extruder feeding and retracting and the part fan's transfer
   table), and the Heater's PWM rules on the watermark (absolute 0.05 threshold, lost_update_tolerance):
   12,000 readings each.
-- Whole PID_CALIBRATE and MPC_CALIBRATE runs (default and USE_DELTA=1, one with the part fan's three
-  breakpoints) on the hotend, hotend_cartridge and bed presets: Kalico's heater put in the twin where
-  the port's was, its commands run on the twin's clock; every report, PWM send, console line and saved
-  option compared. About 30 runs of a few hundred to a few thousand virtual seconds.
+- Whole runs on the twin, Kalico's heater put where the port's was and its commands run on the twin's
+  clock; every report, PWM send, console line and saved option compared: PID_CALIBRATE on the hotend,
+  hotend_stock and bed presets (and its failures: started too hot, verify_heater tripping on
+  hotend_cartridge, a heater disconnected mid-test), MPC_CALIBRATE on hotend, hotend_cartridge and bed
+  (default, USE_DELTA=1, TARGET/THRESHOLD, a warm start, the part fan's three breakpoints), and the
+  calibrated MPC holding through a fan kick.
 
-Cost: 48,000 law readings and about 35,000 twin reports on each side; a few seconds on one core.
+Cost: 48,000 law readings and 17 whole runs, about 26,000 twin reports, on each side.
 """
 
 from __future__ import annotations

@@ -26,7 +26,6 @@ from firmware_port.klipper.heater import (
     CONTROL_WATERMARK,
     CONTROLS as KLIPPER_CONTROLS,
     MIN_PWM_CHANGE_BEFORE_2026_03,
-    PID_PARAM_BASE,
     PID_SETTLE_DELTA,
     PID_SETTLE_SLOPE,
     PWM_RESEND_2025_08,
@@ -35,6 +34,7 @@ from firmware_port.klipper.heater import (
     HeaterConfig,
     KlipperHeater,
     PwmEvent,
+    duty_gains,
 )
 from firmware_port.kalico.mpc import ControlMPC, MpcConfig
 
@@ -115,10 +115,7 @@ class ControlVelocityPID:
     def __init__(self, heater: KlipperHeater, config: HeaterConfig):
         self.heater = heater
         self.heater_max_power = heater.max_power
-        assert config.pid_kp is not None and config.pid_ki is not None and config.pid_kd is not None  # config checks
-        self.kp = config.pid_kp / PID_PARAM_BASE
-        self.ki = config.pid_ki / PID_PARAM_BASE
-        self.kd = config.pid_kd / PID_PARAM_BASE
+        self.kp, self.ki, self.kd = duty_gains(config)
         self.smooth_time = heater.smooth_time
         self.temps = [AMBIENT_TEMP] * 3  # the last three readings, oldest first
         self.times = [0.0] * 3

@@ -233,6 +233,12 @@ class ControlBangBang:
         return smoothed_temp < target_temp - self.max_delta
 
 
+def duty_gains(config: HeaterConfig) -> tuple[float, float, float]:
+    """(Kp, Ki, Kd) in duty fraction per degC (per degC*s, per degC/s): the config gains / PID_PARAM_BASE."""
+    assert config.pid_kp is not None and config.pid_ki is not None and config.pid_kd is not None  # HeaterConfig checks
+    return config.pid_kp / PID_PARAM_BASE, config.pid_ki / PID_PARAM_BASE, config.pid_kd / PID_PARAM_BASE
+
+
 class ControlPID:
     """control: pid. Derivative on the measurement through a smooth_time filter, conditional
     integration (the integral is kept only when the output is not clipped), integral clamp."""
@@ -240,11 +246,7 @@ class ControlPID:
     def __init__(self, heater: KlipperHeater, config: HeaterConfig):
         self.heater = heater
         self.heater_max_power = heater.max_power
-        # duty fraction per degC (per degC*s, per degC/s): the config gains / PID_PARAM_BASE
-        assert config.pid_kp is not None and config.pid_ki is not None and config.pid_kd is not None  # HeaterConfig checks
-        self.kp = config.pid_kp / PID_PARAM_BASE
-        self.ki = config.pid_ki / PID_PARAM_BASE
-        self.kd = config.pid_kd / PID_PARAM_BASE
+        self.kp, self.ki, self.kd = duty_gains(config)
         self.min_deriv_time = heater.smooth_time
         self.temp_integ_max = self.heater_max_power / self.ki if self.ki else 0.0
         self.prev_temp = AMBIENT_TEMP

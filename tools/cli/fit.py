@@ -281,7 +281,7 @@ def _relay_line(ku: float, tu_s: float, fitted: Fopdt) -> str:
 
 def _options(args: argparse.Namespace, on_evaluation) -> LogFitOptions:
     return LogFitOptions(args.model, args.heater, args.session, args.segment, args.ambient, args.power_w, args.loss,
-                         args.fit_cycles, args.target, on_evaluation)
+                         args.fit_cycles, args.target, on_evaluation=on_evaluation)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.ident.fit import LUMPED_MODELS, fit_losses, fit_model
+from tools.ident.fit import FITTED, LUMPED_MODELS, RADIATING_PARAM, fit_losses, fit_model
 from tools.ident.plausible import heater_kind, plausible
 from tools.ident.relay_loop import MARLIN_SWITCH_DELAY_S, KLIPPER_SWITCH_DELAY_S
 from tools.ident.relay_points import (
@@ -70,6 +70,8 @@ class LogFitOptions:
     loss: str = "linear"
     fit_cycles: int | None = None  # an M303 capture: fit its first cycles only
     target_c: float | None = None  # relay data: the relay's target, where the capture does not state it
+    fixed: tuple[tuple[str, float], ...] = ()  # parameters held at these values (a profile of the fit)
+    start: tuple[tuple[str, float], ...] = ()  # start values of fitted parameters (a refit from a fit's values)
     on_evaluation: Callable[[], None] | None = None  # called at each residual evaluation (a progress bar)
 
 
@@ -150,11 +152,12 @@ def _trace_fit(log: Log, options: LogFitOptions) -> LogFit:
     series = (model, seg.t_s, seg.temp_c, seg.duty, ambient_c)
     compared = []
     if options.loss == "auto":
-        choice = fit_losses(*series, power_w=power_w, observed=seg.observed)
+        choice = fit_losses(*series, power_w=power_w, observed=seg.observed, fixed=dict(options.fixed))
         result = choice.fits[choice.kept]
         compared = [f"{name} RMSE {fit.rmse_c:.2f} C, AIC {aic(fit):.0f}" for name, fit in choice.fits.items()]
     else:
         result = fit_model(*series, power_w=power_w, observed=seg.observed, loss=options.loss,
+                           fixed=dict(options.fixed), start=_start(options, model, options.loss),
                            on_evaluation=options.on_evaluation)
     notes = [n for n in (ambient_note, power_note) if n]
     return LogFit(heater, segments, chosen, _finish(result, heater, assumed, None), notes=notes,
@@ -221,7 +224,8 @@ def _m303_fit(log: M303Log, options: LogFitOptions) -> LogFit:
     ambient_c, ambient_note, assumed = _ambient(log, options)
     assert ambient_c is not None
     power_w, power_note = _power(model, heater, options)
-    result = fit_points(model, points, ambient_c, power_w=power_w, segment=trace, on_evaluation=options.on_evaluation)
+    result = fit_points(model, points, ambient_c, power_w=power_w, segment=trace, fixed=dict(options.fixed),
+                        start=_start(options, model, "linear"), on_evaluation=options.on_evaluation)
     notes += [n for n in (ambient_note, power_note) if n]
     return LogFit(heater, segments, chosen if trace is not None else None,
                   _finish(result, heater, assumed, points[0].relay.target_c), points, notes, MARLIN_SWITCH_DELAY_S,
@@ -243,7 +247,8 @@ def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) 
     assert ambient_c is not None
     points = klipper_points([entry], target_c)
     gain_c = _nominal_gain_c(heater)
-    result = fit_points("fopdt", points, ambient_c, fixed={"gain_c": gain_c}, on_evaluation=options.on_evaluation)
+    result = fit_points("fopdt", points, ambient_c, fixed={"gain_c": gain_c, **dict(options.fixed)},
+                        start=_start(options, "fopdt", "linear"), on_evaluation=options.on_evaluation)
     result = dataclasses.replace(result, assumed=("gain_c",))
     notes = [f"entry {chosen}: {entry.source or 'no source'}; Tu {entry.tu_s:.4g} s, swing {entry.peak_to_peak_c:.3g} C "
              f"at a target of {target_c:g} C" + (" (assumed: a result states none; --target sets it)"
@@ -252,6 +257,13 @@ def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) 
     notes += [n for n in (ambient_note,) if n]
     return LogFit(heater, [], None, _finish(result, heater, assumed, target_c), points, notes,
                   KLIPPER_SWITCH_DELAY_S)
+
+
+def _start(options: LogFitOptions, model: str, loss: str) -> dict[str, float]:
+    """The start values options give that the model (with that loss) fits, the held ones left out."""
+    fitted = {*FITTED[model], "initial_c", "ambient_c", *((RADIATING_PARAM,) if loss == "radiating" else ())}
+    held = dict(options.fixed)
+    return {name: value for name, value in options.start if name in fitted and name not in held}
 
 
 def _nominal_gain_c(heater: str) -> float:

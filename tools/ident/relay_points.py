@@ -187,16 +187,19 @@ def fopdt_guess(points: Sequence[RelayPoint], ambient_c: float) -> Fopdt:
 
 def fit_points(model: str, points: Sequence[RelayPoint], ambient_c: float, *, power_w: float | None = None,
                segment: Segment | None = None, fixed: dict[str, float] | None = None,
+               start: dict[str, float] | None = None,
                on_evaluation: Callable[[], None] | None = None) -> FitResult:
     """Fit a model to relay points (and to a status trace, if given: each reading counted with the
-    scatter of a printed extreme); ambient_c held; power_w and ``fixed`` held for lumped models."""
+    scatter of a printed extreme); ambient_c held; power_w and ``fixed`` held for lumped models;
+    ``start`` overrides start values of fitted parameters."""
     if not points:
         raise NotFittable("no printed relay cycle with its period and swing to fit")
     held = {**HELD[model], "ambient_c": float(ambient_c), **(fixed or {})}
     if power_w is not None and model in LUMPED_MODELS:
         held["power_w"] = float(power_w)
     fitted = [name for name in FITTED[model] if name not in held]
-    start = {k: v for k, v in start_values(model, fopdt_guess(points, ambient_c), held).items() if k in fitted}
+    guess = {k: v for k, v in start_values(model, fopdt_guess(points, ambient_c), held).items() if k in fitted}
+    start = {**guess, **{k: v for k, v in (start or {}).items() if k in guess}}
     sigma_trace_c = CYCLE_SCATTER_SWING_REL * float(np.mean([p.swing_c for p in points])) / math.sqrt(2.0)
     seen = None
     if segment is not None:
@@ -216,7 +219,7 @@ def fit_points(model: str, points: Sequence[RelayPoint], ambient_c: float, *, po
                                                           (0.0, MAX_SENSOR_RESPONSIVENESS_PER_S)},
                             known_sigma=True, on_evaluation=on_evaluation)
     params, std = est.values, est.std_errors
-    if model == "sopdt" and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
+    if model == "sopdt" and {"lag1_s", "lag2_s"} <= params.keys() and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
         for d in (params, std):
             d["lag1_s"], d["lag2_s"] = d["lag2_s"], d["lag1_s"]
     if segment is None:

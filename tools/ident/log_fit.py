@@ -190,7 +190,8 @@ def _m303_points(log: M303Log, heater: str, trace: Segment | None,
     key = "B" if heater == BED else "T"
     printed = [c for c in log.cycles_of(key) if c.tu_s and c.min_c is not None and c.max_c is not None]
     repetier = log.power_max != MARLIN_POWER_MAX
-    if not (printed and not repetier) and trace is None:
+    relay = bool(printed) and not repetier
+    if not relay and trace is None:
         why = ("Repetier's relay has its own levels and rules: its cycles are not read as relay points" if repetier
                else f"{len(printed)} printed cycles with Tu, min and max")
         raise NotFittable(f"autotune output with {len(log.cycles)} relay cycles and no status trace to fit; {why}")
@@ -201,10 +202,7 @@ def _m303_points(log: M303Log, heater: str, trace: Segment | None,
     else:
         found = relay_target_c(log, key, printed[0].line_no) if printed else None
     target_c, source = found if found is not None else (None, "")
-    if not (printed and not repetier):
-        return [], target_c, source
-    assert target_c is not None  # a printed cycle has min and max
-    return marlin_points(log, heater, target_c), target_c, source
+    return marlin_points(log, heater, target_c) if relay else [], target_c, source
 
 
 def _first_cycles(points: list[RelayPoint], trace: Segment | None,

@@ -128,6 +128,15 @@ def relay_heater(log: M303Log) -> tuple[str, str]:
                     f"{BED_MAX_TARGET_C:g} C (BED_MAXTEMP - BED_OVERSHOOT)")
 
 
+def cycles_target_c(log: M303Log, key: str) -> float:
+    """The relay's target of a heater's ("T" or "B") printed cycles (relay_target_c, the run of the first);
+    NotFittable where none has min and max."""
+    cycles = log.cycles_of(key)
+    if not cycles or (found := relay_target_c(log, key, cycles[0].line_no)) is None:
+        raise NotFittable("no printed cycle with min and max to place the relay's target")
+    return found[0]
+
+
 def marlin_points(log: M303Log, heater: str, target_c: float | None = None) -> list[RelayPoint]:
     """The printed cycles of a heater's M303 run that have Tu, min and max, each with the levels of
     the bias line before it (the cycle ran at those), or its own when the capture starts with it."""
@@ -135,9 +144,7 @@ def marlin_points(log: M303Log, heater: str, target_c: float | None = None) -> l
     max_pow = MAX_BED_POWER if heater == "heater_bed" else PID_MAX
     cycles = [c for c in log.cycles_of(key) if c.bias is not None]
     if target_c is None:
-        if not cycles or (found := relay_target_c(log, key, cycles[0].line_no)) is None:
-            raise NotFittable("no printed cycle with min and max to place the relay's target")
-        target_c = found[0]
+        target_c = cycles_target_c(log, key)
     points = []
     for i, c in enumerate(cycles):
         if not (c.tu_s and c.min_c is not None and c.max_c is not None and c.max_c > c.min_c):

@@ -36,8 +36,6 @@ FIRMWARE_HINTS = (
 CONSOLE_RE = re.compile(r"^(?:bias:|Ku:|PID Autotune|MPC Autotune|#define\s+DEFAULT_|[TB]:\s*[-\d.])")
 UNKNOWN_HEATER = "?"  # a cycle of a run no line of the capture attributes (_M303Reader says which lines do)
 INCOMPLETE_STATUS = "status line without the power of each heater it shows (cut or elided)"
-
-
 HEATER_WORDS = {"T": "hotend", "B": "bed"}
 NOT_YET = -1  # a run whose first cycle is not read yet
 

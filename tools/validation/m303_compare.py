@@ -47,8 +47,8 @@ from firmware_port.marlin.constants import OVERSAMPLENR
 from tools.ident.fit import reading_noise_c
 from tools.ident.log_fit import LogFit, LogFitOptions, fit_log
 from tools.ident.relay_loop import MARLIN_MIN_HALF_S
-from tools.ident.relay_points import relay_heater
-from tools.ident.relay_trace import ambient_hint_c, relay_target_c
+from tools.ident.relay_points import cycles_target_c, relay_heater
+from tools.ident.relay_trace import ambient_hint_c
 from tools.ident.response import zoh_response
 from tools.ident.result import aic
 from tools.ident.segments import NotFittable, Segment, default_segment, log_segments
@@ -316,7 +316,7 @@ def m303_check(path: str | Path, heater: str | None = None, ambient_c: float | N
         assert plant is not None
         name, spec, description = outside_plant(plant, on_evaluation)
         heater = heater or relay_heater(log)[0]
-        target_c, ambient = _capture_target_c(log, heater), ambient_hint_c(log) if ambient_c is None else ambient_c
+        target_c, ambient = cycles_target_c(log, CYCLE_RE_KEY[heater]), ambient_hint_c(log) if ambient_c is None else ambient_c
     assert target_c is not None
     printed = [c for c in log.cycles_of(CYCLE_RE_KEY[heater]) if c.tu_s and c.min_c is not None and c.max_c is not None]
     if not printed:
@@ -333,14 +333,6 @@ def m303_check(path: str | Path, heater: str | None = None, ambient_c: float | N
     trace_rows, trace = _replay(fitted, None if fitted else (name, spec), log, heater, ambient, fit_cycles)
     return M303Comparison(path.name, heater, target_c, ambient, description, fitted, spec, noise_lsb, noise_note,
                           version, ncycles, twin, rows, trace_rows, trace, log)
-
-
-def _capture_target_c(log: M303Log, heater: str) -> float:
-    key = CYCLE_RE_KEY[heater]
-    cycles = log.cycles_of(key)
-    if not cycles or (found := relay_target_c(log, key, cycles[0].line_no)) is None:
-        raise NoRelay("no printed cycle with min and max to place the relay's target")
-    return found[0]
 
 
 # --- rows as table cells -----------------------------------------------------------------------

@@ -47,7 +47,7 @@ from firmware_port.marlin.constants import OVERSAMPLENR
 from tools.ident.fit import reading_noise_c
 from tools.ident.log_fit import LogFit, LogFitOptions, fit_log
 from tools.ident.relay_loop import MARLIN_MIN_HALF_S
-from tools.ident.relay_points import marlin_target_c, relay_heater
+from tools.ident.relay_points import cycles_target_c, relay_heater
 from tools.ident.relay_trace import ambient_hint_c
 from tools.ident.response import zoh_response
 from tools.ident.result import aic
@@ -315,8 +315,8 @@ def m303_check(path: str | Path, heater: str | None = None, ambient_c: float | N
     else:
         assert plant is not None
         name, spec, description = outside_plant(plant, on_evaluation)
-        heater = heater or relay_heater(log)
-        target_c, ambient = _capture_target_c(log, heater), ambient_hint_c(log) if ambient_c is None else ambient_c
+        heater = heater or relay_heater(log)[0]
+        target_c, ambient = cycles_target_c(log, CYCLE_RE_KEY[heater]), ambient_hint_c(log) if ambient_c is None else ambient_c
     assert target_c is not None
     printed = printed_cycles(log, heater)
     ncycles, version = twin_settings(log, heater, printed)
@@ -362,11 +362,6 @@ def replay_fit(log: M303Log, fitted: LogFit, on_progress: Callable[[float], None
                              version, noise_lsb, on_progress, start_c)
     goals = GOALS["trace" if "trace" in result.evidence else "results"]
     return CycleRow(IN, 1, len(printed), relay_stats(printed), relay_stats(twin_log.cycles), goals)
-
-
-def _capture_target_c(log: M303Log, heater: str) -> float:
-    key = CYCLE_RE_KEY[heater]
-    return marlin_target_c(log, key, log.cycles_of(key))[0]
 
 
 # --- rows as table cells -----------------------------------------------------------------------

@@ -24,6 +24,8 @@ def test_defaults_print_metrics_and_write_trace_and_plot(capsys, tmp_path):
     assert re.search(r"^target_c\s+210\.00$", out, re.M)
     rise = float(re.search(r"^rise_time_s\s+(\S+)$", out, re.M).group(1))
     assert 30 < rise < 150
+    assert len(re.findall(r"^limit_cycle_amplitude_c\s+-$", out, re.M)) == 2  # hotend and bed hold
+    assert "limit cycle" not in out
     csv = (tmp_path / "heat_hold_pid.csv").read_text()
     assert csv.startswith("t_s,hotend_target_c,hotend_measured_c,")
     assert len(csv.splitlines()) > 3600  # one row per 0.164 s reading
@@ -33,12 +35,39 @@ def test_defaults_print_metrics_and_write_trace_and_plot(capsys, tmp_path):
 
 @pytest.mark.parametrize("firmware", ["pid", "pid_float", "bangbang", "fuzzy_pi"])
 def test_each_firmware_reaches_the_target(capsys, tmp_path, firmware):
+    """Each holds the target; bang-bang (no hysteresis, full power or off) by a limit cycle, reported as one."""
     code, out, err = run(capsys, "--firmware", firmware, "--duration", "200", "--no-bed", "--no-plot",
                          "--out", str(tmp_path))
     assert code == 0, err
     assert re.search(r"^reached\s+yes$", out, re.M)
-    steady = float(re.search(r"^steady_state_error_c\s+(\S+)$", out, re.M).group(1))
-    assert abs(steady) < 3.0
+    steady = re.search(r"^steady_state_error_c\s+(\S+)$", out, re.M).group(1)
+    amplitude = re.search(r"^limit_cycle_amplitude_c\s+(\S+)$", out, re.M).group(1)
+    if firmware == "bangbang":
+        assert steady == "-" and 1.0 < float(amplitude) < 10.0
+    else:
+        assert abs(float(steady)) < 3.0 and amplitude == "-"
+
+
+def test_a_limit_cycle_is_reported_with_its_amplitude_and_period(capsys, tmp_path):
+    """The Marlin default gains on the 60 W cartridge at 240 C cycle +-10 C every ~80 s once at the target:
+    said so, and no steady-state error (it never settles), where it used to read 'steady_state_error 5.03'."""
+    code, out, err = run(capsys, "--plant", "hotend_cartridge", "--target", "240", "--duration", "300", "--no-bed",
+                         "--no-plot", "--out", str(tmp_path))
+    assert code == 0, err
+    assert re.search(r"^reached\s+yes$", out, re.M) and re.search(r"^steady_state_error_c\s+-$", out, re.M)
+    amplitude = float(re.search(r"^limit_cycle_amplitude_c\s+(\S+)$", out, re.M).group(1))
+    period = float(re.search(r"^limit_cycle_period_s\s+(\S+)$", out, re.M).group(1))
+    assert 8.0 < amplitude < 13.0 and 65.0 < period < 95.0
+    line = re.search(r"^hotend step 1: limit cycle in the hold, \+-(\S+) C every (\S+) s: it never settles", out, re.M)
+    assert line and float(line[1]) == amplitude and float(line[2]) == pytest.approx(period, abs=0.06)
+
+
+def test_a_noisy_stable_hold_is_no_limit_cycle(capsys, tmp_path):
+    """The default hotend with 3 LSB of ADC noise holds 210 C: no limit cycle, a steady-state error."""
+    code, out, err = run(capsys, "--noise", "3", "--no-bed", "--no-plot", "--out", str(tmp_path))
+    assert code == 0, err
+    assert re.search(r"^limit_cycle_amplitude_c\s+-$", out, re.M) and "limit cycle" not in out
+    assert abs(float(re.search(r"^steady_state_error_c\s+(\S+)$", out, re.M).group(1))) < 0.5
 
 
 def test_protection_trip_is_reported_and_exits_1(capsys, tmp_path):

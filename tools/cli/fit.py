@@ -1,22 +1,25 @@
-"""twin-fit: fit a thermal model to a heater log; print its parameters, what the log cannot tell, and
-ready-to-paste settings.
+"""twin-fit: fit a thermal model to a heater log; print its parameters, what the log cannot tell, every
+plant it allows, and the gains twin-tune's tuner would print.
 
 LOG is any log tools/logs/ reads: Klipper Stats CSV or klippy.log, a Klipper heattest, a plain
 t,temp,duty CSV (one segment fitted: --segment, default the first with at least half the longest
 time at full power); Marlin M303 console text, with or without its 2 s status trace (the printed
 relay cycles, each a measured point of the loop, fitted with the trace where there is one) and with or
 without its M303 command (the heater and the relay's target are then found in the data and said:
-tools/logs/m303.py, tools/ident/relay_trace.py); Klipper PID_CALIBRATE results (one entry's Tu and swing). tools/ident/log_fit.py does the fitting. The
-output gives each parameter with its standard error and whether the log identifies it, a
-plausible range with its source for those it does not, the residuals, a FOPDT equivalent, and
-Marlin (M306 for two_node, M301/M304) and Klipper settings: the PID gains twin-tune's tuner suggests
-(tools/tuning/problems.py suggest: the rules and the twin's M303 on the fitted plant's ensemble, or
-where each trips, a short DE seeded with them; never one that trips on a plant the log allows), at the
-relay's target for relay data, else the tuner's default target.
+tools/logs/m303.py, tools/ident/relay_trace.py); Klipper PID_CALIBRATE results (one entry's Tu and
+swing). tools/ident/log_fit.py does the fitting. The output gives each parameter with its standard error
+and whether the log identifies it, a plausible range with its source for those it does not, the
+residuals; then every plant the log allows (tools/tuning/allowed.py: the structures that fit about as
+well, each open parameter profiled, each plant replaying the log's own numbers) and those it does not;
+a FOPDT equivalent, Marlin's M306 for two_node; and the PID gains twin-tune's tuner would print
+(tools/tuning/problems.py quick_answer: the rules and the firmware's autotune proven on every plant the
+log allows against the printer's own gains: new gains only where one beats them, else "keep your gains"),
+at the relay's target for relay data, else the log's. ``--fit-only``: the fit alone, no gains.
 --loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
 
 Exit status: 0 fitted; 2 the log or the options cannot be used (one line on stderr); 3 the fit is
-degenerate: it identifies none of the model's lags, and no gains are printed.
+degenerate (it identifies none of the model's lags) or no plant both fits the log and replays it: the
+report is printed, but no gains.
 """
 
 from __future__ import annotations
@@ -41,8 +44,13 @@ from tools.ident.relay_trace import AMBIENT_PRIOR_C
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog
-from tools.tuning.evaluate import Candidate
-from tools.tuning.problems import build_problem, fitted_source, suggest
+from tools.cli.progress import Steps
+from tools.tuning.allowed import allowed_plants
+from tools.tuning.evaluate import Problem
+from tools.tuning.problems import allowed_source, build_problem, quick_answer
+from tools.tuning.proof import PROOF_SEEDS
+from tools.tuning.reference import PrinterGains
+from tools.tuning.tuner import Proven
 from twin.limits import AMBIENT_RANGE_C
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
@@ -51,7 +59,7 @@ EXIT_STATUS = """
 exit status:
   0  fitted, settings printed
   2  bad input: an option, or a log that cannot be read or fitted, said in one line
-  3  a degenerate fit: the report is printed, but no gains
+  3  a degenerate fit, or no plant that fits the log replays it: the report is printed, but no gains
 """
 WIDTH = 120  # output lines are wrapped to this
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
@@ -107,6 +115,8 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--power-w", type=ranged_float(*POWER_RANGE_W, "W"),
                         help="heater power in W for two_node/three_node (default: assumed "
                         f"{MPC_HEATER_POWER_W:g} W for a hotend, {BED_POWER_W:g} W for a bed)")
+    parser.add_argument("--fit-only", action="store_true",
+                        help="the fit alone: no other structures, profiles or replays, no gains (fast)")
     parser.add_argument("--loss", choices=LOSSES, default="linear",
                         help="two_node/three_node heat loss: linear (the default, Marlin's MPC model), radiating "
                              "(plus sigma area (T^4 - Ta^4), an effective area at emissivity 1 fitted within "
@@ -189,35 +199,49 @@ def _spread_lines(result: FitResult) -> list[str]:
     return lines
 
 
-def _settings_lines(result: FitResult, heater: str, sample_s: float, suggestion: Candidate | None) -> list[str]:
+def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str]:
     """The FOPDT equivalent and its ultimate point (on a dead time of at least the log's sample interval: a
-    log cannot show a shorter one); the settings to paste: the M306 line of a two-node fit, and the PID
-    gains the tuner suggests (None: none holds on every plant the log allows)."""
+    log cannot show a shorter one); the M306 line of a two-node fit."""
     fopdt = fopdt_equivalent(result)
     how = "the fit itself" if result.model == "fopdt" else "seed 001's two-point method on the model's step response"
     lines = [f"FOPDT equivalent ({how}): gain {fopdt.gain_c:.4g} C at full power, time constant "
              f"{fopdt.time_constant_s:.4g} s, dead time {fopdt.delay_s:.3g} s"]
     if fopdt.delay_s < sample_s:
         fopdt = fopdt._replace(delay_s=sample_s)
-        lines.append(f"  tuned on a dead time of {sample_s:.3g} s, the log's sample interval: it cannot show less")
+        lines.append(f"  on a dead time of {sample_s:.3g} s, the log's sample interval: it cannot show less")
     delayed = fopdt._replace(delay_s=fopdt.delay_s + CONTROL_DELAY_S)
     ku, tu_s = ultimate_point(delayed)
-    lines += [f"  with the loop's {CONTROL_DELAY_S:g} s of delay: ultimate gain Ku {ku:.4g} duty per C (x255: Marlin's "
-              f"M303 Ku), period Tu {tu_s:.4g} s: what an ideal relay test would find"]
+    lines += [f"  with the loop's {CONTROL_DELAY_S:g} s of delay: ultimate gain Ku {ku:.4g} duty per C ({ku * 255:.4g} "
+              f"in Marlin's M303 units), period Tu {tu_s:.4g} s: what an ideal relay test would find, not a tune"]
     if heater != BED:
-        lines += ["ready to paste, MPC (the fitted model is its own tune):", *_mpc_lines(result)]
-    if suggestion is None:
-        return lines + ["no tuning rule's gains, nor the twin's M303, nor a short search, hold on every plant this log "
-                        "allows (each trips on some): `twin-tune --from-log` searches further and proves what it prints"]
-    kp, ki, kd = suggestion.gains.kp, suggestion.gains.ki, suggestion.gains.kd
-    command = "M304" if heater == BED else "M301"
-    return lines + [
-        f"ready to paste, PID ({suggestion.method}: the best of the tuning rules and the twin's M303 on the fitted plant "
-        "and the corners its data allow, with ADC noise, tripping on none; scored on Marlin's loop by twin-tune's "
-        "tuner; `twin-tune --from-log` searches further and proves it):",
-        f"  Marlin:  {command} P{kp:.4g} I{ki:.4g} D{kd:.4g}",
-        "  Klipper (scored on Marlin's loop; `twin-tune --from-log LOG --loop klipper` tunes Klipper's own):",
-        f"    [{heater}]", "    control: pid", f"    pid_Kp: {kp:.4g}", f"    pid_Ki: {ki:.4g}", f"    pid_Kd: {kd:.4g}"]
+        lines += ["MPC (the fitted model's own constants; `twin-tune --from-log LOG --controller mpc` proves a tune):",
+                  *_mpc_lines(result)]
+    return lines
+
+
+def _gains_lines(problem: Problem, answer: Proven, heater: str, printer: PrinterGains | None,
+                 plants: int) -> list[str]:
+    """The PID gains twin-tune's tuner would print (tools/tuning/problems.py quick_answer: the rules and the
+    firmware's autotune, proven on every plant the log allows against the printer's gains), or why none."""
+    bed = heater == BED
+    where = f"on all {plants} plants the log allows, {PROOF_SEEDS} noise seeds each, on the {problem.loop} loop"
+    if answer.verdict.keep and printer is not None:
+        return [f"keep your gains ({printer.gains}: {printer.source}): {answer.verdict.why}",
+                "  (`twin-tune --from-log LOG` searches further)"]
+    if answer.answer is None:
+        safe = all(r.passed for r in answer.rows if r.method == answer.yours.method)
+        if not safe:
+            return [f"no gains proven: nothing tried beats {answer.yours.method}, which trips on some plant the log "
+                    "allows; `twin-tune --from-log LOG` searches further and proves what it prints"]
+        chosen = answer.yours
+        why = f"{chosen.method} on the twin: nothing tried beats it {where}"
+    else:
+        chosen = answer.answer
+        why = f"{chosen.method}, proven over {PROOF_SEEDS} noise seeds on the {problem.loop} loop: {answer.verdict.why}"
+    gains = chosen.gains
+    if problem.loop == "klipper":
+        return [f"ready to paste ({why}):", "  Klipper:", *("    " + line for line in gains.klipper_section(heater).splitlines())]
+    return [f"ready to paste ({why}):", f"  Marlin:  {gains.marlin_command(bed=bed)}", "  M500"]
 
 
 def _mpc_lines(result: FitResult) -> list[str]:
@@ -292,17 +316,33 @@ def _options(args: argparse.Namespace, on_evaluation) -> LogFitOptions:
 
 def run(args: argparse.Namespace) -> int:
     log = load_with_progress(args.log)
-    with progress_bar("fitting", MAX_EVALUATIONS, "evaluations") as bar:
-        fitted = fit_log(log, _options(args, bar.update))
+    name = Path(args.log).name
+    if args.fit_only:
+        with progress_bar("fitting", MAX_EVALUATIONS, "evaluations") as bar:
+            fitted = fit_log(log, _options(args, bar.update))
+        allowed = None
+    else:
+        allowed = allowed_plants(log, name, _options(args, None), Steps("bar"))
+        fitted = allowed.best
     print(f"twin-fit: {args.log}")
-    print("\n".join(_log_lines(log, fitted) + _point_lines(fitted.points) + _fit_report(fitted, log)))
+    lines = _log_lines(log, fitted) + _point_lines(fitted.points) + _fit_report(fitted, log)
+    print("\n".join(lines + ([] if allowed is None else allowed.lines())))
     if reason := fitted.degenerate:
         print(f"twin-fit: {args.log}: degenerate fit, no gains: {reason}", file=sys.stderr)
         return EXIT_DEGENERATE
-    suggestion = suggest(build_problem(fitted_source(fitted, Path(args.log).name), fitted.target_c))
-    settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s, suggestion) + _log_notes(log, fitted)
+    settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s) + _log_notes(log, fitted)
+    if allowed is None:
+        settings.append("gains: not with --fit-only (twin-fit without it proves the rules' on every plant the log "
+                        "allows; twin-tune --from-log searches further)")
+    elif not allowed.members:
+        settings.append(f"no gains: {allowed.why_none()}")
+    else:
+        source = allowed_source(log, allowed, _options(args, None))
+        problem = build_problem(source, args.target)
+        settings += _gains_lines(problem, quick_answer(problem, source.printer), fitted.heater, source.printer,
+                                 len(allowed.members))
     print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
-    return 0
+    return 0 if allowed is None or allowed.members else EXIT_DEGENERATE
 
 
 def _describe(log: str) -> Callable[[BaseException], str]:

@@ -123,7 +123,7 @@ def build_parser() -> OneLineParser:
                              "drive the printer)")
     parser.add_argument("--takeover-after", type=ranged_float(1.0, 86400.0, "s"), default=TAKEOVER_AFTER_S,
                         metavar="S", help="--tcp without a secret: a new client takes the printer over only once the "
-                                          "current one has left it waiting S wall seconds (default %(default)g)")
+                                          "current one has left it waiting S wall seconds (default %(default)s)")
     parser.add_argument("--settings", metavar="FILE", help="EEPROM file that M500 writes and M501 reads; "
                         "an existing file must be one M500 wrote (default: in memory, lost on exit)")
     parser.add_argument("--keep-corrupt-settings", action="store_true",

@@ -70,7 +70,7 @@ def source(args: argparse.Namespace, steps: Steps) -> Source:
     if not args.from_log:
         return preset_source(args.plant, args.spread)
     options = LogFitOptions(model=args.model, heater=args.heater, segment=args.segment, target_c=args.target)
-    return log_source(args.from_log, options, on_step=steps)
+    return log_source(args.from_log, options, on_step=steps, ensemble=args.spread > 0)
 
 
 def make_problem(args: argparse.Namespace, plant: Source, loop: str, controller_name: str) -> tuple[Problem, bool]:
@@ -110,9 +110,11 @@ def metrics_line(candidate: Candidate) -> str:
     def show(value: float | None, unit: str) -> str:
         return "-" if value is None else f"{value:.1f}{unit}"
 
+    cycle = "" if m.limit_cycle_amplitude_c is None else \
+        f", LIMIT CYCLE +-{m.limit_cycle_amplitude_c:.2f} C every {m.limit_cycle_period_s:.1f} s"
     return (f"rise {show(m.rise_time_s, ' s')}, overshoot {show(m.overshoot_c, ' C')}, settling(2%) "
             f"{show(m.settling_time_2pct_s, ' s')}, IAE {m.iae_c_s:.0f} C s, ITAE {m.itae_c_s2:.3g} C s^2, "
-            f"hold |e| {terms.hold_error_c[0]:.2f} C" + (", PROTECTION TRIP" if terms.tripped[0] else ""))
+            f"hold |e| {terms.hold_error_c[0]:.2f} C" + cycle + (", PROTECTION TRIP" if terms.tripped[0] else ""))
 
 
 def describe(problem: Problem, candidate: Candidate) -> str:
@@ -146,7 +148,12 @@ def report_proof(problem: Problem, proof: Proven, seeds: int) -> None:
         return problem.controller.describe(row.params) if not problem.controller.pid else \
             f"Kp {row.params[0]:.4g} Ki {row.params[1]:.4g} Kd {row.params[2]:.4g}"
 
-    print("\n".join("  " + line for line in proof_table(proof.rows, named)))
+    shown = {proof.verdict.shown, proof.yours.method}
+    print("\n".join("  " + line for line in proof_table([r for r in proof.rows if r.method in shown], named)))
+    for method, missed in proof.verdict.misses.items():
+        if method not in shown:
+            member, why = next(iter(missed.items()))
+            print(f"  also proven: {method}: misses on {member}: {'; '.join(why)}")
 
 
 def reference_name(result: TuneResult) -> str:
@@ -278,7 +285,8 @@ def build_parser() -> OneLineParser:
                              f"reading noise where its trace shows it, else {DEFAULT_NOISE_LSB:g})")
     parser.add_argument("--spread", type=finite_float, default=DEFAULT_SPREAD, metavar="FRACTION",
                         help=f"a preset's lag and loss terms spread +-FRACTION: the ensemble's corner plants "
-                             f"(default: {DEFAULT_SPREAD:g}; 0: the nominal plant only)")
+                             f"(default: {DEFAULT_SPREAD:g}; 0: the nominal plant only, and for a log its fit alone, "
+                             "not every plant it allows)")
     parser.add_argument("--statistic", default=DEFAULT_STATISTIC, choices=STATISTICS,
                         help=f"how the members' costs reduce to one (default: {DEFAULT_STATISTIC})")
     parser.add_argument("--proof", type=int, default=PROOF_SEEDS, metavar="SEEDS",
@@ -286,7 +294,7 @@ def build_parser() -> OneLineParser:
                              f"(default: {PROOF_SEEDS}; 0: skip, and nothing is called proven)")
     parser.add_argument("--cross-check", type=finite_float, default=CROSS_CHECK_S, metavar="SECONDS",
                         help=f"re-run the first SECONDS of one proof run on the reference engine and stop if its "
-                             f"readings differ from the batch's (default: {CROSS_CHECK_S:g}; 0: skip)")
+                             f"readings differ from the batch's (default: {CROSS_CHECK_S}; 0: skip)")
     parser.add_argument("--json", metavar="FILE", type=output_file,
                         help="also write the answer as JSON (verdict, why, gains, commands, plants, proof rows)")
     parser.add_argument("--progress", default="bar", choices=PROGRESS_MODES,
@@ -428,7 +436,8 @@ def write_json(path: Path, outcome: tuple[int, TuneResult, Proven | None], plant
             {"member": r.member, "candidate": "yours" if r.method == proof.yours.method else
              "answer" if answer is not None and r.method == answer.method else r.method,
              "runs": r.runs, "trips": r.trips, "overshoot_c": list(r.overshoot_c), "hold_error_c": list(r.hold_error_c),
-             "chatter": list(r.chatter)} for r in proof.rows],
+             "chatter": list(r.chatter), "limit_cycles": r.limit_cycles, "limit_cycle_c": r.limit_cycle_c}
+            for r in proof.rows],
         "plot": None if plot is None else str(plot),
     }
     path.write_text(json.dumps(document, indent=1) + "\n")

@@ -97,12 +97,21 @@ class Allowed:
 
     log_name: str
     heater: str
+    first: LogFit  # the default fit (twin-fit's), whether or not it is a member
     members: list[AllowedPlant]
     dropped: list[AllowedPlant] = field(default_factory=list)
 
     @property
     def best(self) -> LogFit:
-        return self.members[0].fitted
+        """The member of the best evidence; the default fit where no plant replays the log."""
+        return self.members[0].fitted if self.members else self.first
+
+    def why_none(self) -> str:
+        """Why no plant is a member, in one line."""
+        replays = [p for p in self.dropped if p.dropped and p.dropped.startswith("does not replay")]
+        closest = replays[0] if replays else self.dropped[0] if self.dropped else None
+        return "no fit" if closest is None else f"no plant both fits it and replays it; the best fit, " \
+            f"{closest.label}, {closest.dropped}"
 
     def lines(self) -> list[str]:
         """What twin-fit and twin-tune print: each member and each dropped fit, with its evidence and replay."""
@@ -333,7 +342,7 @@ def allowed_plants(log: Log, log_name: str, options: LogFitOptions | None = None
                                                               f"{ALIKE_REL:.0%})"))
         else:
             members.append(plant)
-    return Allowed(log_name, first.heater, members, dropped)
+    return Allowed(log_name, first.heater, first, members, dropped)
 
 
 def _alike(plant: AllowedPlant, members: list[AllowedPlant]) -> AllowedPlant | None:

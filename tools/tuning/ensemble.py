@@ -110,6 +110,7 @@ class Ensemble:
     statistic: str = DEFAULT_STATISTIC
     spread: tuple[Uncertain, ...] = ()
     seeds: int = 1  # noise seeds each member runs on in a search (the member's seed and on)
+    kind: str = "plants of the ensemble"  # what the members are, for a verdict's line
 
     def __post_init__(self) -> None:
         if not self.members:
@@ -182,7 +183,8 @@ def plant_ensemble(plants: Sequence[tuple[str, Spec, float]], noise_lsb: float =
     """An ensemble of given plants: (label, spec, ambient_c) each, the first the nominal one, each with its
     own noise seeds (tools/tuning/allowed.py gives a log's)."""
     return Ensemble(tuple(Member(label, (), noise_lsb, first_seed + k, spec, ambient_c)
-                          for k, (label, spec, ambient_c) in enumerate(plants)), statistic, seeds=seeds)
+                          for k, (label, spec, ambient_c) in enumerate(plants)), statistic, seeds=seeds,
+                    kind="plants the log allows")
 
 
 def corner_ensemble(spread: Sequence[Uncertain], noise_lsb: float = DEFAULT_NOISE_LSB,
@@ -198,4 +200,4 @@ def corner_ensemble(spread: Sequence[Uncertain], noise_lsb: float = DEFAULT_NOIS
                         for u in spread)
         label = " ".join(f"{g}{'+' if e > 0 else '-'}" for g, e in end_of.items())
         members.append(Member(label, changes, noise_lsb, first_seed + k, None if build is None else build(**dict(changes))))
-    return Ensemble(tuple(members), statistic, tuple(spread), seeds)
+    return Ensemble(tuple(members), statistic, tuple(spread), seeds, "plants of the spread")

@@ -1,30 +1,33 @@
-"""The tuning problem a user describes: a plant (a preset, or a log fitted exactly as twin-fit fits
-it), a target, a controller, a loop, and the ensemble the plant's source allows.
+"""The tuning problem a user describes: a plant (a preset, or the plants a log allows), a target, a
+controller, a loop, and the ensemble the plant's source allows.
 
     source = log_source("klippy.log", LogFitOptions(heater="extruder"))   # or preset_source("hotend")
-    problem = build_problem(source, controller="pid", loop="marlin")
-    suggestion = safe_best(quick_tune(problem))                            # what twin-fit suggests
+    problem = build_problem(source, controller="pid")                     # the log's loop and target
+    answer = quick_answer(problem, source.printer)                          # what twin-fit answers
 
-A preset states no spread: its lag and loss terms get ``--spread`` (tools/tuning/ensemble.py). A
-fitted plant carries what its data could not tell (tools/ident FitResult.spread(): standard errors,
-plausible ranges of unidentified parameters with their sources), and its corner plants are built by
-the fit itself (``spec_with``), so an ambient-anchored relay fit stays consistent. The ADC noise of
-a fitted plant's members is the log's own reading noise where its trace shows it (at the target,
-through the sensor chain), else ``DEFAULT_NOISE_LSB``.
+A preset states no spread: its lag and loss terms get ``--spread`` (tools/tuning/ensemble.py). A log
+gives every plant it allows (tools/tuning/allowed.py: the structures that fit about as well as the
+best, each open parameter profiled, each plant replaying the log's own numbers), each at the ambient
+it was fitted at; the printer's own gains where the log states them (tools/tuning/reference.py); the
+loop its printer runs and the target it ran at. The ADC noise of a log's members is its own reading
+noise where its trace shows it (at the target, through the sensor chain), else ``DEFAULT_NOISE_LSB``.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from tools.ident.fit import reading_noise_c
-from tools.ident.log_fit import BED, LogFit, LogFitOptions
+from tools.ident.log_fit import BED, LogFit, LogFitOptions, fit_log
 from tools.ident.plausible import ROOM_C
-from tools.logs import M303Log, PlainLog, StatsLog, load_log
+from tools.logs import Log, M303Log, PlainLog, StatsLog, load_log
 from tools.tuning.controllers import resolve_controller
-from tools.tuning.allowed import Allowed, allowed_plants, heater_settings
+from tools.tuning.allowed import Allowed, AllowedPlant, allowed_plants, heater_settings
 from tools.tuning.ensemble import (
     DEFAULT_NOISE_LSB,
     DEFAULT_SPREAD,
@@ -35,17 +38,16 @@ from tools.tuning.ensemble import (
     plant_ensemble,
     preset_spread,
 )
-from tools.tuning.evaluate import AMBIENT_C, Candidate, Problem, default_scenario, heater_of
-from tools.tuning.objectives import heater_terms
+from tools.tuning.evaluate import AMBIENT_C, Problem, default_scenario, full_power_time_s, heater_of
 from tools.tuning.reference import PrinterGains, from_log
-from tools.tuning.tuner import DEFAULTS, TuneResult, tune
+from tools.tuning.proof import PROOF_SEEDS
+from tools.tuning.tuner import Proven, Step, proven, tune
 from tools.validation.compare import HeaterInfo, Unusable, heatup_windows, overlaps
 from tools.validation.m303_compare import twin_noise_lsb
 from twin.plants import SPECS, Spec
 
 HOTEND_TARGET_C, BED_TARGET_C = 210.0, 60.0
-QUICK_BUDGET = 0  # quick_tune: the rules and the autotune, scored on the ensemble (no optimiser)
-SUGGEST_SEARCH_BUDGET = 270  # suggest: where no rule holds, six generations of DE seeded with them
+REACH_SHARE = 0.8  # a log without a target, whose heater cannot reach the default: 80 % of its demonstrated rise
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,7 @@ class Source:
     printer: PrinterGains | None = None  # the gains the log states the printer runs
     loop: str = "marlin"  # the loop the log's printer runs
     target_c: float | None = None  # the target the log ran at, where it says
+    reach_c: float | None = None  # the hottest reading of the fitted data: what the heater surely reaches
     klipper: HeaterInfo | None = None  # a klippy.log's heater settings
 
 
@@ -77,21 +80,40 @@ def preset_source(name: str, spread: float = DEFAULT_SPREAD) -> Source:
     return Source(name, spec, heater_of(name) == "bed", AMBIENT_C, preset_spread(spec, spread) if spread else ())
 
 
-def log_source(path: str | Path, options: LogFitOptions | None = None,
-               on_step: Callable[[str, int], Callable[[], None]] | None = None) -> Source:
-    """A log fitted as twin-fit fits it, with every plant it allows (tools/tuning/allowed.py), the gains it
-    states, the firmware and target it ran; ValueError (NotFittable) with the reason for a log that cannot
-    support a tune. ``on_step`` reports progress (allowed_plants)."""
-    log = load_log(path)
-    name = Path(path).name
-    allowed = allowed_plants(log, name, options or LogFitOptions(), on_step)
-    source = fitted_source(allowed.best, name)
-    entry = (options.segment if options else None) if isinstance(log, list) else None
-    klipper = heater_settings(log, allowed.heater)
+def log_source(path: str | Path, options: LogFitOptions | None = None, on_step: Step | None = None,
+               ensemble: bool = True) -> Source:
+    """``source_of`` the log at path."""
+    return source_of(load_log(path), Path(path).name, options, on_step, ensemble)
+
+
+def source_of(log: Log, name: str, options: LogFitOptions | None = None, on_step: Step | None = None,
+              ensemble: bool = True) -> Source:
+    """A log fitted as twin-fit fits it, with every plant it allows (tools/tuning/allowed.py; ``ensemble``
+    False: the fit alone), the gains it states, the firmware and target it ran; ValueError (NotFittable)
+    with the reason for a log that cannot support a tune. ``on_step`` reports progress."""
+    options = options or LogFitOptions()
+    if ensemble:
+        return allowed_source(log, allowed_plants(log, name, options, on_step), options)
+    fitted = fit_log(log, options)
+    return _with_log(fitted_source(fitted, name), log, fitted, [AllowedPlant(fitted.result.model, fitted, 0.0)], options)
+
+
+def allowed_source(log: Log, allowed: Allowed, options: LogFitOptions | None = None) -> Source:
+    """The source of the plants a log allows; ValueError where there are none (``Allowed.why_none``)."""
+    if not allowed.members:
+        raise ValueError(f"{allowed.log_name}: the twin cannot tune from it: {allowed.why_none()}")
+    best = allowed.best
+    source = replace(fitted_source(best, allowed.log_name), allowed=allowed)
+    return _with_log(source, log, best, allowed.members, options or LogFitOptions())
+
+
+def _with_log(source: Source, log: Log, best: LogFit, members: list[AllowedPlant], options: LogFitOptions) -> Source:
+    entry = options.segment if isinstance(log, list) else None
     loop = "marlin" if isinstance(log, (M303Log, PlainLog)) else "klipper"
-    return replace(source, plants=tuple((p.label, p.result.spec(), _room(p.ambient_c)) for p in allowed.members),
-                   allowed=allowed, printer=from_log(log, allowed.heater, entry), loop=loop,
-                   target_c=log_target_c(log, allowed.best), klipper=klipper)
+    reach_c = float(np.max(best.segment.temp_c)) if best.segment is not None else None
+    return replace(source, plants=tuple((p.label, p.result.spec(), _room(p.ambient_c)) for p in members),
+                   printer=from_log(log, best.heater, entry), loop=loop, target_c=log_target_c(log, best),
+                   klipper=heater_settings(log, best.heater), reach_c=reach_c)
 
 
 def _room(ambient_c: float) -> float:
@@ -100,7 +122,10 @@ def _room(ambient_c: float) -> float:
 
 
 def log_target_c(log, fitted: LogFit) -> float | None:
-    """The target the log's heater ran at: a relay's target, else the target of the fitted heat-up."""
+    """The target the log's heater ran at: a relay's target (as the fit found it), else the target of the
+    fitted heat-up."""
+    if fitted.target_c is not None:
+        return fitted.target_c
     if fitted.result.anchor_c is not None:
         return fitted.result.anchor_c
     if isinstance(log, StatsLog) and fitted.segment is not None:
@@ -132,6 +157,20 @@ def fitted_source(fitted: LogFit, log_name: str) -> Source:
     return Source(name, result.spec(), fitted.heater == BED, ambient_c, spread, result.spec_with, noise_c, fitted)
 
 
+def default_target_c(source: Source) -> float:
+    """A heater's default target (HOTEND_TARGET_C, BED_TARGET_C); for a log that states none and whose
+    heater cannot reach it at full power (a low-power test rig), REACH_SHARE of the way from ambient to the
+    hottest reading the log shows, in whole degrees: a target its heater holds with power to spare."""
+    default = BED_TARGET_C if source.is_bed else HOTEND_TARGET_C
+    if source.reach_c is None:
+        return default
+    try:
+        full_power_time_s(source.spec, source.ambient_c, default)
+    except ValueError:
+        return float(math.floor(source.ambient_c + REACH_SHARE * (source.reach_c - source.ambient_c)))
+    return default
+
+
 def build_problem(source: Source, target_c: float | None = None, controller: str = "pid", loop: str | None = None,
                   noise_lsb: float | None = None, statistic: str = DEFAULT_STATISTIC, spread: bool = True) -> Problem:
     """The problem on a source: the default scenario at its ambient (the target given, else the log's, else
@@ -140,7 +179,7 @@ def build_problem(source: Source, target_c: float | None = None, controller: str
     (``noise_lsb``; None: the log's own, else the default); ``spread=False``: the nominal plant alone."""
     loop = loop or source.loop
     target = target_c if target_c is not None else source.target_c if source.target_c is not None else \
-        (BED_TARGET_C if source.is_bed else HOTEND_TARGET_C)
+        default_target_c(source)
     if not target > source.ambient_c:
         raise ValueError(f"--target {target:g}: a heater tune needs a target above the ambient "
                          f"{source.ambient_c:g} C")
@@ -164,22 +203,9 @@ def build_problem(source: Source, target_c: float | None = None, controller: str
         raise ValueError(f"--loop {loop}: {exc}") from None
 
 
-def quick_tune(problem: Problem, budget: int = QUICK_BUDGET, seed: int = 0) -> TuneResult:
-    """What twin-fit suggests: the rules and the firmware's autotune (and DE with a ``budget``), scored on the
-    problem's ensemble by the heater objective; ``safe_best`` picks the answer."""
-    return tune(problem, method="auto" if budget else "rules", budget=max(budget, 1), seed=seed)
-
-
-def suggest(problem: Problem, seed: int = 0) -> Candidate | None:
-    """twin-fit's gains: the safe best of the rules and the autotune; where each trips on some member,
-    of a short DE seeded with them (``SUGGEST_SEARCH_BUDGET``); None if that trips too."""
-    return safe_best(quick_tune(problem, seed=seed)) or safe_best(quick_tune(problem, SUGGEST_SEARCH_BUDGET, seed))
-
-
-def safe_best(result: TuneResult) -> Candidate | None:
-    """The best candidate from the plant itself (a rule, the autotune, a search: not the build's own
-    defaults, tuned for another heater) that trips in no member of the ensemble, or None."""
-    for candidate in result.ranked:
-        if candidate.method != DEFAULTS and not heater_terms(candidate.run).tripped.any():
-            return candidate
-    return None
+def quick_answer(problem: Problem, printer: PrinterGains | None, seeds: int = PROOF_SEEDS) -> Proven:
+    """What twin-fit answers: the tuning rules and the firmware's autotune scored on the problem's ensemble
+    against the printer's gains (else the autotune's), proven and judged as twin-tune judges its search's
+    best (tools/tuning/verdict.py): new gains only where one beats them on every plant."""
+    yours = None if printer is None else np.array([printer.gains.kp, printer.gains.ki, printer.gains.kd])
+    return proven(tune(problem, method="rules", yours=yours), seeds)

@@ -7,8 +7,8 @@ candidates and seeds of one member are lanes of one batch (tools/tuning/evaluate
 firmware's lanes equal its scalar twin reading for reading, tests/twin/test_batch_paths.py; a controller
 without a lane law runs one scalar twin per lane). A row per member and candidate gives, over its seeds,
 the mean and worst heat-up overshoot, settling time (2 % band), mean |error| while holding, mean |duty
-change| per reading while holding, the hold's limit cycle where there is one, the heater objective, and
-the trips.
+change| per reading while holding, the runs whose heat-up hold limit-cycles (twin/metrics.py) and the
+largest amplitude, the heater objective, and the trips.
 
 The cross-check (``cross_check``): the first candidate on the first member with seed 1 re-run for its
 first ``CROSS_CHECK_S`` seconds on the tick-by-tick reference engine (every ISR and main-loop pass as
@@ -27,7 +27,7 @@ import numpy as np
 from tools.tuning.evaluate import Candidate, Problem, Traces, run_chunk
 from tools.tuning.objectives import HeaterTerms, heater_terms
 from tools.tuning.objectives import Run as ObjectiveRun
-from twin.metrics import step_metrics
+from twin.metrics import LimitCycle, limit_cycles, step_metrics
 
 PROOF_SEEDS = 10
 NOISE_LSB = 1.0  # a member without noise of its own is proven with this much (an M303 capture's readings scatter so)
@@ -49,6 +49,8 @@ class ProofRow:
     hold_error_c: tuple[float, float]
     chatter: tuple[float, float]
     cost_s: tuple[float, float]  # the heater objective
+    limit_cycles: int = 0  # runs whose heat-up hold limit-cycles (twin/metrics.py limit_cycles)
+    limit_cycle_c: float = 0.0  # the largest such amplitude (+- C)
 
     @property
     def passed(self) -> bool:
@@ -74,6 +76,12 @@ def _stats(values: np.ndarray) -> tuple[float, float]:
     return float(np.mean(values)), float(np.max(values))
 
 
+def _limit_cycles(run: ObjectiveRun) -> list[LimitCycle | None]:
+    """Each lane's limit cycle in the heat-up's hold (before the first disturbance)."""
+    heat = run.t_s < run.heatup_end_s
+    return limit_cycles(run.t_s[heat], run.temp_c[heat], run.target_c)
+
+
 def _settling(run: ObjectiveRun) -> np.ndarray:
     heat = run.t_s < run.heatup_end_s
     out = []
@@ -88,13 +96,15 @@ def rows_of(label: str, candidates: list[Candidate], run: ObjectiveRun, seeds: i
     """A ProofRow per candidate from a member's run (lanes candidate-major, ``seeds`` each)."""
     terms = heater_terms(run)
     settling = _settling(run)
+    cycles = _limit_cycles(run)
     rows = []
     for i, c in enumerate(candidates):
         lanes = slice(i * seeds, (i + 1) * seeds)
         part = HeaterTerms(*(getattr(terms, f.name)[lanes] for f in dataclasses.fields(terms)))
+        found = [lc for lc in cycles[lanes] if lc is not None]
         rows.append(ProofRow(label, c.method, c.params, seeds, int(part.tripped.sum()), _stats(part.overshoot_c),
                              _stats(settling[lanes]), _stats(part.hold_error_c), _stats(part.chatter),
-                             _stats(part.cost_s)))
+                             _stats(part.cost_s), len(found), max((lc.amplitude_c for lc in found), default=0.0)))
     return rows
 
 
@@ -141,13 +151,14 @@ def table(rows: list[ProofRow], describe: Callable[[ProofRow], str]) -> list[str
     """The proof as text lines: one row per member and candidate, ``describe(row)`` naming its parameters."""
     width = max([len(r.member) for r in rows] + [6])
     head = (f"{'member':<{width}} {'candidate':<12} {'trips':>8}  {'overshoot C':>13}  {'settling s':>13}  "
-            f"{'hold |e| C':>11}  {'|du|/reading':>13}  (mean / worst)")
+            f"{'hold |e| C':>11}  {'|du|/reading':>13}  {'limit cycle':>13}  (mean / worst)")
     lines = [head]
     for r in rows:
         def pair(p: tuple[float, float], digits: int = 2) -> str:
             return f"{p[0]:.{digits}f} / {p[1]:.{digits}f}"
 
+        cycle = f"{r.limit_cycles} +-{r.limit_cycle_c:.1f} C" if r.limit_cycles else "none"
         lines.append(f"{r.member:<{width}} {r.method:<12} {r.trips:>3} of {r.runs:<3} {pair(r.overshoot_c):>13}  "
                      f"{pair(r.settling_s, 1):>13}  {pair(r.hold_error_c):>11}  {pair(r.chatter, 3):>13}  "
-                     f"{describe(r)}")
+                     f"{cycle:>13}  {describe(r)}")
     return lines

@@ -12,7 +12,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[3]
 # The console scripts (pyproject.toml [project.scripts]) and the python -m commands: each has build_parser().
-MODULES = ("tools.cli.sim", "tools.cli.serial", "tools.cli.fit", "tools.cli.compare", "tools.cli.tune",
+MODULES = ("tools.cli.sim", "tools.cli.serial", "tools.cli.klipper_mcu", "tools.cli.fit", "tools.cli.compare", "tools.cli.tune",
            "tools.cli.firmware_report", "tools.cli.benchfuncs", "tools.bench", "tools.seeds.__main__",
            "tools.docs.rules_table", "tools.docs.optimtable", "tools.docs.crossval", "tools.docs.mpc_report",
            "tools.docs.validation", "tools.validation.golden", "tools.validation.golden_m306",

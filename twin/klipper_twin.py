@@ -225,6 +225,9 @@ class SoftPwm:
         self.times_s = [0.0]  # event times, non-decreasing
         self.on_s = [0.0]  # on time per cycle of each event
 
+    def __repr__(self) -> str:
+        return f"SoftPwm(cycle {self.cycle_s:g} s, duty {self.on_s[-1] / self.cycle_s:.3f} from {self.times_s[-1]:g} s)"
+
     def queue(self, time_s: float, value: float) -> None:
         """A queue_digital_out: MCU_pwm.set_pwm quantises the duty to whole clock ticks."""
         on_ticks = int(max(0.0, min(1.0, value)) * self.cycle_ticks + 0.5)

@@ -190,6 +190,11 @@ class FuzzyPi:
         self.err_prev_q5 = 0  # int32, celsius_q5: the error of the previous sample
         self.have_prev = 0  # uint8, bool: err_prev_q5 holds a sample since the last reset
 
+    def __repr__(self) -> str:
+        return f"FuzzyPi(sets={self.n_sets}, err_range_c={self.err_range_q5 / TEMP_ONE:g}, " \
+               f"derr_range_c={self.derr_range_q5 / TEMP_ONE:g}, du_range_counts={self.du_range_q4 / (1 << DU_FRAC_BITS):g}, " \
+               f"out_max={self.out_max}, duty={self.duty_q16 / (1 << 16):.2f})"
+
     def reset(self) -> None:
         """Forget the duty and the previous error (as Marlin's pid_reset clears the integral)."""
         self.duty_q16 = 0
@@ -336,6 +341,9 @@ class FuzzyPiFloat:
         self.duty = 0.0  # counts of 0..out_max
         self.err_prev_c = 0.0
         self.have_prev = False
+
+    def __repr__(self) -> str:
+        return f"FuzzyPiFloat({self.config!r}, duty={self.duty:.2f})"
 
     def reset(self) -> None:
         """Forget the duty and the previous error."""

@@ -227,6 +227,9 @@ class FuzzyPidFloat:
         """The oracle of ``FuzzyPid``: its rounded constants, the board's period and 0..255 output."""
         return cls(gains, config, rounded=True)
 
+    def __repr__(self) -> str:
+        return f"FuzzyPidFloat({self.gains!r}, {self.config!r})"
+
     def set_gains(self, gains: PidGains) -> None:
         """Base gains (M301): kp, ki per second, kd in seconds; resets the loop."""
         check_non_negative(gains)
@@ -339,6 +342,9 @@ class FuzzyPid:
         self.config = config
         self.literal = config.reading == LITERAL  # uint8 flag
         self.set_gains(gains)
+
+    def __repr__(self) -> str:
+        return f"FuzzyPid({self.gains!r}, {self.config!r})"
 
     def set_gains(self, gains: PidGains) -> None:
         """M301: the base gains, rounded as PidFixed rounds them; resets the loop."""

@@ -56,6 +56,9 @@ class ScalarLanes:
     def __init__(self, controllers: Sequence):
         self.controllers = list(controllers)
 
+    def __repr__(self) -> str:
+        return f"ScalarLanes({len(self.controllers)} lanes of {type(self.controllers[0]).__name__})"
+
     def output(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray, now_ms: int) -> np.ndarray:
         """Each active lane's ``update``: 0..255 (0 elsewhere, where its controller is not called)."""
         out = np.zeros(len(self.controllers), np.int64)

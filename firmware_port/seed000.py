@@ -400,6 +400,9 @@ class SeedController:
     def reset(self) -> None:
         self.law.reset()
 
+    def __repr__(self) -> str:
+        return f"SeedController({self.law!r})"
+
     def update(self, temp_q5: int, target_c: int, now_ms: int) -> int:
         if target_c <= 0:
             self.law.reset()

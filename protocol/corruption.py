@@ -44,6 +44,9 @@ class RxCorruptor:
         self.seed = seed
         self.reset()
 
+    def __repr__(self) -> str:
+        return f"RxCorruptor(probability {self.probability:g}, seed {self.seed})"
+
     def reset(self) -> None:
         """Forget the lines seen and a partial line (a new host, a board reset)."""
         self._seen: OrderedDict[bytes, int] = OrderedDict()

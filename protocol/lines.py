@@ -72,6 +72,9 @@ class LineReader:
         self._buf = bytearray()  # serial.line_buffer up to serial.count
         self._state = PS_NORMAL  # serial.input_state
 
+    def __repr__(self) -> str:
+        return f"LineReader(last N{self.last_n}{', stopped' if self.stopped else ''}, {len(self._buf)} bytes buffered)"
+
     def reset(self) -> None:
         """A board reset: everything in RAM is back to its power-on value."""
         self.last_n = 0

@@ -38,6 +38,9 @@ class SerialLink:
         self._free_tick = -math.inf  # the tick the last byte written so far arrives
         self.in_flight = 0  # bytes written and not yet taken
 
+    def __repr__(self) -> str:
+        return f"SerialLink({self.in_flight} bytes in flight)"
+
     def clear(self) -> None:
         """A reset: what was on the wire is gone (the host reopens the port)."""
         self._chunks.clear()

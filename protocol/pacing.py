@@ -85,6 +85,9 @@ class Pacer:
         if not self.host_driven:
             printer.wall_clock = clock  # reports and keepalives: at most once per wall interval too
 
+    def __repr__(self) -> str:
+        return f"Pacer(speed {self.speed}, idle speed {self.idle_speed:g})"
+
     @property
     def host_driven(self) -> bool:
         """The clock stops while the printer waits for the host (``idle_speed`` 0)."""

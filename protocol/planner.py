@@ -92,6 +92,9 @@ class Planner:
         self.stepper_end = dict(self.steps)  # the steppers' position once every queued block has run
         self.cleaning_s = 0.0  # left of quick_stop()'s cleaning window
 
+    def __repr__(self) -> str:
+        return f"Planner({len(self.blocks)} blocks, position {self.position})"
+
     @property
     def busy(self) -> bool:
         """Planner::busy(): blocks queued or the cleaning window still open (what synchronize() waits for)."""

@@ -70,6 +70,9 @@ class VirtualPrinter:
         self.internal_errors = 0  # commands that raised (a bug of the twin), answered with Error:
         self.reset()
 
+    def __repr__(self) -> str:
+        return f"VirtualPrinter(t={self.time_s:.3f} s, {len(self.queue)} queued{', halted' if self.halted else ''}, {self.twin!r})"
+
     # -- what a transport uses ------------------------------------------------------------
     def reset(self) -> None:
         """Reset the board (DTR toggle, new connection): the banner, settings from the EEPROM."""

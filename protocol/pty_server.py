@@ -109,6 +109,9 @@ class Pty:
             self.close()
             raise
 
+    def __repr__(self) -> str:
+        return f"Pty({self.path}{' -> ' + self.link if self.link else ''})"
+
     def chunks(self) -> Iterator[bytes]:
         """Everything the host sent, until EAGAIN (or EIO once nobody holds the port)."""
         while True:

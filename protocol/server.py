@@ -42,6 +42,9 @@ class Server(ABC):
         self._connected_at: float | None = None  # monotonic time a host came, until its reset
         self._ready = False  # a host is there and its board was reset: output goes to it
 
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.address}, {self.printer!r})"
+
     def serve_forever(self) -> None:
         """Serve until interrupted (KeyboardInterrupt, or SystemExit from a SIGTERM handler)."""
         while True:

@@ -158,6 +158,9 @@ class Eeprom:
             self._folder_fd = os.open(self.path.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
             weakref.finalize(self, os.close, self._folder_fd)
 
+    def __repr__(self) -> str:
+        return f"Eeprom({self.path or 'in memory'})"
+
     @classmethod
     def open(cls, path: str | Path, *, keep_corrupt: bool = False) -> Eeprom:
         """The settings file ``path``: new, empty, or one M500 wrote, in a folder where M500 can

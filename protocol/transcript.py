@@ -30,6 +30,9 @@ class Transcript:
         self._file.write(f"# heater-twin transcript started {started}: dir virtual_s wall_s data "
                          "(> host to printer, < printer to host, * event)\n")
 
+    def __repr__(self) -> str:
+        return f"Transcript({self._file.name})"
+
     def record(self, direction: str, virtual_s: float, data: bytes | str) -> None:
         self._file.write(f"{direction} {virtual_s:.6f} {self._clock() - self._wall0_s:.6f} {data!r}\n")
 

@@ -8,10 +8,13 @@
     print(result.hotend.metrics())           # StepMetrics
     result.plot("hotend.png")
 
-``Twin`` runs the integer firmware on one plant per heater; ``BatchTwin`` runs N gain sets as
-lanes of one hotend (arrays (rows, lanes)); ``KlipperTwin`` runs Klipper's host control. All
-three return a ``RunResult``. Controllers are injected per heater (``controllers=``): anything
-with the ``Controller`` protocol, or a factory of one.
+``Twin`` runs the integer firmware on one plant per heater; ``BatchTwin`` runs N controllers as
+lanes of one hotend (arrays (rows, lanes)); ``KlipperTwin`` runs Klipper's host control and
+``KlipperBatch`` N Klipper heaters as lanes. All four follow one ``Engine`` protocol
+(twin/engine_protocol.py): per-heater handles (``engine.hotend.target_c``), ``schedule_plants``,
+``run(seconds) -> RunResult``, ``halted`` and ``trips()``; a ``Stack`` puts single twins side by
+side as lanes. Controllers are injected per heater (``controllers=``): anything with the
+``Controller`` protocol, or a factory of one.
 """
 
 import os
@@ -26,6 +29,8 @@ from firmware_port.marlin.pid import PidGains
 from twin.batch import BatchTwin
 from twin.build import build_twin
 from twin.engine import HeaterHandle, Twin
+from twin.engine_protocol import Engine, Stack, Trip
+from twin.klipper_batch import KlipperBatch
 from twin.klipper_twin import KlipperTwin
 from twin.metrics import LimitCycle, StepMetrics, limit_cycles, step_metrics
 from twin.plants import PRESETS, make_plant
@@ -35,16 +40,20 @@ from twin.scenario import Scenario, scenario_for
 __all__ = [
     "BatchTwin",
     "Controller",
+    "Engine",
     "FIRMWARES",
     "HeaterHandle",
     "HeaterRun",
+    "KlipperBatch",
     "KlipperTwin",
     "LimitCycle",
     "PRESETS",
     "PidGains",
     "RunResult",
     "Scenario",
+    "Stack",
     "StepMetrics",
+    "Trip",
     "Twin",
     "Tunable",
     "build_twin",

@@ -62,6 +62,8 @@ from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, KELVIN_OFFSET, MAX_RAW
     TEMP_FRAC_BITS, TEMP_ONE, TempTable
 from twin import adc_table, batch_kernel as bk
 from twin.clock import TICK_S, EventQueue, ticks_at
+from twin.engine import FAN_SPEED_MAX, m104_target
+from twin.engine_protocol import LaneHeater, Runs, Trip, each_plant
 from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import MAX_SAMPLES, Tables, bin_tables, block_bin, linear_tables
 from twin.limits import DURATION_MAX_S, TARGET_RANGE_C, check_trace_bytes, checked
@@ -71,7 +73,6 @@ from twin.sensor import SensorChain
 from twin.streaming import ScoreSpec, ScoreTotals
 
 THREADS_ENV = "HEATER_TWIN_THREADS"
-FAN_SPEED_MAX = 255  # fan_speed[0] at full speed (M106 S255): the board's value of a plant's fan 1.0
 MIN_LANES_PER_THREAD = 4  # fewer lanes than this per thread run on the calling thread
 BIN_MARGIN = 40  # radiating plants: bins (of 0.5 C) built beyond the ones the lanes need, each way
 TARGET_HEADROOM_C = 20.0  # radiating plants: bins built up front to this far above the target (the block leads)
@@ -135,11 +136,12 @@ def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str
     return law, law.lanes(list(controllers), prev_temp_mode)
 
 
-class BatchTwin:
+class BatchTwin(Runs):
     """N hotends on one clock; ``run_until`` then read ``t_s``, ``measured_c``, ``duty`` ... or ``score_totals()``.
 
     Records one row per firmware reading: arrays of shape (rows, N) for the firmware's measured
-    temperature, the true block and sensor temperatures and the duty (amount / 127).
+    temperature, the true block and sensor temperatures and the duty (amount / 127). Follows the
+    engine protocol (twin/engine_protocol.py) with a lane per controller.
     """
 
     @staticmethod
@@ -169,6 +171,7 @@ class BatchTwin:
         self.n_lanes = len(controllers)
         if not self.n_lanes:
             raise ValueError("a batch needs at least one lane")
+        self.controllers = tuple(controllers)  # what each lane was built from
         self.law, control = _control_lanes(controllers, prev_temp_mode)
         self.lanes = HotendLanes(control)
         self.groups = self._group(plant)
@@ -248,15 +251,38 @@ class BatchTwin:
         """Run ``action(batch)`` at the first tick at or after ``at_s``."""
         self._events.push(ticks_at(checked("at_s", at_s, 0.0, DURATION_MAX_S, "s")), action, self)
 
+    def schedule_plants(self, at_s: float, action: Callable[[Any], None]) -> None:
+        """Run ``action(plant)`` on every distinct plant at ``at_s`` (the lanes' states are the batch's own:
+        the action changes the plant's inputs, never its state)."""
+        self.schedule(at_s, each_plant(action))
+
     def set_target(self, target_c: int) -> None:
         checked("target_c", target_c, *TARGET_RANGE_C, "C")
         self.lanes.set_target(target_c)
 
-    def run(self, seconds: float) -> RunResult:
-        """Run ``seconds`` more; the result of every lane since time 0 (arrays (rows, lanes))."""
-        checked("seconds", seconds, 0.0, DURATION_MAX_S - self.tick * TICK_S, "s", above=True)
-        self.run_until(self.tick * TICK_S + seconds)
-        return self.result()
+    @property
+    def time_s(self) -> float:
+        return self.tick * TICK_S
+
+    @property
+    def handles(self) -> dict[str, LaneHeater]:
+        """The hotend's handle: every lane's target (whole degrees, as M104), the lanes' controllers."""
+        return {"hotend": LaneHeater("hotend", lambda: self.lanes.target_c,
+                                     lambda value: self.set_target(m104_target(value)), lambda: self.controllers)}
+
+    @property
+    def halted(self) -> np.ndarray:
+        """Per lane: its board halted (a protection trip)."""
+        return self.lanes.halted.copy()
+
+    def trips(self) -> list[Trip]:
+        """Each halted lane's trip, in Marlin's words (``lanes.trip``)."""
+        return [Trip(int(lane), "hotend", str(self.lanes.trip[lane])) for lane in np.flatnonzero(self.lanes.halted)]
+
+    def __repr__(self) -> str:
+        plants = ", ".join(sorted({getattr(p, "preset", type(p).__name__) for p in self.plants}))
+        return f"BatchTwin({self.n_lanes} lanes of {self.law.controller.__name__} on {plants}, " \
+               f"kernel={self.kernel!r}, t={self.time_s:g} s, {int(self.lanes.halted.sum())} halted)"
 
     def result(self, label: str = "batch") -> RunResult:
         if not self.record:

@@ -44,6 +44,9 @@ class EventQueue:
     def __len__(self) -> int:
         return len(self._heap)
 
+    def __repr__(self) -> str:
+        return f"EventQueue({len(self)} due, next at {self.next_at()})"
+
     def push(self, at: Any, action: Callable, *args: Any, priority: int = 0) -> None:
         """Run ``action(*args)`` at ``at``; among equal times the lower priority runs first."""
         heapq.heappush(self._heap, (at, priority, next(self._seq), action, args))

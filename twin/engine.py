@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -34,9 +35,10 @@ from firmware_port.marlin.pid import PidGains
 from firmware_port.marlin.serial import Console
 from firmware_port.thermistor import TEMP_ONE
 from twin.clock import TICK_S, EventQueue, ticks_at
+from twin.engine_protocol import Runs, Trip, each_plant
 from twin.limits import DURATION_MAX_S, PHYSICAL_RANGE_C, TARGET_RANGE_C, check_trace_bytes, checked, checked_seed
 from twin.linear import BLOCK, SENSOR
-from twin.result import HEATERS, RunResult
+from twin.result import HEATERS, RunResult, parse_trip
 from twin.sensor import SensorChain, seeded_chains
 from twin.trace import Trace
 
@@ -48,6 +50,12 @@ BOOT_S = 2.0  # Twin.create: the board runs this long before time 0
 # A trace row's memory: about 400 bytes for a hotend, 560 with a bed, a PID's terms included (tracemalloc
 # over 600 s of heat_hold); the bound that refuses a run whose trace would not fit in memory.
 TRACE_ROW_BYTES = 600
+FAN_SPEED_MAX = 255  # fan_speed[0] at full speed (M106 S255): the board's value of a plant's fan 1.0
+
+
+def m104_target(value: float) -> int:
+    """A target as M104/M140 S<value> takes it: whole degrees (int(), as Marlin's parser casts), in range."""
+    return int(checked("target_c", value, *TARGET_RANGE_C, "C"))
 
 
 class HeaterHandle:
@@ -55,6 +63,7 @@ class HeaterHandle:
 
     def __init__(self, twin: Twin, channel: int):
         self._twin, self.channel = twin, channel
+        self.name = HEATER_NAMES[channel]
 
     @property
     def target_c(self) -> int:
@@ -63,7 +72,7 @@ class HeaterHandle:
     @target_c.setter
     def target_c(self, value: float) -> None:
         """M104/M140 S<value>: the firmware clamps to its maximum as Marlin does."""
-        self._twin.board.set_target(self.channel, int(checked("target_c", value, *TARGET_RANGE_C, "C")))
+        self._twin.board.set_target(self.channel, m104_target(value))
 
     @property
     def gains(self) -> PidGains:
@@ -93,9 +102,21 @@ class HeaterHandle:
     def controller(self) -> Controller:
         return self._twin.board.heaters[self.channel].controller
 
+    @property
+    def controllers(self) -> tuple[Controller]:
+        """The engine protocol's view: one lane, its controller."""
+        return (self.controller,)
 
-class Twin:
-    """A board running a firmware build, a plant and a sensor chain per heater, and a trace."""
+    def __repr__(self) -> str:
+        return f"HeaterHandle({self.name!r}, target_c={self.target_c}, temp_c={self.temp_c:.2f}, " \
+               f"controller={self.controller!r})"
+
+
+class Twin(Runs):
+    """A board running a firmware build, a plant and a sensor chain per heater, and a trace; one lane of the
+    engine protocol (twin/engine_protocol.py)."""
+
+    n_lanes = 1
 
     def __init__(
         self,
@@ -134,8 +155,9 @@ class Twin:
         # A row per firmware reading (0.16384 s, about 8.5 MB per virtual hour with a bed) unless
         # set: then at most one row per record_every_s; events are always kept.
         self.record_every_s = 0.0
-        self.console.listeners.append(self._console_to_trace)
+        self.console.listeners.append(self._console_lines)
         self._partial_line = ""
+        self._trips: list[Trip] = []  # what the protection halted the board for, since time 0
         self._task_tick: int | None = None  # while the main loop runs: the tick it runs at
         self._events = EventQueue()  # actions due at a tick
 
@@ -189,12 +211,26 @@ class Twin:
             raise AttributeError("this twin has no bed")
         return HeaterHandle(self, BED_CHANNEL)
 
-    def run(self, seconds: float) -> RunResult:
-        """Run ``seconds`` more of virtual time; the result of everything recorded since time 0 (``result()``
-        without running)."""
-        checked("seconds", seconds, 0.0, DURATION_MAX_S - self.time_s, "s", above=True)
-        self.run_until(self.time_s + seconds)
-        return self.result()
+    @property
+    def handles(self) -> dict[str, HeaterHandle]:
+        """Every heater's handle by its name in the result."""
+        return {name: HeaterHandle(self, channel) for channel, name in enumerate(HEATER_NAMES[:len(self.plants)])}
+
+    @property
+    def halted(self) -> bool:
+        """The board has stopped (a protection trip, M112): heaters off until it is reset."""
+        return self.board.halted
+
+    def trips(self) -> list[Trip]:
+        """Each thermal protection error the firmware printed since time 0 (its heater and its words)."""
+        return list(self._trips)
+
+    def __repr__(self) -> str:
+        plants = ", ".join(f"{n} {getattr(p, 'preset', type(p).__name__)}"
+                           for n, p in zip(HEATER_NAMES, self.plants))
+        controllers = ", ".join(type(h.controller).__name__ for h in self.board.heaters)
+        return f"Twin(firmware={self.firmware!r}, {plants}, controllers: {controllers}, engine={self.engine!r}, " \
+               f"t={self.time_s:g} s{', halted' if self.halted else ''})"
 
     def result(self, label: str | None = None) -> RunResult:
         names = HEATER_NAMES[: len(self.plants)]
@@ -246,6 +282,22 @@ class Twin:
         """Run ``action(twin)`` at the first tick at or after ``at_s`` (before that tick's ISR)."""
         self._events.push(self.origin_tick + ticks_at(checked("at_s", at_s, -DURATION_MAX_S, DURATION_MAX_S, "s")),
                           action, self)
+
+    def schedule_plants(self, at_s: float, action: Callable[[Any], None]) -> None:
+        """Run ``action(plant)`` on every plant at ``at_s``; the printer then follows its hotend plant's inputs (the
+        M106 value that drives that fan, the filament the E stepper feeds, the ambient), as a batch's lanes do."""
+        def apply(twin: Twin) -> None:
+            each_plant(action)(twin)
+            twin._follow_plants()
+
+        self.schedule(at_s, apply)
+
+    def _follow_plants(self) -> None:
+        hotend = self.plants[HOTEND_CHANNEL]
+        self.board.fan_speed = round(FAN_SPEED_MAX * hotend.fan)
+        self.flow_mm_s = hotend.flow_mm_s
+        if hotend.ambient_c != self.ambient_c:
+            self.set_ambient(hotend.ambient_c)
 
     def set_heater_mode(self, channel: int, mode: str) -> None:
         """Heater wiring faults: normal, heater_disconnected (no power), heater_stuck_on (MOSFET shorted)."""
@@ -405,11 +457,14 @@ class Twin:
             if isinstance(controller, Observable):
                 self.trace.add_signals(name, controller.signals())
 
-    def _console_to_trace(self, text: str) -> None:
-        if not self.recording:
-            return
+    def _console_lines(self, text: str) -> None:
+        """The firmware's completed lines: its protection's trips noted, every line a trace event."""
         *complete, self._partial_line = (self._partial_line + text).split("\n")
         for line in complete:
-            tick = self.tick if self._task_tick is None else self._task_tick
-            self.trace.add_event((tick - self.origin_tick) * TICK_S, line)
+            if (trip := parse_trip(line)) is not None:
+                what, heater_id = trip
+                self._trips.append(Trip(0, "bed" if heater_id == "bed" else "hotend", what))
+            if self.recording:
+                tick = self.tick if self._task_tick is None else self._task_tick
+                self.trace.add_event((tick - self.origin_tick) * TICK_S, line)
 

@@ -37,6 +37,7 @@ import dataclasses
 import functools
 import math
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -48,8 +49,9 @@ from firmware_port.thermistor import KELVIN_OFFSET, SteinhartHart
 from twin import adc_table, batch_kernel as bk, klipper_kernel as kk
 from twin.batch import LaneGroup, lane_threads, run_group
 from twin.clock import TICK_S, EventQueue, tick_near
-from twin.klipper_twin import ADC_FIRST_SAMPLE_S, PRIO_ADC, PRIO_REPORT, PRIO_USER, PRIO_VERIFY, RANGE_CHECK_COUNT, \
-    STM32F103, HeaterSetup, Mcu, calc_adc, calc_temp, host_heater
+from twin.engine_protocol import LaneHeater, Runs, Trip, each_plant
+from twin.klipper_twin import ADC_FIRST_SAMPLE_S, ADC_OUT_OF_RANGE, NOT_HEATING, PRIO_ADC, PRIO_REPORT, PRIO_USER, \
+    PRIO_VERIFY, RANGE_CHECK_COUNT, STM32F103, HeaterSetup, Mcu, calc_adc, calc_temp, host_heater
 from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import Tables, bin_tables, linear_tables
 from twin.limits import DURATION_MAX_S, check_trace_bytes, checked
@@ -160,8 +162,9 @@ def _plan(first_sample_s: float, verify: bool, after: tuple[float, int], until: 
     return plan, plan_t, list(windows), kinds, plan_t[is_report, 0], done, tick
 
 
-class KlipperBatch:
-    """N single-heater Klipper printers on one clock; ``run_until``, then ``result()`` or ``score_totals()``."""
+class KlipperBatch(Runs):
+    """N single-heater Klipper printers on one clock; ``run_until``, then ``result()`` or ``score_totals()``.
+    Follows the engine protocol (twin/engine_protocol.py) with a lane per setup; its heater is "hotend"."""
 
     def __init__(self, setups: Sequence[HeaterSetup], *, mcu: Mcu = STM32F103, seed: int | Sequence[int] | None = None,
                  record: bool = True, score: ScoreSpec | None = None, threads: int | None = None):
@@ -278,6 +281,29 @@ class KlipperBatch:
         checked("temp_c", temp_c)  # Klipper's range check lets NaN through: full power
         self.heaters[0].set_target(temp_c)
         self.cfg[kk.C_TARGET] = temp_c
+
+    @property
+    def handles(self) -> dict[str, LaneHeater]:
+        """The heater's handle: every lane's target (SET_HEATER_TEMPERATURE), each lane's control (its gains)."""
+        return {"hotend": LaneHeater("hotend", lambda: self.target_c, self.set_target,
+                                     lambda: [h.control for h in self.heaters])}
+
+    def trips(self) -> list[Trip]:
+        """Each shut-down lane's reason: the ADC range check or verify_heater, in Klipper's words."""
+        reasons = {kk.RANGE_TRIP: ADC_OUT_OF_RANGE, kk.VERIFY_TRIP: NOT_HEATING.format(self.heaters[0].short_name)}
+        return [Trip(int(lane), "hotend", reasons[int(self.kstate[lane, kk.TRIP])])
+                for lane in np.flatnonzero(self.halted)]
+
+    def schedule_plants(self, at_s: float, action: Callable[[Any], None]) -> None:
+        """Run ``action(plant)`` on every distinct plant at ``at_s``, the plants first run to that time (the lanes'
+        states are the batch's own: the action changes the plant's inputs, never its state)."""
+        self.schedule(at_s, each_plant(action))
+
+    def __repr__(self) -> str:
+        plants = ", ".join(sorted({getattr(p, "preset", type(p).__name__) for p in self.plants}))
+        return f"KlipperBatch({self.n_lanes} lanes of {type(self.heaters[0]).__name__} " \
+               f"{self.heaters[0].short_name} on {plants}, mcu {self.mcu.name}, t={self.time_s:g} s, " \
+               f"{int(self.halted.sum())} halted)"
 
     def schedule(self, at_s: float, action: Callable[[KlipperBatch], None]) -> None:
         """Run ``action(batch)`` at at_s, before the heater events due then; each plant first runs to the

@@ -70,6 +70,7 @@ from firmware_port.klipper.heater import REPORT_TIME, SAMPLE_COUNT, SAMPLE_TIME
 from firmware_port.thermistor import KLIPPER_SENSORS, SteinhartHart
 from twin.clock import TICK_S, EventQueue, tick_near
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
+from twin.engine_protocol import LaneHeater, Runs, Trip
 from twin.limits import DURATION_MAX_S, NOISE_MAX_LSB, PHYSICAL_RANGE_C, check_trace_bytes, checked, checked_seed
 from twin.linear import BLOCK, SENSOR
 from twin.plants import make_plant
@@ -106,6 +107,7 @@ ADC_RANGE_HINT = """
 This generally occurs when a heater temperature exceeds
 its configured min_temp or max_temp."""
 SHUTDOWN_STATE = "Transition to shutdown state: "  # klippy.py invoke_shutdown's log line
+NOT_HEATING = "Heater {} not heating at expected rate"  # verify_heater.py heater_fault's message, first line
 PORT_LOGGERS = ("firmware_port.klipper", "firmware_port.kalico")  # their lines are klippy.log's
 
 # Events due at the same time run in this order.
@@ -222,6 +224,9 @@ class SoftPwm:
         self.cycle_s = self.cycle_ticks / clock_hz
         self.times_s = [0.0]  # event times, non-decreasing
         self.on_s = [0.0]  # on time per cycle of each event
+
+    def __repr__(self) -> str:
+        return f"SoftPwm(cycle {self.cycle_s:g} s, duty {self.on_s[-1] / self.cycle_s:.3f} from {self.times_s[-1]:g} s)"
 
     def queue(self, time_s: float, value: float) -> None:
         """A queue_digital_out: MCU_pwm.set_pwm quantises the duty to whole clock ticks."""
@@ -359,8 +364,11 @@ class _LogList(logging.Handler):
         self.twin.log.append((self.twin.time_s, record.getMessage()))
 
 
-class KlipperTwin:
-    """A Klipper printer's heaters on one clock: host control, MCU ADC and soft PWM, plants."""
+class KlipperTwin(Runs):
+    """A Klipper printer's heaters on one clock: host control, MCU ADC and soft PWM, plants; one lane of the
+    engine protocol (twin/engine_protocol.py), its heaters named as in the result ("hotend" for the extruder)."""
+
+    n_lanes = 1
 
     def __init__(self, heaters: Sequence[HeaterSetup], mcu: Mcu = STM32F103, seed: int = 0):
         checked_seed("seed", seed)
@@ -372,6 +380,7 @@ class KlipperTwin:
         self.replies: list[tuple[float, str]] = []  # (time, G-code response) of the commands run here
         self.halted = False
         self.shutdown_message: str | None = None
+        self._trip: Trip | None = None  # what shut the printer down, as a trip of the heater that caused it
         self.shutdown_time_s: float | None = None
         self._events = EventQueue()  # actions due at a time in seconds
         self._logging = False  # inside _klippy_logging
@@ -434,6 +443,35 @@ class KlipperTwin:
             apply(self)
         else:
             self.schedule(at_s, apply)
+
+    @property
+    def handles(self) -> dict[str, LaneHeater]:
+        """Every heater's handle by its name in the result: its target (SET_HEATER_TEMPERATURE), its control."""
+        return {handle.name: handle for handle in map(self._handle, self.channels)}
+
+    def _handle(self, name: str) -> LaneHeater:
+        heater = self.heater(name)
+        return LaneHeater(KLIPPER_HEATERS.get(name, name), lambda: heater.target_temp,
+                          lambda value: self.set_target(name, value), lambda: [heater.control])
+
+    def trips(self) -> list[Trip]:
+        """What shut the printer down, if anything did: the heater and the shutdown's reason."""
+        return [] if self._trip is None else [self._trip]
+
+    def schedule_plants(self, at_s: float, action: Callable[[Any], None]) -> None:
+        """Run ``action(plant)`` on every heater's plant at ``at_s``, each first run to that time."""
+        def apply(twin: KlipperTwin) -> None:
+            for channel in twin.channels.values():
+                channel.advance_plant(tick_near(twin.time_s))
+                action(channel.plant)
+
+        self.schedule(at_s, apply)
+
+    def __repr__(self) -> str:
+        heaters = ", ".join(f"{name} ({type(c.heater).__name__}, {c.heater.config.control}, "
+                            f"{getattr(c.plant, 'preset', type(c.plant).__name__)})"
+                            for name, c in self.channels.items())
+        return f"KlipperTwin({heaters}; mcu {self.mcu.name}, t={self.time_s:g} s{', halted' if self.halted else ''})"
 
     def set_plant_inputs(self, name: str, fan: float, flow_mm_s: float, ambient_c: float,
                          at_s: float | None = None) -> None:
@@ -670,7 +708,8 @@ class KlipperTwin:
         clarify = (f"Sensor '{heater.name}' temperature {heater.last_temp:.3f} not in range "
                    f"{heater.min_temp:.3f}:{heater.max_temp:.3f}")
         message = f"MCU '{MCU_NAME}' shutdown: {ADC_OUT_OF_RANGE}\n\n{clarify}\n{ADC_RANGE_HINT}"
-        self._shutdown(MCU_SHUTDOWN, message)
+        self._shutdown(MCU_SHUTDOWN, message, Trip(0, KLIPPER_HEATERS.get(channel.name, channel.name),
+                                                   ADC_OUT_OF_RANGE))
 
     def _verify(self, channel: _Channel) -> None:
         if self.halted:
@@ -678,7 +717,8 @@ class KlipperTwin:
         try:
             next_s = channel.verify.check_event(self.time_s)  # type: ignore[union-attr]  # pushed only with a verify
         except HeaterFault as fault:
-            self._shutdown(str(fault), str(fault))
+            self._shutdown(str(fault), str(fault), Trip(0, KLIPPER_HEATERS.get(channel.name, channel.name),
+                                                        str(fault).split("\n")[0]))
             return
         self._push(next_s, PRIO_VERIFY, self._verify, channel)
 
@@ -692,11 +732,12 @@ class KlipperTwin:
             self.log.append((eventtime, f"Stats {eventtime:.1f}: {fragments} {toolhead}"))
         self._push((k + 1) * STATS_INTERVAL_S, PRIO_STATS, self._stats, k + 1)
 
-    def _shutdown(self, log_message: str, message: str) -> None:
+    def _shutdown(self, log_message: str, message: str, trip: Trip) -> None:
         """klippy's invoke_shutdown: every heater off from now on; no more reports or checks."""
         if self.halted:
             return
         self.halted = True
+        self._trip = trip
         self.shutdown_time_s = self.time_s
         self.shutdown_message = message
         self.log.append((self.time_s, SHUTDOWN_STATE + log_message))

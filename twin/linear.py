@@ -65,6 +65,9 @@ class TickModel:
         self._d_resp = [np.zeros((n, m))]  # sum_{j<k} Phi^j H
         self._runs: OrderedDict[tuple, Any] = OrderedDict()  # (kind, n_ticks[, offsets]) -> cached maps, LRU
 
+    def __repr__(self) -> str:
+        return f"TickModel({self.phi.shape[0]} states, {self.h.shape[1]} disturbances, {len(self._runs)} runs cached)"
+
     def _extend(self, k: int) -> None:
         while len(self._powers) <= k:
             p = self._powers[-1]
@@ -145,6 +148,11 @@ class LinearPlant:
         self.d = np.array(d, dtype=float)
         self.delay_ticks = int(delay_ticks)
         self._u_history = np.zeros(self.delay_ticks)  # the last delay_ticks inputs, oldest first
+
+    def __repr__(self) -> str:
+        temps = self.temps_c()
+        return f"{type(self).__name__}(sensor {temps[SENSOR]:.2f} C, block {temps[BLOCK]:.2f} C, " \
+               f"conditions {self.conditions}, delay {self.delay_ticks} ticks)"
 
     def set_conditions(self, conditions: Hashable) -> None:
         """New fan/flow conditions (a scenario event): pick or build their discretisation."""

@@ -327,6 +327,11 @@ class Plant(LinearPlant):
     def ambient_c(self) -> float:
         return float(self.d[0])
 
+    def __repr__(self) -> str:
+        temps = self.temps_c()
+        return f"Plant({self.preset!r}, {type(self.spec).__name__}, sensor {temps[SENSOR]:.2f} C, block " \
+               f"{temps[BLOCK]:.2f} C, fan {self.fan:g}, flow {self.flow_mm_s:g} mm/s, ambient {self.ambient_c:g} C)"
+
     def set_inputs(self, fan: float, flow_mm_s: float, ambient_c: float) -> None:
         """New part-fan speed (0..1), filament feed (mm/s) and ambient (degC): a scenario event."""
         if not 0.0 <= fan <= 1.0:

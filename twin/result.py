@@ -30,6 +30,14 @@ HEATER_IDS = {"hotend": "E0", "bed": "bed"}  # the Heater_ID Marlin prints in it
 TRIP_SUFFIX = ", system stopped! Heater_ID: "  # Marlin's _temp_error line
 
 
+def parse_trip(text: str) -> tuple[str, str] | None:
+    """(what, heater id) of a line of Marlin's _temp_error ("Error:Thermal Runaway, system stopped! Heater_ID: E0")."""
+    if not (text.startswith("Error:") and TRIP_SUFFIX in text):
+        return None
+    what, heater_id = text[len("Error:"):].split(TRIP_SUFFIX)
+    return what, heater_id
+
+
 @dataclass(frozen=True)
 class HeaterRun:
     """One heater's arrays over a run: shape (rows,) or (rows, lanes)."""
@@ -109,12 +117,7 @@ class RunResult:
 
     def protection_trips(self) -> list[tuple[float, str, str]]:
         """(time, what, heater id) of each thermal protection error Marlin printed."""
-        found = []
-        for t_s, text in self.events:
-            if text.startswith("Error:") and TRIP_SUFFIX in text:
-                what, heater_id = text[len("Error:"):].split(TRIP_SUFFIX)
-                found.append((t_s, what, heater_id))
-        return found
+        return [(t_s, *trip) for t_s, text in self.events if (trip := parse_trip(text)) is not None]
 
     def report(self, disturbances: Sequence[tuple[float, str]] = ()) -> str:
         """Step metrics per setpoint of each heater, a line for each step whose hold limit-cycles, then the

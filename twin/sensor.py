@@ -49,6 +49,11 @@ class SensorChain:
         self._detached_tick = 0
         self._ambient_c = 0.0
 
+    def __repr__(self) -> str:
+        return f"SensorChain({self.divider!r}, noise {self.noise_lsb:g} LSB" + \
+            (f", {self.fault}" if self.fault else "") + \
+            (f", gradient {self.gradient_fraction:g}" if self.gradient_fraction else "") + ")"
+
     def set_fault(self, fault: str | None, tick: int, sensor_c: float, ambient_c: float) -> None:
         """Schedule-time fault change; a detaching bead starts at the sensor node's temperature."""
         if fault not in (None, OPEN, SHORT, DETACHED):

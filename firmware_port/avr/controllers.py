@@ -47,6 +47,9 @@ class AvrController:
         """The law's state as the MCU holds it now."""
         return self._sim.read_state()
 
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.law.title}, in simavr, mirroring {self._config!r})"
+
 
 class AvrTunable(AvrController):
     """An AvrController that takes PID gains (M301/M304, M303 U1), like the controller it mirrors."""

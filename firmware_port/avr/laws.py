@@ -39,6 +39,9 @@ class Law:
     state_fields: Fields = ()
     config_fields: Fields = ()
 
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}: {self.title})"
+
     @property
     def record_fields(self) -> Fields:
         """What the harness reads after each step: law_out, then law_state."""

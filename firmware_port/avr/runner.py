@@ -27,6 +27,9 @@ class LawSim:
         self.in_dtype = dtype(law.in_fields)
         self.record_dtype = dtype(law.record_fields)
 
+    def __repr__(self) -> str:
+        return f"LawSim({self.law.name!r}, elf={self.sim.info.path.name})"
+
     def inputs(self, records: Sequence[tuple]) -> np.ndarray:
         """Input records (tuples in law_in's field order) as the array ``run`` takes."""
         return np.array(list(records), self.in_dtype)

@@ -59,6 +59,9 @@ class AvrSim:
         self.mailbox = self.info.sram("mailbox")[0]
         self._check(self._lib.shim_wait(self._avr, self.mailbox, MAILBOX_IDLE, BOOT_MAX_CYCLES), "booting")
 
+    def __repr__(self) -> str:
+        return f"AvrSim({self.info.path.name}, {MCU} at {F_CPU_HZ / 1e6:g} MHz{'' if self._avr else ', closed'})"
+
     def close(self) -> None:
         if getattr(self, "_avr", None):  # also when __init__ failed half way
             self.ram = self.ram[:0]  # no view into the freed data space

@@ -34,6 +34,7 @@ from firmware_port.klipper.heater import (
     HeaterConfig,
     KlipperHeater,
     PwmEvent,
+    config_gains_text,
     duty_gains,
 )
 from firmware_port.kalico.mpc import ControlMPC, MpcConfig
@@ -122,6 +123,10 @@ class ControlVelocityPID:
         self.d1 = 0.0  # smoothed first difference, degC per report
         self.d2 = 0.0  # smoothed second difference over the last interval, degC per report per s
         self.pwm = 0.0
+
+    def __repr__(self) -> str:
+        return f"ControlVelocityPID({self.heater.short_name}, {config_gains_text(self.kp, self.ki, self.kd)}, " \
+               f"pwm={self.pwm:.3f})"
 
     def temperature_update(self, read_time: float, temp: float, target_temp: float) -> PwmEvent | None:
         self.temps = [self.temps[1], self.temps[2], temp]

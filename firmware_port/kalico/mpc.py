@@ -104,6 +104,10 @@ class ControlMPC:
         self.extruder: Extruder | None = None  # the toolhead's extruder when it drives this heater's nozzle
         self.fan_speed: Callable[[float], float] | None = None  # the part fan's speed (0..1) at a print time
 
+    def __repr__(self) -> str:
+        return f"ControlMPC({self.heater.short_name}, {self.config!r}, block={self.block_c:.2f}, " \
+               f"sensor={self.sensor_c:.2f}, ambient={self.ambient_c:.2f})"
+
     def check_valid(self) -> None:
         """Heater.set_temp asks this before a non-zero target: without its constants MPC cannot heat."""
         if self.config.calibrated:

@@ -55,6 +55,10 @@ class TuningControl:
         self.log: list[tuple[float, float]] = []  # (read_time, temp)
         self.logging = False
 
+    def __repr__(self) -> str:
+        return f"TuningControl({self.heater.short_name}, value={self.value:g}, target={self.target_c}, " \
+               f"logged={len(self.log)})"
+
     def temperature_update(self, read_time: float, temp: float, target_temp: float) -> PwmEvent | None:
         if self.logging:
             self.log.append((read_time, temp))
@@ -186,6 +190,10 @@ class MpcCalibrate:
         self.use_delta = use_delta
         self.max_measure_s, self.sample_s = ambient_max_measure_time_s, ambient_measure_sample_time_s
         self.fan_breakpoints = fan_breakpoints
+
+    def __repr__(self) -> str:
+        return f"MpcCalibrate({self.heater.short_name}, target={self.target_c:g}, threshold={self.threshold_c:g}, " \
+               f"use_delta={self.use_delta})"
 
     def run(self) -> MpcCalibration:
         """The whole calibration; the heater's control is restored (target 0) whatever happens."""

@@ -53,6 +53,10 @@ class ControlAutoTune:
         self.target_crossed = self.done = self.started = self.errored = False
         self.data: list[tuple[float, float, float, float]] = []
 
+    def __repr__(self) -> str:
+        return f"ControlAutoTune({self.heater.short_name}, target={self.target:g}, tolerance={self.tolerance:g}, " \
+               f"peaks={len(self.peaks)}, done={self.done})"
+
     def temperature_update(self, read_time: float, temp: float, target_temp: float) -> PwmEvent | None:
         if self.done:
             return None

@@ -162,6 +162,10 @@ class KlipperHeater:
         self.last_pwm_value = 0.0  # the last value sent to the MCU
         self.control: Control = self.new_control(config)
 
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.short_name!r}, control={self.control!r}, target={self.target_temp:g}, " \
+               f"temp={self.last_temp:.2f}, pwm={self.last_pwm_value:.3f})"
+
     def new_control(self, config: HeaterConfig) -> Control:
         """The control object ``config.control`` names, for this heater."""
         return CONTROLS[config.control](self, config)  # type: ignore[return-value]
@@ -265,11 +269,19 @@ class ControlBangBang:
     def check_busy(self, eventtime: float, smoothed_temp: float, target_temp: float) -> bool:
         return smoothed_temp < target_temp - self.max_delta
 
+    def __repr__(self) -> str:
+        return f"ControlBangBang({self.heater.short_name}, max_delta={self.max_delta:g}, heating={self.heating})"
+
 
 def duty_gains(config: HeaterConfig) -> tuple[float, float, float]:
     """(Kp, Ki, Kd) in duty fraction per degC (per degC*s, per degC/s): the config gains / PID_PARAM_BASE."""
     assert config.pid_kp is not None and config.pid_ki is not None and config.pid_kd is not None  # HeaterConfig checks
     return config.pid_kp / PID_PARAM_BASE, config.pid_ki / PID_PARAM_BASE, config.pid_kd / PID_PARAM_BASE
+
+
+def config_gains_text(kp: float, ki: float, kd: float) -> str:
+    """Duty gains as the config states them (``duty_gains`` undone), for a control's repr."""
+    return f"Kp={kp * PID_PARAM_BASE:g}, Ki={ki * PID_PARAM_BASE:g}, Kd={kd * PID_PARAM_BASE:g}"
 
 
 class ControlPID:
@@ -286,6 +298,10 @@ class ControlPID:
         self.prev_temp_time = 0.0  # so the first update sees dt = read_time
         self.prev_temp_deriv = 0.0
         self.prev_temp_integ = 0.0
+
+    def __repr__(self) -> str:
+        return f"ControlPID({self.heater.short_name}, {config_gains_text(self.kp, self.ki, self.kd)}, " \
+               f"integral={self.prev_temp_integ:.4g})"
 
     def temperature_update(self, read_time: float, temp: float, target_temp: float) -> PwmEvent | None:
         time_diff = read_time - self.prev_temp_time

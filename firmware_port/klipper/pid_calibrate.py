@@ -66,6 +66,9 @@ class ControlAutoTune:
         self.pwm_samples: list[tuple[float, float]] = []  # (read_time + pwm_delay, requested value)
         self.temp_samples: list[tuple[float, float]] = []  # (read_time, temp)
 
+    def __repr__(self) -> str:
+        return f"ControlAutoTune({self.heater.short_name}, target={self.calibrate_temp:g}, peaks={len(self.peaks)})"
+
     def set_pwm(self, read_time: float, value: float) -> PwmEvent | None:
         """Record a changed request, then pass it through the heater's set_pwm."""
         if value != self.last_pwm:
@@ -143,6 +146,10 @@ class PidCalibrate:
         except CommandError:
             heater.set_control(self.old_control)
             raise
+
+    def __repr__(self) -> str:
+        return f"PidCalibrate({self.heater.short_name}, target={self.tune.calibrate_temp:g}, " \
+               f"peaks={len(self.tune.peaks)})"
 
     def check_busy(self, eventtime: float) -> bool:
         """True while the relay test is still running."""

@@ -52,6 +52,10 @@ class VerifyHeater:
         self.goal_systime = NEVER
         LOG.info("Starting heater checks for %s", self.heater_name)
 
+    def __repr__(self) -> str:
+        return f"VerifyHeater({self.heater_name}, hysteresis={self.hysteresis:g}, max_error={self.max_error:g}, " \
+               f"heating_gain={self.heating_gain:g}, check_gain_time={self.check_gain_time:g}, error={self.error:.4g})"
+
     def check_event(self, eventtime: float) -> float:
         """One check; returns the time of the next. Raises HeaterFault on a runaway."""
         temp, target = self.heater.get_temp(eventtime)

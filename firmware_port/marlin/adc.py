@@ -52,6 +52,9 @@ class AdcSequencer:
         self.raw = [0] * n_channels
         self.raw_ready = False
 
+    def __repr__(self) -> str:
+        return f"AdcSequencer({self.n_channels} channels, phase {self.phase}, round {self.temp_count}, raw {self.raw})"
+
     def tick(self) -> None:
         """The ADC part of one temperature ISR."""
         phase = self.phase

@@ -214,6 +214,10 @@ class Autotune:
         self.succeeded = False
         self.gains: tuple[float, float, float] | None = None
 
+
+    def __repr__(self) -> str:
+        heater = "bed" if self.is_bed else f"E{self.heater_id}"
+        return f"Autotune(M303 {heater} S{self.target_c} C{self.ncycles}, done={self.done}, gains={self.gains})"
     def start(self, now_ms: int) -> None:
         """Marlin's code before the loop; the board runs disable_all_heaters() unless `done`.
 

@@ -16,6 +16,9 @@ class BangBangHotend:
     def reset(self) -> None:
         """Nothing to forget."""
 
+    def __repr__(self) -> str:
+        return f"BangBangHotend(on={BANG_MAX})"
+
     def update(self, temp_q5: int, target_c: int, now_ms: int = 0) -> int:
         """``is_below_target()``: celsius < target."""
         return BANG_MAX if temp_q5 < target_c << TEMP_FRAC_BITS else 0
@@ -44,6 +47,9 @@ class BangBangBed:
     def reset(self) -> None:
         """Start from off."""
         self.output = 0
+
+    def __repr__(self) -> str:
+        return f"BangBangBed(on={MAX_BED_POWER}, limit_switching={self.limit_switching}, output={self.output})"
 
     def update(self, temp_q5: int, target_c: int, now_ms: int = 0) -> int:
         """MAX_BED_POWER below target, 0 above; with limit switching, unchanged within +-1 C."""

@@ -72,6 +72,10 @@ class Heater:
     def is_bed(self) -> bool:
         return self.heater_id == H_BED
 
+    def __repr__(self) -> str:
+        return f"Heater({'bed' if self.is_bed else f'E{self.heater_id}'}, target={self.target_c}, " \
+               f"temp={self.temp_q5 / TEMP_ONE:.2f}, controller={self.controller!r})"
+
 
 class MarlinBoard:
     """A Marlin 2.1 board with a hotend (channel 0) and optionally a bed (channel 1)."""
@@ -125,6 +129,10 @@ class MarlinBoard:
         self.autotune: BoardTune | None = None  # M303 or M306 T in progress
         self.autotune_channel = HOTEND_CHANNEL
         self.autotune_apply = False  # M303 U1
+
+    def __repr__(self) -> str:
+        controllers = ", ".join(f"{'bed' if h.is_bed else 'hotend'} {type(h.controller).__name__}" for h in self.heaters)
+        return f"MarlinBoard(Marlin {self.version}, {controllers}, ms={self.now_ms}{', halted' if self.halted else ''})"
 
     # -- the outside world's view -------------------------------------------------------
     @property

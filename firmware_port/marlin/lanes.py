@@ -83,6 +83,9 @@ class HotendLanes:
         self.watch_target_c = np.zeros(n, np.int64)
         self.watch_next_ms = np.zeros(n, np.int64)
 
+    def __repr__(self) -> str:
+        return f"HotendLanes({self.n_lanes} lanes, {self.control!r}, target {self.target_c} C, {int(self.halted.sum())} halted)"
+
     @property
     def trip(self) -> np.ndarray:
         """The TempError text each lane died of ("" while it runs)."""

@@ -155,6 +155,10 @@ class MpcController:
         self._h = f(constants.filament_heat_capacity_j_k_mm)
         self._r_dt = f(self._r * self.dt)  # (sensor_responsiveness * MPC_dT)
 
+    def __repr__(self) -> str:
+        return f"MpcController({self.constants!r}, {np.dtype(self.f).name}, block_c={float(self.block_c):.2f}, " \
+               f"sensor_c={float(self.sensor_c):.2f})"
+
     def reset(self) -> None:
         """The MCU's reset: the model starts again from the first reading (Temperature::init())."""
         f = self.f

@@ -121,6 +121,9 @@ class MpcAutotune:
         self.last_c = F32(0)
 
     # -- what the board calls --------------------------------------------------------------
+
+    def __repr__(self) -> str:
+        return f"MpcAutotune(M306 T, {self.phase.value}, done={self.done}, succeeded={self.succeeded})"
     def start(self, now_ms: int) -> None:
         """Before the first loop: the start line, heaters off, fan 255, "Cooling to ambient"."""
         board = self.board

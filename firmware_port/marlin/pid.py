@@ -88,6 +88,9 @@ class QScale:
         self.exact = scale * (1 << frac_bits)
         self.factor = float(self.exact)
 
+    def __repr__(self) -> str:
+        return f"QScale(x {self.exact})"
+
     def __call__(self, value: float) -> int:
         x = float(value)
         v = x * self.factor
@@ -143,6 +146,9 @@ class PidFixed:
         self.set_gains(gains)
         self.prev_q5 = 0  # Marlin starts temp_dState at 0.0
         self.reset()
+
+    def __repr__(self) -> str:
+        return f"PidFixed({self.gains!r}, prev_temp_mode={str(self.prev_temp_mode)!r})"
 
     def set_gains(self, gains: PidGains) -> None:
         """M301: scale user gains into Q integers (configuration time) and reset the loop."""
@@ -230,6 +236,9 @@ class PidLanes:
         self.prev_q5 = np.zeros(n, np.int64)
         self.reset_pending = np.ones(n, bool)
 
+
+    def __repr__(self) -> str:
+        return f"PidLanes({len(self.every_sample)} lanes, {int(self.every_sample.sum())} updating T_prev every sample)"
     def update_q8(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray) -> np.ndarray:
         """One step on the ``active`` lanes (others keep their state); Q.8 output, 0 elsewhere."""
         e = (target_c << TEMP_FRAC_BITS) - temp_q5

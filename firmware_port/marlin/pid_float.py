@@ -43,6 +43,9 @@ class PidFloat:
         self.prev_c = ZERO_F32  # temp_dState
         self.reset()
 
+    def __repr__(self) -> str:
+        return f"PidFloat({self.gains!r}, prev_temp_mode={str(self.prev_temp_mode)!r}, float32)"
+
     def set_gains(self, gains: PidGains) -> None:
         """Store as Marlin does: Kp, Ki*PID_dT (scalePID_i), Kd/PID_dT (scalePID_d)."""
         self.gains = gains

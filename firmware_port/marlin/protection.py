@@ -90,6 +90,9 @@ class RunawayMonitor:
         self.running_c = 0  # running_temp: the watched target (a float in Marlin, whole degrees)
         self.timer_ms = 0  # timer: uint32 millis_t deadline while Stable
 
+    def __repr__(self) -> str:
+        return f"RunawayMonitor({self.period_s} s, {self.hysteresis_c} C, {self.state.name}, watching {self.running_c} C)"
+
     @classmethod
     def hotend(cls) -> RunawayMonitor:
         """THERMAL_PROTECTION_PERIOD 40 s, THERMAL_PROTECTION_HYSTERESIS 4 C."""
@@ -137,6 +140,10 @@ class HeaterWatch:
         self.target_c = 0  # celsius_t: the temperature to reach by the deadline
         # uint32 millis_t deadline; 0 means not watching (as in Marlin, even one wrapped to 0)
         self.next_ms = 0
+
+    def __repr__(self) -> str:
+        watching = f"to reach {self.target_c} C by {self.next_ms} ms" if self.next_ms else "idle"
+        return f"HeaterWatch(+{self.increase_c} C per {self.period_s} s, {watching})"
 
     @classmethod
     def hotend(cls) -> HeaterWatch:
@@ -216,6 +223,10 @@ class TempRange:
         self.maxtemp_c = maxtemp_c
         self.raw_min = table.raw_threshold(mintemp_c, above=False)
         self.raw_max = table.raw_threshold(maxtemp_c, above=True)
+
+    def __repr__(self) -> str:
+        return f"TempRange({self.mintemp_c}..{self.maxtemp_c} C, raw {self.raw_max}..{self.raw_min}, " \
+               f"max target {self.max_target_c} C)"
 
     @classmethod
     def hotend(cls, table: TempTable) -> TempRange:

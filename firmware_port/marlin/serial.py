@@ -55,6 +55,10 @@ class Console:
         self.text = ""
         self.listeners: list[Callable[[str], None]] = []  # callables(text) told of every write (the twin's trace, a transport)
 
+    def __repr__(self) -> str:
+        lines = self.lines()
+        return f"Console({len(lines)} lines, last {lines[-1]!r})" if lines else "Console(empty)"
+
     def write(self, text: str) -> None:
         self.text += text
         for listener in self.listeners:

@@ -28,6 +28,9 @@ class SoftPwm:
         self.count = [0] * n_channels
         self.pins = [False] * n_channels
 
+    def __repr__(self) -> str:
+        return f"SoftPwm(amount {self.amount}, count {self.pwm_count})"
+
     def set_amount(self, channel: int, amount: int) -> None:
         """Main loop writes ``soft_pwm_amount`` (0..127)."""
         if not 0 <= amount <= SOFT_PWM_MAX:

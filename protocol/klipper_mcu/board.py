@@ -60,6 +60,9 @@ class PinWave:
         self.on = np.zeros(1, dtype=np.int64)
         self.period = np.ones(1, dtype=np.int64)
 
+    def __repr__(self) -> str:
+        return f"PinWave({int(self.on[-1])}/{int(self.period[-1])} from clock {int(self.starts[-1])})"
+
     def drive(self, clock: int, on: int, period: int) -> None:
         """A change at ``clock`` (not before the last one: a late change takes effect at the last)."""
         clock = max(clock, int(self.starts[-1]))
@@ -142,6 +145,9 @@ class TwinBoard:
                 self._actions.push(round(event.at_s / TICK_S), self._apply_event, event)
 
     # -- what the MCU does to the pins ---------------------------------------------------------
+    def __repr__(self) -> str:
+        return f"TwinBoard({', '.join(f'{name} {h.plant!r}' for name, h in self.heaters.items())}, {self.sensor_type})"
+
     def adc(self, pin: str, clock: int) -> int:
         """One conversion of the pin at world clock ``clock``; an unwired pin reads open (ADC_MAX)."""
         heater = self._by_sensor.get(pin)

@@ -167,6 +167,9 @@ class BlockReader:
         self._need_sync = False
         self._naked = False  # a nak went out for garbage since the last valid block
 
+    def __repr__(self) -> str:
+        return f"BlockReader({len(self._buffer)} bytes waiting)"
+
     def feed(self, data: bytes) -> Iterator[Block | None]:
         self._buffer += data
         while self._buffer:

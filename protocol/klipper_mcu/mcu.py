@@ -104,6 +104,9 @@ class KlipperMcu:
             name: getattr(self, "_cmd_" + name) for name in dictionary.commands}
         self.boot(0)
 
+    def __repr__(self) -> str:
+        return f"KlipperMcu(clock {self.now}, {'shut down: ' + str(self.shutdown_reason) if self._shutdown else 'running'})"
+
     # -- the outside world -------------------------------------------------------------------
     def boot(self, clock: int) -> None:
         """Power-on or reset at world clock ``clock``: all state anew, pins low, clock from 0."""

@@ -40,6 +40,9 @@ class McuServer:
         self._holders = 0
         self._unsent = bytearray()
 
+    def __repr__(self) -> str:
+        return f"McuServer({self.address}, speed {self.speed:g}, {self.mcu!r})"
+
     @property
     def address(self) -> str:
         return self.link or self.path

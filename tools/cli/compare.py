@@ -16,15 +16,17 @@ from __future__ import annotations
 import argparse
 import sys
 import textwrap
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 from tools.cli.args import plot_path, ranged_float
 from tools.entry import OneLineParser, run_main
 from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.lsq import MAX_EVALUATIONS
 from tools.ident.segments import NotFittable
-from tools.logs import HeattestLog, LogError, M303Log, StatsLog
+from tools.logs import Log, LogError, StatsLog, heattest, klipper_stats, m303
 from tools.validation import compare, m303_compare
 from tools.validation.tables import WIDTH, markdown_cells, text_tables
 from twin.limits import AMBIENT_RANGE_C
@@ -74,11 +76,11 @@ def _stats_heater(path: Path, heater: str, report: Report, closed: list[str], tu
     report.out_of_sample.append(t.passed)
 
 
-def _stats(path: Path, log: StatsLog) -> Report:
+def _stats(args: argparse.Namespace, log: Log) -> Report:
     report, closed, tunes = Report(), list[str](), list[str]()
     for heater in compare.HEATERS:
-        if any(heater in s for s in log.sessions):
-            _stats_heater(path, heater, report, closed, tunes)
+        if any(heater in s for s in cast(StatsLog, log).sessions):  # what the Klipper Stats readers return
+            _stats_heater(args.log, heater, report, closed, tunes)
     if not report.traces:
         raise compare.Unusable("no heater of this Klipper log has a heat-up to replay")
     report.lines += ["Closed-loop replay (held-out: the plant fitted to another heat-up; in-sample: to this one)", ""]
@@ -92,7 +94,8 @@ def _stats(path: Path, log: StatsLog) -> Report:
 # --- heattests -------------------------------------------------------------------------------------
 
 
-def _heattest(path: Path) -> Report:
+def _heattest(args: argparse.Namespace, log: Log) -> Report:
+    path: Path = args.log
     if path.name not in compare.ONION_FILES or not all((path.parent / f).is_file() for f in compare.ONION_FILES[:3]):
         raise compare.Unusable("the open-loop check needs the onionheater no-fan and fan heattests side by side "
                                f"({', '.join(compare.ONION_FILES[:3])}); this heattest is not one of them")
@@ -111,7 +114,7 @@ def _heattest(path: Path) -> Report:
 # --- M303 ------------------------------------------------------------------------------------------
 
 
-def _m303(args: argparse.Namespace) -> Report:
+def _m303(args: argparse.Namespace, log: Log) -> Report:
     with progress_bar("fitting", MAX_EVALUATIONS * len(m303_compare.MODELS), "evaluations") as fits, \
             progress_bar("twin M303", m303_compare.MAX_RUN_S, "s") as run:
         try:
@@ -206,18 +209,22 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+# The checks by log format (tools/logs/registry.py: a reader's name is its format).
+CHECKS: dict[str, Callable[[argparse.Namespace, Log], Report]] = {
+    klipper_stats.STATS_CSV_READER.name: _stats,
+    klipper_stats.KLIPPY_LOG_READER.name: _stats,
+    heattest.READER.name: _heattest,
+    m303.READER.name: _m303,
+}
+
+
 def _report(args: argparse.Namespace) -> Report:
     log = load_with_progress(args.log)
-    if (args.fit_cycles is not None or args.plant is not None) and not isinstance(log, M303Log):
+    if (args.fit_cycles is not None or args.plant is not None) and log.format != m303.READER.name:
         raise compare.Unusable("--fit-cycles and --plant need an M303 capture")
-    if isinstance(log, StatsLog):
-        return _stats(args.log, log)
-    if isinstance(log, HeattestLog):
-        return _heattest(args.log)
-    if isinstance(log, M303Log):
-        return _m303(args)
-    raise compare.Unusable(f"a {type(log).__name__ if not isinstance(log, list) else 'PID results list'}: "
-                           "the checks need a Klipper Stats log, an M303 capture or the onionheater heattests")
+    if log.format not in CHECKS:
+        raise compare.Unusable(f"no check for its format ({log.format}): the checks take {', '.join(CHECKS)}")
+    return CHECKS[log.format](args, log)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -43,7 +43,7 @@ from tools.ident.relay_points import CYCLE_SCATTER_SWING_REL, CYCLE_SCATTER_TU_R
 from tools.ident.relay_trace import AMBIENT_PRIOR_C
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
-from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog
+from tools.logs import MARLIN_POWER_MAX, Log, LogError, M303Log, StatsLog
 from tools.cli.progress import Steps
 from tools.tuning.allowed import allowed_plants
 from tools.tuning.evaluate import Problem
@@ -63,8 +63,6 @@ exit status:
 """
 WIDTH = 120  # output lines are wrapped to this
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
-KINDS = {StatsLog: "Klipper Stats", HeattestLog: "Klipper heattest (open loop)", M303Log: "Marlin M303 console text",
-         PlainLog: "plain CSV (time, temperature, duty)", list: "Klipper PID_CALIBRATE results"}
 STATS_NOTE = ("Klipper Stats: pwm is the last value sent to the MCU, once a second; Klipper holds back a change "
               "under 5 % of max_power for up to 2.1..3.75 s (by version). It is the input all the same.")
 ERRORS_NOTE = ("standard errors: from the Jacobian, for independent residuals; a log's residuals are correlated "
@@ -149,8 +147,7 @@ def _wrap_keeping_indent(line: str) -> list[str]:
 
 def _log_lines(log: Log, fitted: LogFit) -> list[str]:
     """What the log is and the segments it offers, the fitted one starred."""
-    kind = next((name for cls, name in KINDS.items() if isinstance(log, cls)), type(log).__name__)
-    lines = [f"{kind}; heater {fitted.heater}"]
+    lines = [f"{log.format}; heater {fitted.heater}"]
     if fitted.segments:
         lines[0] += "; segments (open loop: full power or off; in between: the controller's duty):"
         for i, seg in enumerate(fitted.segments):

@@ -44,7 +44,7 @@ from tools.ident.relay_points import (
 from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_reading_c, relay_target_c
 from tools.ident.result import FitResult, aic
 from tools.ident.segments import NotFittable, Segment, default_segment, log_segments
-from tools.logs import MARLIN_POWER_MAX, Log, M303Log, PidCalibrateResult
+from tools.logs import MARLIN_POWER_MAX, Log, M303Log, PidCalibrateResults
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 BED = "heater_bed"
@@ -247,7 +247,7 @@ def _m303_fit(log: M303Log, options: LogFitOptions) -> LogFit:
                   segment=trace, target_c=target_c, target_source=target_source)
 
 
-def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) -> LogFit:
+def _pid_results_fit(results: PidCalibrateResults, options: LogFitOptions) -> LogFit:
     """One PID_CALIBRATE entry (--segment, default the first) as a relay point at its heater's assumed target."""
     chosen = 0 if options.segment is None else options.segment
     if not 0 <= chosen < len(results):

@@ -35,6 +35,7 @@ class KlippyApi:
     """One connection to klippy's API socket; ``close()`` (or ``with``) ends it."""
 
     def __init__(self, path: str, connect_timeout_s: float = 30.0):
+        self.path = path
         deadline = time.monotonic() + connect_timeout_s
         while True:
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -50,6 +51,9 @@ class KlippyApi:
         self._buffer = b""
         self.output: list[str] = []  # every G-code response seen since subscribe_output
         self._subscribed = False
+
+    def __repr__(self) -> str:
+        return f"KlippyApi({self.path})"
 
     def close(self) -> None:
         self._sock.close()

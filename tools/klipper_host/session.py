@@ -71,6 +71,9 @@ class KlipperSession:
     ``mcu_args`` go to twin-klipper-mcu (--scenario, --plant, ...); ``extra_config`` is appended
     to the printed printer.cfg. Both processes are stopped on exit, whatever happened."""
 
+    def __repr__(self) -> str:
+        return f"KlipperSession({self.workdir}, speed {self.speed:g}, {len(self._processes)} processes)"
+
     def __init__(self, workdir: Path, *, speed: float = 10.0, mcu_args: tuple[str, ...] = (),
                  extra_config: str = "", wait_ready: bool = True):
         self.workdir, self.speed = Path(workdir), speed

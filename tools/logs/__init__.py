@@ -3,7 +3,8 @@
 PID_CALIBRATE results (pid_calibrate), plain CSV of time, temperature and duty (plain_csv). The
 result types are in results, the shared line reading in lines. Each format's module declares its
 ``Reader`` (tools/logs/registry.py); ``load_log`` (detect) asks the registered readers in turn, on
-the file's first lines only.
+the file's first lines only, and names the format on the log it returns (``log.format``: the reader's
+name). A user's reader plugs in through an entry point or ``HEATER_TWIN_READERS`` (registry.py).
 
 The logs stay where they are: every reader takes a path (``hardware_logs_dir()`` finds the shared
 captures). All readers share one line reader, which keeps line numbers and skips comment lines:
@@ -16,7 +17,7 @@ Stats logs come as sessions (one per klippy start), and ``HeaterSeries.segments(
 session at gaps longer than STATS_GAP_S, where Klipper wrote no lines.
 """
 
-from tools.logs.detect import load_log
+from tools.logs.detect import format_names, load_log
 from tools.logs.heattest import parse_heattest
 from tools.logs.klipper_stats import parse_klipper_stats_csv, parse_klippy_log
 from tools.logs.lines import LogError, csv_rows, read_progress
@@ -41,6 +42,7 @@ from tools.logs.results import (
     M303Run,
     M303Status,
     PidCalibrateResult,
+    PidCalibrateResults,
     PlainLog,
     StatsLog,
 )
@@ -48,7 +50,7 @@ from tools.logs.results import (
 __all__ = [
     "BED_COMMAND_RE", "DEFAULT_LOGS", "LOGS_ENV", "MARLIN_POWER_MAX", "REPETIER_POWER_MAX", "STATS_GAP_S",
     "UNKNOWN_HEATER", "HeaterSeries", "HeattestLog", "Log", "LogError", "M303Cycle", "M303Log", "M303Run", "M303Status",
-    "PidCalibrateResult", "PlainLog", "StatsLog", "csv_rows", "hardware_logs_dir", "load_log", "parse_heattest",
-    "parse_klipper_stats_csv", "parse_klippy_log", "parse_m303", "parse_pid_calibrate_results", "parse_plain_csv",
-    "read_progress", "results_only",
+    "PidCalibrateResult", "PidCalibrateResults", "PlainLog", "StatsLog", "csv_rows", "format_names", "hardware_logs_dir",
+    "load_log", "parse_heattest", "parse_klipper_stats_csv", "parse_klippy_log", "parse_m303",
+    "parse_pid_calibrate_results", "parse_plain_csv", "read_progress", "results_only",
 ]

@@ -56,5 +56,5 @@ def parse_heattest(path: str | Path) -> HeattestLog:
                        [(t, v) for _, t, v in events])
 
 
-READER = Reader("Klipper heattest", lambda head: head.first == HEATTEST_CSV_HEADER or head.first.startswith("pwm: "),
+READER = Reader("Klipper heattest (open loop)", lambda head: head.first == HEATTEST_CSV_HEADER or head.first.startswith("pwm: "),
                 parse_heattest)

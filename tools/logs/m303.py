@@ -261,4 +261,4 @@ def parse_m303(path: str | Path) -> M303Log:
                    hints, reader.skipped, reader.idle_c, reader.runs)
 
 
-READER = Reader("M303 console text", lambda head: any(CONSOLE_RE.match(text) for text in head.texts), parse_m303)
+READER = Reader("M303 console text (Marlin, Repetier)", lambda head: any(CONSOLE_RE.match(text) for text in head.texts), parse_m303)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from tools.logs.lines import GAIN_RE, LogError, console_text, is_comment, parse_number, read_lines
 from tools.logs.registry import Reader
-from tools.logs.results import PidCalibrateResult
+from tools.logs.results import PidCalibrateResult, PidCalibrateResults
 
 PID_HEADING_RE = re.compile(r"^\[(\d+)\]\s+(https?://\S+)?")
 KLIPPER_HEATER_RE = re.compile(r"\b(extruder\d*|heater_bed)\b")
@@ -71,7 +71,7 @@ class _PidReader:
             raise LogError(self.path, self.gains_no, INCOMPLETE_GAINS)
 
 
-def parse_pid_calibrate_results(path: str | Path) -> list[PidCalibrateResult]:
+def parse_pid_calibrate_results(path: str | Path) -> PidCalibrateResults:
     """Klipper PID gains in any of the forms the results collection holds: "Autotune: final:
     Kp=.. Ki=.. Kd=..", "PID parameters: pid_Kp=.. pid_Ki=.. pid_Kd=..", "pid_kp = .." (one line
     each or on one line), also in the comment table of SAVE_CONFIG values. An entry heading
@@ -84,8 +84,8 @@ def parse_pid_calibrate_results(path: str | Path) -> list[PidCalibrateResult]:
     reader.require_no_pending_gains()
     if not reader.results:
         raise LogError(path, lines[-1][0] if lines else 1, "no PID gains")
-    return reader.results
+    return PidCalibrateResults(reader.results)
 
 
-READER = Reader("PID_CALIBRATE results", lambda head: any(RESULT_RE.match(text) for text in head.texts),
+READER = Reader("Klipper PID_CALIBRATE results", lambda head: any(RESULT_RE.match(text) for text in head.texts),
                 parse_pid_calibrate_results)

@@ -45,4 +45,4 @@ def parse_plain_csv(path: str | Path) -> PlainLog:
     return PlainLog(Path(path), t_s, temp_c, duty / duty_max, percent)
 
 
-READER = Reader("plain CSV", lambda head: head.first.count(",") == 2, parse_plain_csv)
+READER = Reader("plain CSV (time, temperature, duty)", lambda head: head.first.count(",") == 2, parse_plain_csv)

@@ -48,6 +48,7 @@ class StatsLog:
     path: Path
     sessions: list[dict[str, HeaterSeries]]
     meta: dict
+    format: str = ""  # the name of the reader load_log read it with (tools/logs/registry.py)
 
 
 @dataclass(eq=False)
@@ -59,6 +60,7 @@ class HeattestLog:
     temp_c: np.ndarray
     pwm: np.ndarray  # 0..1
     pwm_events: list[tuple[float, float]]  # (t_s, pwm) where the duty changes
+    format: str = ""  # the name of the reader load_log read it with (tools/logs/registry.py)
 
 
 @dataclass
@@ -117,6 +119,7 @@ class M303Log:
     skipped: list[tuple[int, str]] = field(default_factory=list)
     idle_readings_c: list[float] = field(default_factory=list)  # the untuned heater's, where it has no target nor power
     runs: list[M303Run] = field(default_factory=list)
+    format: str = ""  # the name of the reader load_log read it with (tools/logs/registry.py)
 
     def run_at(self, line_no: int) -> M303Run | None:
         """The run a line belongs to (None before the first)."""
@@ -164,6 +167,14 @@ class PlainLog:
     temp_c: np.ndarray
     duty: np.ndarray  # 0..1
     duty_from_percent: bool  # the file gave duty in percent; duty was divided by 100
+    format: str = ""  # the name of the reader load_log read it with (tools/logs/registry.py)
 
 
-Log = StatsLog | HeattestLog | M303Log | PlainLog | list[PidCalibrateResult]
+class PidCalibrateResults(list[PidCalibrateResult]):
+    """The PID_CALIBRATE results of one file, in its order."""
+
+    format: str = ""  # the name of the reader load_log read it with (tools/logs/registry.py)
+
+
+Log = StatsLog | HeattestLog | M303Log | PlainLog | PidCalibrateResults
+LOG_TYPES = (StatsLog, HeattestLog, M303Log, PlainLog, PidCalibrateResults)  # what a reader returns

@@ -52,11 +52,12 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--scenario", metavar="NAME|FILE", help="scenario preset or TOML file: faults, ambient, "
                         "plant overrides, at world times from the MCU's start")
     parser.add_argument("--sensor-type", choices=list(KLIPPER_SENSORS), default=DEFAULT_SENSOR, metavar="NAME",
-                        help=f"the thermistors on the board, a Klipper sensor_type (default {DEFAULT_SENSOR})")
+                        help=f"the thermistors on the board, a Klipper sensor_type: {', '.join(KLIPPER_SENSORS)} "
+                             f"(default {DEFAULT_SENSOR})")
     parser.add_argument("--noise-lsb", type=ranged_float(0.0, 100.0, "LSB"), default=0.0,
-                        help="Gaussian noise of each ADC conversion in LSB (default 0)")
+                        help="Gaussian noise of each ADC conversion in LSB (default %(default)s)")
     parser.add_argument("--speed", type=ranged_float(0.01, MAX_SPEED, "x real time"), default=1.0,
-                        help="MCU clock speed, x real time (default 1)")
+                        help="MCU clock speed, x real time (default %(default)s)")
     parser.add_argument("--strict", action="store_true", help="late host events shut the MCU down, as on a real one")
     parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty (replaced if it is one)")
     parser.add_argument("--print-config", action="store_true", help="print the printer.cfg sections and exit")

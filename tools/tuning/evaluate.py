@@ -56,10 +56,10 @@ from tools.tuning.optim import METHODS
 from tools.tuning.rules import RULES, tune
 from tools.validation.compare import HeaterInfo, make_setup
 from twin.batch import BatchTwin
-from twin.build import apply_event
 from twin.engine import Twin
 from twin.klipper_batch import KlipperBatch, gains_setups
-from twin.klipper_twin import HeaterSetup, KlipperTwin, extruder_setup, tick_near
+from twin.engine_protocol import Stack
+from twin.klipper_twin import HeaterSetup, KlipperTwin, extruder_setup
 from twin.linear import SENSOR, Lti
 from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
 from twin.scenario import Event
@@ -308,15 +308,6 @@ def _apply_to_plant(plant: Plant, event: Event) -> None:
     plant.set_inputs(inputs["fan"], inputs["flow"], inputs["ambient"])
 
 
-def _batch_event(batch: BatchTwin | KlipperBatch, event: Event) -> None:
-    for plant in batch.plants:
-        _apply_to_plant(plant, event)
-
-
-def _twin_load(twin: Twin, event: Event) -> None:
-    _apply_to_plant(twin.plants[0], event)
-
-
 # -- the loops -------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Traces:
@@ -345,82 +336,62 @@ def klipper_setup(problem: Problem, plant, gains: Sequence[float] | np.ndarray |
     return replace(setup, noise_lsb=problem.noise_lsb)
 
 
-def _run_batch(problem: Problem, params: np.ndarray, record: bool = True, seeds: Sequence[int] | None = None
-               ) -> Traces:
-    """The candidates as lanes of one batch on the problem's loop (each lane on its seed of ``seeds``, else
-    all on the problem's); streaming the heater objective's inputs unless ``record`` (Marlin's first
-    reading, 15 samples, is left out of them as run_chunk leaves it out of the trace)."""
-    seed: int | Sequence[int] = problem.seed if seeds is None else list(seeds)
+def _engine(problem: Problem, params: np.ndarray, record: bool, seeds: Sequence[int],
+            batched: bool) -> BatchTwin | KlipperBatch | Stack:
+    """The candidates as the lanes of one engine (twin/engine_protocol.py) on the problem's loop: a batch,
+    streaming the heater objective's inputs unless ``record`` (Marlin's first reading, 15 samples, left out
+    of them as run_chunk leaves it out of the trace), or a Stack of scalar twins, one per candidate."""
     scenario = problem.scenario
     marlin = problem.loop == "marlin"
-    heatup_end_s = scenario.disturbances_s[0] if scenario.disturbances_s else scenario.duration_s + 1.0
-    score = None if record else score_spec(scenario.target_c, scenario.ambient_c, heatup_end_s, int(marlin))
-    batch: BatchTwin | KlipperBatch
+    if batched:
+        heatup_end_s = scenario.disturbances_s[0] if scenario.disturbances_s else scenario.duration_s + 1.0
+        score = None if record else score_spec(scenario.target_c, scenario.ambient_c, heatup_end_s, int(marlin))
+        if marlin:
+            return BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params],
+                             noise_lsb=problem.noise_lsb, seed=list(seeds), record=record, score=score)
+        return KlipperBatch(gains_setups(klipper_setup(problem, make_problem_plant(problem)), params), seed=list(seeds),
+                            record=record, score=score)
     if marlin:
-        batch = BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params],
-                          noise_lsb=problem.noise_lsb, seed=seed, record=record, score=score)
-        batch.set_target(int(round(scenario.target_c)))
-    else:
-        batch = KlipperBatch(gains_setups(klipper_setup(problem, make_problem_plant(problem)), params), seed=seed,
-                             record=record, score=score)
-        batch.set_target(scenario.target_c)
+        return Stack([_marlin_twin(replace(problem, seed=int(seed)), row) for row, seed in zip(params, seeds)])
+    return Stack([KlipperTwin([klipper_setup(problem, make_problem_plant(problem), row)], seed=int(seed))
+                  for row, seed in zip(params, seeds)])
+
+
+def run_lanes(problem: Problem, params: np.ndarray, record: bool = True, seeds: Sequence[int] | None = None,
+              batched: bool | None = None) -> Traces:
+    """The one runner: the candidates (N, d) as the lanes of one engine (a batch where the loop's lanes run
+    them, ``Problem.batched``, else one scalar twin each), each on its seed of ``seeds`` (else the
+    problem's), through the scenario: the target, the events on the plants, the run to its end. The raw
+    traces (Marlin's first reading included), or with a batch and not ``record`` the streamed totals."""
+    seeds = [problem.seed] * len(params) if seeds is None else seeds
+    engine = _engine(problem, params, record, seeds, problem.batched if batched is None else batched)
+    scenario = problem.scenario
+    engine.hotend.target_c = round(scenario.target_c) if problem.loop == "marlin" else scenario.target_c
     for event in scenario.events:
-        batch.schedule(event.at_s, functools.partial(_batch_event, event=event))
-    batch.run_until(scenario.duration_s)
-    halted = batch.lanes.halted.copy() if isinstance(batch, BatchTwin) else batch.halted
-    if not record:
+        engine.schedule_plants(event.at_s, functools.partial(_apply_to_plant, event=event))
+    engine.run_until(scenario.duration_s)
+    halted = np.atleast_1d(np.array(engine.halted, bool))
+    if not record and not isinstance(engine, Stack):
         empty = np.zeros((0, len(params)))
-        return Traces(np.zeros(0), empty, empty, halted, batch.score_totals())
-    hotend = batch.result().hotend
-    return Traces(hotend.t_s, hotend.measured_c, hotend.duty, halted)
+        return Traces(np.zeros(0), empty, empty, halted, engine.score_totals())
+    hotend = engine.result().hotend
+    rows = len(hotend.t_s)
+    return Traces(hotend.t_s, hotend.measured_c.reshape(rows, -1), hotend.duty.reshape(rows, -1), halted)
 
 
 def _marlin_twin(problem: Problem, row: np.ndarray | None) -> Twin:
-    """A scalar firmware twin on the problem's plant running the candidate ``row`` (the firmware's
-    own PID when None), the scenario scheduled (target not yet set)."""
-    plant = make_problem_plant(problem)
-    twin = Twin([plant], "pid", controllers=[None if row is None else problem.controller.make(row)],
+    """A scalar firmware twin on the problem's plant running the candidate ``row`` (the firmware's own PID
+    when None), at the scenario's ambient; its target and events are the caller's."""
+    twin = Twin([make_problem_plant(problem)], "pid", controllers=[None if row is None else problem.controller.make(row)],
                 seed=problem.seed, noise_lsb=problem.noise_lsb, engine=problem.engine)
     twin.set_ambient(problem.scenario.ambient_c)
-    for event in problem.scenario.events:
-        twin.schedule(event.at_s, functools.partial(_twin_load if event.kind == "load" else apply_event, event=event))
     return twin
 
 
-def _run_scalar_marlin(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    twin = _marlin_twin(problem, row)
-    twin.board.set_target(HOTEND_CHANNEL, int(round(problem.scenario.target_c)))
-    twin.run_until(problem.scenario.duration_s)
-    hotend = twin.result().hotend
-    return hotend.t_s, hotend.measured_c, hotend.duty, bool(twin.board.halted)
-
-
-def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    twin = KlipperTwin([klipper_setup(problem, make_problem_plant(problem), row)], seed=problem.seed)
-    for event in problem.scenario.events:
-        twin.schedule(event.at_s, functools.partial(_klipper_event, event=event))
-    twin.set_target("extruder", problem.scenario.target_c)
-    twin.run_until(problem.scenario.duration_s)
-    hotend = twin.result().hotend
-    return hotend.t_s, hotend.measured_c, hotend.duty, bool(twin.halted)
-
-
-def _klipper_event(twin: KlipperTwin, event: Event) -> None:
-    channel = twin.channels["extruder"]
-    channel.advance_plant(tick_near(twin.time_s))
-    _apply_to_plant(channel.plant, event)
-
-
 def run_scalars(problem: Problem, params: np.ndarray, seeds: Sequence[int] | None = None) -> Traces:
-    """One twin per candidate (on its seed of ``seeds``, else the problem's), resampled onto the first
-    run's clock (their readings share it)."""
-    run_one = _run_scalar_klipper if problem.loop == "klipper" else _run_scalar_marlin
-    seeds = [problem.seed] * len(params) if seeds is None else seeds
-    results = [run_one(replace(problem, seed=int(seed)), row) for row, seed in zip(params, seeds)]
-    t_s = results[0][0]
-    temp = np.column_stack([np.interp(t_s, r[0], r[1]) for r in results])
-    duty = np.column_stack([np.interp(t_s, r[0], r[2]) for r in results])
-    return Traces(t_s, temp, duty, np.array([r[3] for r in results]))
+    """One scalar twin per candidate, whatever the lanes could run (``run_lanes``): what the batch is checked
+    against."""
+    return run_lanes(problem, params, True, seeds, batched=False)
 
 
 def _ideal_maps(lti: Lti, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -480,12 +451,9 @@ def run_chunk(problem: Problem, params: np.ndarray, record: bool = True, seeds: 
     keeping a trace unless ``record``."""
     if problem.loop == "ideal":
         return _run_ideal(problem, params)
-    if problem.batched:
-        traces = _run_batch(problem, params, record, seeds)
-        if traces.streamed is not None:
-            return traces
-    else:
-        traces = run_scalars(problem, params, seeds)
+    traces = run_lanes(problem, params, record, seeds)
+    if traces.streamed is not None:
+        return traces
     if problem.loop == "marlin":  # Marlin's first reading after reset sums 15 oversamples, not 16: it reads high
         traces = Traces(traces.t_s[1:], traces.temp_c[1:], traces.duty[1:], traces.tripped)
     return traces

@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from firmware_port.fixed import INT16_MAX, clamp, div_round, shr_round, to_q, wrap_s32
+from firmware_port.lane_law import LaneLaw, record_dtype, register
 from firmware_port.params import Param, ParamSpace
 from firmware_port.thermistor import TEMP_FRAC_BITS, TEMP_ONE
 
@@ -213,8 +214,8 @@ class FuzzyPi:
     def change_q16(self, err_q5: int, derr_q5: int) -> int:
         """The fuzzy law: change of duty (int32, Q16.16 counts) for an error and its change."""
         n = self.n_sets
-        err_sets = _fuzzify(self._normalise(err_q5, self.err_range_q5), n)
-        derr_sets = _fuzzify(self._normalise(derr_q5, self.derr_range_q5), n)
+        err_sets = _fuzzify(normalise(err_q5, self.err_range_q5, n), n)
+        derr_sets = _fuzzify(normalise(derr_q5, self.derr_range_q5, n), n)
         # Min-max inference. Two neighbours per input fire at most three output sets, k_lo..k_hi.
         k_lo = err_sets[0][0] + derr_sets[0][0]
         k_hi = err_sets[-1][0] + derr_sets[-1][0]
@@ -242,11 +243,87 @@ class FuzzyPi:
         # change = offset / (n * grid) * du_range; Q9 * Q4 / (n * 8) is Q16 since 9+4+3 = 16.
         return div_round(wrap_s32(offset_q9 * self.du_range_q4), n)
 
-    def _normalise(self, value_q5: int, range_q5: int) -> int:
-        """Eq. (1) on the integer axis, value saturated to +-range: 0..(n+1)*4096, zero at the middle."""
-        half = (self.n_sets + 1) << (BR_BITS - 1)  # int32, the axis midpoint (the zero set's centre)
-        value_q5 = clamp(value_q5, -range_q5, range_q5)  # int16
-        return half + div_round(wrap_s32(value_q5 * half), range_q5)
+
+
+def normalise(value_q5: int, range_q5: int, n_sets: int) -> int:
+    """Eq. (1) on the integer axis, value saturated to +-range: 0..(n+1)*4096, zero at the middle."""
+    half = (n_sets + 1) << (BR_BITS - 1)  # int32, the axis midpoint (the zero set's centre)
+    value_q5 = clamp(value_q5, -range_q5, range_q5)  # int16
+    return half + div_round(wrap_s32(value_q5 * half), range_q5)
+
+
+# -- the compiled batch's lane law (firmware_port/lane_law.py) --------------------------------------
+def _fuzzify_lane(pos: int, n: int) -> tuple[int, int, int, int]:
+    """``_fuzzify`` as (first set, its degree, second set, its degree): the second the first, degree 0,
+    when only one fires."""
+    one = 1 << BR_BITS
+    left = min((pos >> BR_BITS) - 1, n - 1)
+    k0, mu0, k1, mu1 = -1, 0, -1, 0
+    for k in (left, left + 1):
+        if 0 <= k < n:
+            mu = membership(pos, k, n, one)
+            if mu > 0:
+                if k0 < 0:
+                    k0, mu0 = k, mu
+                else:
+                    k1, mu1 = k, mu
+    if k1 < 0:
+        k1 = k0
+    return k0, mu0, k1, mu1
+
+
+def _change_lane(p, err_q5: int, derr_q5: int) -> int:
+    """``FuzzyPi.change_q16``: min-max inference over the (at most four) fired rules, sampled centroid."""
+    n = p.n_sets
+    ek0, emu0, ek1, emu1 = _fuzzify_lane(normalise(err_q5, p.err_range_q5, n), n)
+    dk0, dmu0, dk1, dmu1 = _fuzzify_lane(normalise(derr_q5, p.derr_range_q5, n), n)
+    k_lo, k_hi = ek0 + dk0, ek1 + dk1
+    s0 = s1 = s2 = 0  # strengths of output sets k_lo, k_lo + 1, k_lo + 2
+    for a in range(2):
+        i, mu_e = (ek0, emu0) if a == 0 else (ek1, emu1)
+        if a == 1 and (emu1 == 0 or ek1 == ek0):
+            continue
+        for b in range(2):
+            j, mu_d = (dk0, dmu0) if b == 0 else (dk1, dmu1)
+            if b == 1 and (dmu1 == 0 or dk1 == dk0):
+                continue
+            w, slot = min(mu_e, mu_d), i + j - k_lo
+            if slot == 0:
+                s0 = max(s0, w)
+            elif slot == 1:
+                s1 = max(s1, w)
+            else:
+                s2 = max(s2, w)
+    grid = 1 << GRID_BITS
+    y_mid = (k_lo + k_hi + 2) << (GRID_BITS - 1)
+    num = den = 0
+    for y in range(k_lo << GRID_BITS, ((k_hi + 2) << GRID_BITS) + 1):
+        mu = 0
+        for k in range(k_lo, k_hi + 1):
+            strength = s0 if k == k_lo else s1 if k == k_lo + 1 else s2
+            mu = max(mu, min(strength, membership(y, k, 2 * n - 1, grid) << (BR_BITS - GRID_BITS)))
+        num += (y - y_mid) * mu
+        den += mu
+    offset_q9 = ((y_mid - n * grid) << CENTROID_BITS) + div_round(wrap_s32(num << CENTROID_BITS), den)
+    return div_round(wrap_s32(offset_q9 * p.du_range_q4), n)
+
+
+def fuzzy_pi_lane(p, s, temp_q5, target_c, board):
+    """``FuzzyPi.update`` on one lane of the compiled batch: the duty after this sample's change."""
+    if target_c == 0:
+        s.duty_q16, s.have_prev = 0, 0
+        return 0
+    err_q5 = (target_c << TEMP_FRAC_BITS) - temp_q5
+    derr_q5 = err_q5 - s.err_prev_q5 if s.have_prev else 0
+    s.err_prev_q5, s.have_prev = err_q5, 1
+    s.duty_q16 = clamp(s.duty_q16 + _change_lane(p, err_q5, derr_q5), 0, p.out_max << DUTY_BITS)
+    return shr_round(s.duty_q16, DUTY_BITS)
+
+
+# Every parameter is read from the first reading with a target: lanes share a heat-up only with their twins.
+FUZZY_PI_LAW = register(LaneLaw(
+    "fuzzy_pi", FuzzyPi, record_dtype(("n_sets", "err_range_q5", "derr_range_q5", "du_range_q4", "out_max")),
+    record_dtype(("duty_q16", "err_prev_q5", "have_prev")), fuzzy_pi_lane))
 
 
 class FuzzyPiFloat:

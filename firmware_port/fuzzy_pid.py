@@ -43,6 +43,7 @@ import numpy as np
 
 from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
 from firmware_port.fixed import checked_s32, checked_s64, clamp, div_round, sat_s16, sat_s32, shr_round
+from firmware_port.lane_law import LaneLaw, attributes, field_names, record_dtype, register, set_attributes
 from firmware_port.marlin.constants import PID_DT_S, PID_MAX
 from firmware_port.marlin.pid import (
     HOTEND_GAINS,
@@ -397,6 +398,103 @@ class FuzzyPid:
         d_q8 = sat_s32(shr_round(checked_s64(k.kd_q16 * f_d * derr_q5), D_SHIFT))
         # p + i + d can reach 2**31.6: summed in int64, then clamped to the output range.
         return clamp(checked_s64(p_q8 + self.i_q8 + d_q8), 0, OUT_MAX_Q8)
+
+
+# -- the compiled batch's lane law (firmware_port/lane_law.py) --------------------------------------
+GRID_SHIFT = POS_BITS - 3  # a grid degree (0..8) to Q8
+ZO_Q12 = 3 << (FACTOR_BITS - 1)  # the output universe's middle, 1.5, in Q12
+SPAN_DIVISOR = 3 << (SPAN_BITS - 1)  # 1.5 in the span's Q4: span (c - 1.5) / 1.5
+LANE_PARAMS = record_dtype(("ke_q12", "kec_ps_q12", "span_q4", "kp_q12", "ki_q24", "kd_q16", "literal"))
+LANE_STATE = ("i_q8", "e_prev_q5", "have_prev")  # FuzzyPid's state
+# ``strengths_q8``: the inference's scratch, one output degree per set (the AVR's 7 uint16 on the stack).
+LANE_STATE_DTYPE = np.dtype([(name, np.int64) for name in LANE_STATE] + [("strengths_q8", np.int64, (N_SETS,))])
+RULE_ARRAY = np.array(RULES, dtype=np.int64)  # [table, e set, ec set]: the output set (frozen into the compiled law)
+RULE_ARRAY.flags.writeable = False
+
+
+def _fuzzify_lane(x_q8: int) -> tuple[int, int, int, int]:
+    """``_fuzzify_q8`` as (set, degree) twice; the second degree 0 when absent."""
+    left = min((x_q8 + POS_MAX) >> POS_BITS, N_SETS - 1)
+    k0, mu0, k1, mu1 = -1, 0, -1, 0
+    for k in (left, left + 1):
+        if k < N_SETS:
+            mu = POS_ONE - abs(x_q8 - ((k - HALF) << POS_BITS))
+            if mu > 0:
+                if k0 < 0:
+                    k0, mu0 = k, mu
+                else:
+                    k1, mu1 = k, mu
+    return k0, mu0, k1, mu1
+
+
+def _centroid_lane(strengths_q8) -> int:
+    """``centroid_q12`` over the support of the fired sets (elsewhere every degree is 0)."""
+    y_lo, y_hi = GRID_MAX, 0
+    for j in range(N_SETS):
+        if strengths_q8[j]:
+            y_lo, y_hi = min(y_lo, max(0, (j - 1) * GRID)), max(y_hi, min(GRID_MAX, (j + 1) * GRID))
+    num = den = 0
+    for y in range(y_lo, y_hi + 1):
+        mu = 0
+        for j in range(N_SETS):
+            if strengths_q8[j]:
+                mu = max(mu, min(strengths_q8[j], max(0, GRID - abs(y - j * GRID)) << GRID_SHIFT))
+        num += y * mu
+        den += mu
+    return div_round(num << POS_BITS, den)
+
+
+def fuzzy_pid_lane(p, s, temp_q5, target_c, board):
+    """``FuzzyPid.update`` on one lane of the compiled batch: the fuzzy-corrected gains, then the PID."""
+    if target_c == 0:
+        s.i_q8, s.e_prev_q5, s.have_prev = 0, 0, 0
+        return 0
+    e = clamp((target_c << TEMP_FRAC_BITS) - temp_q5, -32768, 32767)
+    derr = clamp(e - s.e_prev_q5, -32768, 32767) if s.have_prev else 0
+    s.e_prev_q5, s.have_prev = e, 1
+    ek0, emu0, ek1, emu1 = _fuzzify_lane(clamp(shr_round(e * p.ke_q12, POS_SHIFT), -POS_MAX, POS_MAX))
+    dk0, dmu0, dk1, dmu1 = _fuzzify_lane(clamp(shr_round(derr * p.kec_ps_q12, POS_SHIFT), -POS_MAX, POS_MAX))
+    strengths = s.strengths_q8
+    f_p = f_i = f_d = 0
+    for t in range(3):
+        for j in range(N_SETS):
+            strengths[j] = 0
+        for a in range(2):
+            i, mu_e = (ek0, emu0) if a == 0 else (ek1, emu1)
+            if mu_e == 0:
+                continue
+            for b in range(2):
+                c, mu_d = (dk0, dmu0) if b == 0 else (dk1, dmu1)
+                if mu_d == 0:
+                    continue
+                k = RULE_ARRAY[t, i, c]
+                strengths[k] = max(strengths[k], min(mu_e, mu_d))
+        c_q12 = _centroid_lane(strengths)
+        factor = c_q12 if p.literal else (1 << FACTOR_BITS) + div_round(p.span_q4 * (c_q12 - ZO_Q12), SPAN_DIVISOR)
+        if t == 0:
+            f_p = factor
+        elif t == 1:
+            f_i = factor
+        else:
+            f_d = factor
+    p_q8 = shr_round(p.kp_q12 * f_p * e, P_SHIFT)
+    s.i_q8 = clamp(s.i_q8 + shr_round(p.ki_q24 * f_i * e, I_SHIFT), 0, OUT_MAX_Q8)
+    d_q8 = clamp(shr_round(p.kd_q16 * f_d * derr, D_SHIFT), -(1 << 31), (1 << 31) - 1)
+    return clamp(p_q8 + s.i_q8 + d_q8, 0, OUT_MAX_Q8) >> OUT_FRAC_BITS
+
+
+def _lane_params(lanes) -> np.ndarray:
+    """The lanes' constants: each controller's ``FixedConstants`` and its reading."""
+    out = attributes([c.k for c in lanes.controllers], LANE_PARAMS, field_names(LANE_PARAMS)[:-1])
+    out["literal"] = [c.literal for c in lanes.controllers]
+    return out
+
+
+# Every parameter is read from the first reading with a target: lanes share a heat-up only with their twins.
+FUZZY_PID_LAW = register(LaneLaw(
+    "fuzzy_pid", FuzzyPid, LANE_PARAMS, LANE_STATE_DTYPE, fuzzy_pid_lane,
+    pack=_lane_params, read=lambda lanes: attributes(lanes.controllers, LANE_STATE_DTYPE, LANE_STATE),
+    write=lambda lanes, state: set_attributes(lanes.controllers, state, LANE_STATE)))
 
 
 SEARCH_FACTOR = 8.0  # tuning bounds: each base gain from 0 to 8 x the build's default

@@ -13,6 +13,7 @@ build without MPC, M306 is an unknown command, as in Marlin.
 
 from __future__ import annotations
 
+import math
 import re
 
 from firmware_port.marlin.board import HOTEND_CHANNEL, MarlinBoard
@@ -106,14 +107,30 @@ def settings_report(board: MarlinBoard) -> str:
 
 
 # -- an M306 line from elsewhere --------------------------------------------------------------------
-def mpc_constants_from_text(text: str, defaults: MpcConstants = DEFAULT_CONSTANTS) -> MpcConstants:
+def mpc_constants_from_text(text: str, defaults: MpcConstants = DEFAULT_CONSTANTS, strict: bool = False
+                            ) -> MpcConstants:
     """The constants the first M306 line in ``text`` that sets any (P C R A F H) gives, applied
-    to ``defaults`` as the firmware applies them; ValueError if there is none."""
+    to ``defaults`` as the firmware applies them; ValueError if there is none. ``strict`` (a line a
+    user gives, where the firmware would take anything): ValueError naming a letter without a number
+    or whose value is not finite and positive (H: >= 0)."""
     for match in _M306_LINE.finditer(text):
         cmd = parse(match.group(0))
         if any(cmd.has_value(letter) for letter in SET_LETTERS) and not cmd.has("T"):
+            if strict:
+                _check_values(cmd)
             return set_from_command(defaults, cmd)
     raise ValueError("no M306 line with constants (M306 P.. C.. R.. A.. F.. H..) in it")
+
+
+def _check_values(cmd: Command) -> None:
+    for letter in SET_LETTERS:
+        if not cmd.has(letter):
+            continue
+        value = cmd.value_float(letter) if cmd.has_value(letter) else math.nan
+        zero_ok = letter == "H"  # no filament heat capacity: a model without extrusion
+        if not (math.isfinite(value) and (value >= 0.0 if zero_ok else value > 0.0)):
+            raise ValueError(f"M306 {letter}{cmd.params[letter]}: {letter} must be a finite number "
+                             f"{'>= 0' if zero_ok else '> 0'}")
 
 
 MPC_HANDLERS = {("M", 306): m306}

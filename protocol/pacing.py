@@ -26,6 +26,9 @@ DEFAULT_IDLE_SPEED = 1.0
 PACE_S = 0.01  # speed N: wall seconds between clock updates, the timing resolution a host sees
 CATCH_UP_S = 0.05  # speed N: one update runs at most this much wall time's worth of virtual time
 FREE_STEP_S = 1.0  # speed max: virtual seconds per update (M109 reports once a second)
+# The fastest speed N taken: a thousand times real time is 50 virtual seconds per paced step, beyond
+# what the twin computes in CATCH_UP_S of wall time (``max`` is the way to say "as fast as it goes").
+SPEED_MAX = 1000.0
 
 
 def default_idle_speed(speed: Speed) -> float:
@@ -40,8 +43,9 @@ def parse_idle_speed(text: str) -> float:
         speed = float(text)
     except ValueError:
         speed = math.nan
-    if not (math.isfinite(speed) and speed >= 0):
-        raise ValueError(f"idle speed must be a number >= 0 (1 = real time, 0 = host-driven clock), not {text!r}")
+    if not (math.isfinite(speed) and 0 <= speed <= SPEED_MAX):
+        raise ValueError(f"idle speed must be a number in 0..{SPEED_MAX:g} (1 = real time, 0 = host-driven clock), "
+                         f"not {text!r}")
     return speed
 
 
@@ -53,8 +57,8 @@ def parse_speed(text: str) -> Speed:
         speed = float(text)
     except ValueError:
         speed = math.nan
-    if not (math.isfinite(speed) and speed > 0):
-        raise ValueError(f"speed must be 'max' or a positive number (1 = real time), not {text!r}")
+    if not (math.isfinite(speed) and 0 < speed <= SPEED_MAX):
+        raise ValueError(f"speed must be 'max' or a positive number up to {SPEED_MAX:g} (1 = real time), not {text!r}")
     return speed
 
 

@@ -16,6 +16,9 @@
   their ratio; firmware control periods per second; the share of the lanes' periods run once for
   all (the heat-up before the PID band, ``BatchTwin``'s shared prefix); memory per lane; the same
   batch on the numpy lanes (which run every lane's every period) for comparison;
+- a user's controller on the batch through its own lane law (tests/helpers/integer_pi.py: an integer
+  PI with back-calculation anti-windup, defined outside the library) against the built-in PID: CPU
+  per evaluation, same lanes, horizon and plant, as a tuner runs them (target: within 2x);
 - the wall time of a differential-evolution tune of the three gains (population 45, 100
   generations, every population one batch) with twin-tune's heater objective on its default
   scenario;
@@ -41,6 +44,7 @@ import argparse
 import contextlib
 import dataclasses
 import functools
+import importlib
 import os
 import select
 import statistics
@@ -217,6 +221,38 @@ def bench_evaluation_cost(plant, n_lanes: int, duration_s: float, seed: int, n_s
         f"  memory per lane: {batch.bytes_per_lane() / 1024:.2f} KiB (plant and firmware state, constants and the "
         f"objective's accumulators: no trace, whatever the horizon)",
     ]
+
+
+USER_LAW_MODULE = "tests.helpers.integer_pi"  # a user's controller with its lane law: its SPACE
+
+
+def _evaluation_cpu_ms(plant, lanes: list, duration_s: float) -> float:
+    """CPU ms per lane of a batch run as a tuner runs it (streamed), median of EVAL_REPEATS after a warm-up."""
+    score = score_spec(TUNE_TARGET_C, plant.ambient_c, duration_s / 2, 1)
+
+    def run() -> None:
+        batch = BatchTwin(plant, lanes, record=False, score=score)
+        batch.set_target(TUNE_TARGET_C)
+        batch.run_until(duration_s)
+
+    run()
+    return statistics.median(_timed_value(run)[2] for _ in range(EVAL_REPEATS)) / len(lanes) * 1e3
+
+
+def bench_user_law_cost(plant, n_lanes: int, duration_s: float, seed: int) -> list[str]:
+    """A user's integer PI through its own lane law against the built-in PID, CPU per evaluation."""
+    try:
+        space = importlib.import_module(USER_LAW_MODULE).SPACE
+    except ImportError as exc:
+        return [f"user lane law: {USER_LAW_MODULE} not importable ({exc}): run from the repository root"]
+    rng = np.random.default_rng(seed)
+    lows, highs = space.to_search(space.bounds[:, 0]), space.to_search(space.bounds[:, 1])
+    pis = [space.make(row) for row in space.from_search(rng.uniform(lows, highs, (n_lanes, space.dims)))]
+    pids = [PidGains(*map(float, g)) for g in _random_gains(rng, TUNE_BOUNDS, n_lanes)]
+    pid_ms, pi_ms = (_evaluation_cpu_ms(plant, lanes, duration_s) for lanes in (pids, pis))
+    return [f"a user's lane law ({USER_LAW_MODULE}: integer PI with back-calculation, random gains), {n_lanes} lanes "
+            f"of {plant.preset} x {duration_s:g} s, streamed, CPU ms per evaluation (median of {EVAL_REPEATS}):",
+            f"  built-in PID {pid_ms:.3f} ms, user PI {pi_ms:.3f} ms: {pi_ms / pid_ms:.2f} x the PID (target <= 2)"]
 
 
 def _de(problem, seed: int, popsize: int = 15, generations: int = 100):
@@ -522,6 +558,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.what == "tune":
         plant = tune_plant()
         lines = bench_evaluation_cost(plant, args.lanes, args.duration, args.seed, n_seed000=200)
+        lines += bench_user_law_cost(plant, args.lanes, args.duration, args.seed)
         lines += bench_de_tune(plant.preset, args.seed)
         lines += bench_loop_tunes(plant.preset, args.seed)
         lines += bench_batch_tunes(args.seed)

@@ -27,7 +27,7 @@ from twin.batch import BatchTwin
 from twin.build import build_twin
 from twin.engine import HeaterHandle, Twin
 from twin.klipper_twin import KlipperTwin
-from twin.metrics import StepMetrics, step_metrics
+from twin.metrics import LimitCycle, StepMetrics, limit_cycles, step_metrics
 from twin.plants import PRESETS, make_plant
 from twin.result import HeaterRun, RunResult
 from twin.scenario import Scenario, scenario_for
@@ -39,6 +39,7 @@ __all__ = [
     "HeaterHandle",
     "HeaterRun",
     "KlipperTwin",
+    "LimitCycle",
     "PRESETS",
     "PidGains",
     "RunResult",
@@ -47,6 +48,7 @@ __all__ = [
     "Twin",
     "Tunable",
     "build_twin",
+    "limit_cycles",
     "make_plant",
     "scenario_for",
     "step_metrics",

@@ -5,8 +5,9 @@ running its own controller on its own plant, with its own ADC noise; all lanes s
 A tuner evaluates a whole population (times an ensemble of plants and noise seeds) in one run;
 tests keep each lane equal to a scalar ``Twin`` (tests/twin/test_batch_paths.py, tests/firmware_port/marlin/test_lanes.py).
 
-- Controllers: ``PidFixed`` (either prev-temperature mode) or ``PidGains``, ``BangBangHotend``,
-  ``FuzzyPi``, ``FuzzyPid``: one family per batch (``BatchTwin.accepts``).
+- Controllers: any family with a lane law (firmware_port/lane_law.py: ``PidFixed`` in either
+  prev-temperature mode, or ``PidGains``; ``BangBangHotend``, ``FuzzyPi``, ``FuzzyPid``, a user's):
+  one family per batch (``BatchTwin.accepts``).
 - Plants: one for every lane, or one per lane; lanes given the same plant object share it (its
   model, and the scenario's events, which act on ``batch.plants``). Linear plants, dead time (exact
   on the tick grid) and the radiating loss (relinearised at the block's 0.5 C bin every period,
@@ -38,8 +39,9 @@ plant's tables once per model, so a tuner that replays the same scenario pays on
 
 from __future__ import annotations
 
-import copy
+import dataclasses
 import functools
+import math
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -49,53 +51,47 @@ from typing import Any, cast
 import numpy as np
 
 from firmware_port.controller import Tunable
-from firmware_port.fuzzy_pi import BR_BITS, CENTROID_BITS, DUTY_BITS, GRID_BITS, FuzzyPi
-from firmware_port.fuzzy_pid import D_SHIFT as FP_D_SHIFT, I_SHIFT as FP_I_SHIFT, P_SHIFT as FP_P_SHIFT, \
-    POS_SHIFT, RULES, FuzzyPid
+from firmware_port.fixed import wrap_s32
+from firmware_port.lane_law import BOARD_INPUTS, LAWS, LaneLaw, field_names, law_for
 from firmware_port.marlin.adc import AdcSequencer
-from firmware_port.marlin.bangbang import BangBangHotend
-from firmware_port.marlin.constants import BANG_MAX, MIN_ADC_ISR_LOOPS, SOFT_PWM_MAX, SOFT_PWM_PERIOD_TICKS, \
+from firmware_port.marlin.constants import E_STEPS_PER_MM, MIN_ADC_ISR_LOOPS, SOFT_PWM_MAX, SOFT_PWM_PERIOD_TICKS, \
     TICKS_PER_READING, ticks_to_ms
-from firmware_port.marlin.lanes import HotendLanes, PidLanes, ScalarLanes, lookup_q5
-from firmware_port.marlin.pid import (
-    D_RAW_LIMIT_Q8,
-    D_SHIFT,
-    FUNCTIONAL_RANGE_Q5,
-    I_SHIFT,
-    OUT_FRAC_BITS,
-    OUT_MAX_Q8,
-    P_SHIFT,
-    PREV_TEMP_EVERY_SAMPLE,
-    PidFixed,
-    PidGains,
-)
+from firmware_port.marlin.lanes import HotendLanes, lookup_q5
+from firmware_port.marlin.pid import PID_LAW, PREV_TEMP_EVERY_SAMPLE, PidFixed, PidGains
 from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, KELVIN_OFFSET, MAX_RAW_THERMISTOR_VALUE, \
     TEMP_FRAC_BITS, TEMP_ONE, TempTable
 from twin import adc_table, batch_kernel as bk
 from twin.clock import TICK_S, EventQueue, ticks_at
 from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import MAX_SAMPLES, Tables, bin_tables, block_bin, linear_tables
+from twin.limits import DURATION_MAX_S, TARGET_RANGE_C, check_trace_bytes, checked
 from twin.linear import BLOCK
 from twin.result import RunResult
 from twin.sensor import SensorChain
 from twin.streaming import ScoreSpec, ScoreTotals
 
-CONTROLS = {PidFixed: bk.PID, BangBangHotend: bk.BANG_BANG, FuzzyPi: bk.FUZZY_PI, FuzzyPid: bk.FUZZY_PID}
 THREADS_ENV = "HEATER_TWIN_THREADS"
+FAN_SPEED_MAX = 255  # fan_speed[0] at full speed (M106 S255): the board's value of a plant's fan 1.0
 MIN_LANES_PER_THREAD = 4  # fewer lanes than this per thread run on the calling thread
 BIN_MARGIN = 40  # radiating plants: bins (of 0.5 C) built beyond the ones the lanes need, each way
 TARGET_HEADROOM_C = 20.0  # radiating plants: bins built up front to this far above the target (the block leads)
+# A record row's memory: per lane temp_q5 and amount (int16), block and sensor (float64); per row its time and target.
+RECORD_LANE_BYTES, RECORD_ROW_BYTES = 20, 16
 
 
 @dataclass
 class LaneState:
-    """What the kernel advances per lane: integer state, plant states (n_x, lanes), dead-time ring, objective."""
+    """What the kernel advances per lane (besides the plant states): the board and the law's state
+    (records), the dead-time ring, the objective."""
 
-    istate: np.ndarray
-    x: np.ndarray
+    board: np.recarray
+    state: np.recarray
     ring: np.ndarray
     score_i: np.ndarray
     score_f: np.ndarray
+
+    def copy(self) -> LaneState:
+        return LaneState(*(getattr(self, f.name).copy() for f in dataclasses.fields(self)))
 
 
 @dataclass
@@ -106,6 +102,7 @@ class LaneGroup:
     lanes: np.ndarray
     x: np.ndarray
     bins: tuple[int, int] | None = None  # radiating: the block bins the tables hold, first and last
+    fed: tuple[float, int, float] = (0.0, 0, 0.0)  # filament fed (mm) at a tick, and the flow (mm/s) since
 
 
 def lane_threads(threads: int | None) -> int:
@@ -124,23 +121,18 @@ def _pool(workers: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="batch-lanes")
 
 
-def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str) -> tuple[int, PidLanes | ScalarLanes]:
-    """The lanes' controller family (a ``batch_kernel`` code) and its lanes; TypeError names a lane it cannot run."""
-    families = [PidFixed if isinstance(c, PidGains) else type(c) for c in controllers]  # PidGains: a PID lane
-    for lane, (item, family) in enumerate(zip(controllers, families)):
-        if family not in CONTROLS:
-            raise TypeError(f"lane {lane}: a batch runs {', '.join(c.__name__ for c in CONTROLS)} controllers "
-                            f"(or PidGains), not {item!r}")
-        if family is not families[0]:
-            raise TypeError(f"lane {lane}: one controller family per batch, {families[0].__name__} in lane 0, "
-                            f"not {family.__name__}")
-    kind = CONTROLS[families[0]]
-    if kind == bk.PID:  # PidGains scaled on arrays (as PidFixed scales each), in prev_temp_mode
-        return kind, PidLanes(cast(list[PidGains | PidFixed], list(controllers)), prev_temp_mode)
-    own: list[Any] = [copy.deepcopy(item) for item in controllers]  # each lane its own state, reset as a Twin resets it
-    for item in own:
-        item.reset()
-    return kind, ScalarLanes(own)
+def _control_lanes(controllers: Sequence[PidGains | object], prev_temp_mode: str) -> tuple[LaneLaw, Any]:
+    """The lanes' lane law and what the numpy lanes run; TypeError names a lane it cannot run."""
+    laws = [PID_LAW if isinstance(c, PidGains) else law_for(c) for c in controllers]  # PidGains: a PID lane
+    law = cast(LaneLaw, laws[0])  # (lane 0's: None raises below first)
+    for lane, (item, other) in enumerate(zip(controllers, laws)):
+        if other is None:
+            raise TypeError(f"lane {lane}: a batch runs controllers with a lane law (firmware_port/lane_law.py: "
+                            f"{', '.join(sorted(c.__name__ for c in LAWS))}, or PidGains), not {item!r}")
+        if other is not law:
+            raise TypeError(f"lane {lane}: one controller family per batch, {law.controller.__name__} in lane 0, "
+                            f"not {other.controller.__name__}")
+    return law, law.lanes(list(controllers), prev_temp_mode)
 
 
 class BatchTwin:
@@ -152,9 +144,10 @@ class BatchTwin:
 
     @staticmethod
     def accepts(controller: object, prev_temp_mode: str | None = None) -> bool:
-        """Whether a lane can run this controller: one whose integer law the lanes carry (a PID in
-        ``prev_temp_mode``, when given)."""
-        if type(controller) not in CONTROLS:
+        """Whether a lane can run this controller: one whose family declares a lane law (a PID in
+        ``prev_temp_mode``, when given; a law that reads the board, as Marlin's MPC, on the compiled loop)."""
+        law = law_for(controller)
+        if law is None or (law.reads_board and bk.default_kernel() != "numba"):
             return False
         return prev_temp_mode is None or not isinstance(controller, PidFixed) or \
             controller.prev_temp_mode == prev_temp_mode
@@ -176,12 +169,15 @@ class BatchTwin:
         self.n_lanes = len(controllers)
         if not self.n_lanes:
             raise ValueError("a batch needs at least one lane")
-        self.control_kind, control = _control_lanes(controllers, prev_temp_mode)
+        self.law, control = _control_lanes(controllers, prev_temp_mode)
         self.lanes = HotendLanes(control)
         self.groups = self._group(plant)
         if self.kernel == "numpy" and any(self.needs_kernel(g.plant) for g in self.groups):
             raise ValueError("kernel='numpy' runs linear plants without dead time; dead time and a radiating "
                              "loss need kernel='numba'")
+        if self.kernel == "numpy" and self.law.reads_board:
+            raise ValueError(f"kernel='numpy' does not give controllers the board's inputs; "
+                             f"{self.law.controller.__name__} needs kernel='numba'")
         self.sensor = sensor if sensor is not None else SensorChain()
         self._noise_setup(noise_lsb, seed)
         self.record, self.score = record, score
@@ -194,7 +190,7 @@ class BatchTwin:
         self._first_s: float | None = None  # the first scored reading's time
         n = self.n_lanes
         self._adc_hint = np.zeros(n, np.int64)  # the kernel's last ADC count: a search start
-        self._cparams = self._controller_params()
+        self._params = self.law.pack_params(control).view(np.recarray)
         delay = max(g.plant.delay_ticks for g in self.groups)
         self._delay = delay
         self._ring = np.zeros((n, delay // SOFT_PWM_PERIOD_TICKS + 6 if delay else 1, 2), np.int64)
@@ -230,23 +226,6 @@ class BatchTwin:
             return
         self.streams, self._generators = seed_streams(seed, n)
 
-    def _controller_params(self) -> np.ndarray:
-        """The kernel's per-lane constants of the lanes' controller (``batch_kernel``'s columns)."""
-        cp = np.zeros((self.n_lanes, bk.N_CPARAMS), np.int64)
-        control = self.lanes.control
-        if isinstance(control, PidLanes):
-            for column, values in ((bk.KP, control.kp_q12), (bk.KI, control.ki_q24), (bk.KD, control.kd_q16),
-                                   (bk.I_MAX, control.i_max_q5), (bk.EVERY, control.every_sample)):
-                cp[:, column] = values
-            return cp
-        for lane, c in enumerate(control.controllers):
-            if isinstance(c, FuzzyPi):
-                cp[lane, :5] = c.n_sets, c.err_range_q5, c.derr_range_q5, c.du_range_q4, c.out_max
-            elif isinstance(c, FuzzyPid):
-                k = c.k
-                cp[lane, :7] = k.ke_q12, k.kec_ps_q12, k.span_q4, k.kp_q12, k.ki_q24, k.kd_q16, c.literal
-        return cp
-
     # -- the outside world ---------------------------------------------------------------------------
     @property
     def plants(self) -> list:
@@ -267,13 +246,15 @@ class BatchTwin:
 
     def schedule(self, at_s: float, action: Callable[[BatchTwin], None]) -> None:
         """Run ``action(batch)`` at the first tick at or after ``at_s``."""
-        self._events.push(ticks_at(at_s), action, self)
+        self._events.push(ticks_at(checked("at_s", at_s, 0.0, DURATION_MAX_S, "s")), action, self)
 
     def set_target(self, target_c: int) -> None:
+        checked("target_c", target_c, *TARGET_RANGE_C, "C")
         self.lanes.set_target(target_c)
 
     def run(self, seconds: float) -> RunResult:
         """Run ``seconds`` more; the result of every lane since time 0 (arrays (rows, lanes))."""
+        checked("seconds", seconds, 0.0, DURATION_MAX_S - self.tick * TICK_S, "s", above=True)
         self.run_until(self.tick * TICK_S + seconds)
         return self.result()
 
@@ -281,7 +262,7 @@ class BatchTwin:
         if not self.record:
             raise ValueError("this batch keeps no trace (record=False): read score_totals()")
         n = len(self._targets)
-        target = np.repeat(np.array(self._targets, dtype=float)[:, None], self.n_lanes, axis=1).reshape(n, -1)
+        target = np.repeat(np.array(self._targets, dtype=float).reshape(n, 1), self.n_lanes, axis=1)
         hotend = {"target_c": target, "measured_c": self._measured_c, "block_c": self._block_c,
                   "sensor_c": self._sensor_c, "duty": self._duty}
         return RunResult.from_columns(self._t_s, {"hotend": hotend}, label=f"{label}, {self.n_lanes} lanes")
@@ -300,6 +281,13 @@ class BatchTwin:
                            sf[:, bk.DUTY_STEP_SUM] / SOFT_PWM_MAX)
 
     def run_until(self, t_s: float) -> None:
+        """Advance every lane to ``t_s`` seconds (at most DURATION_MAX_S; ValueError if the records would
+        outgrow memory)."""
+        checked("t_s", t_s, 0.0, DURATION_MAX_S, "s")
+        if self.record:
+            rows = self._rows + max(0.0, t_s - self.tick * TICK_S) / (TICKS_PER_READING * TICK_S)
+            check_trace_bytes(t_s, rows * (RECORD_LANE_BYTES * self.n_lanes + RECORD_ROW_BYTES),
+                              "keep no trace (record=False, score=ScoreSpec(...)), run fewer lanes or run shorter")
         end = ticks_at(t_s)
         while self.tick < end:
             for _, action, args in self._events.pop_due(self.tick):
@@ -421,23 +409,24 @@ class BatchTwin:
         lanes = self.lanes
         adc = lanes.adc
         plan, kinds, end = _clock_plan(adc.phase, adc.temp_count, lanes.pwm_count, self.tick, stop)
-        reading = plan[:, bk.READING] == 1
-        reading_ticks = (plan[:, bk.TICK] + plan[:, bk.N_TICKS])[reading]
+        reading = plan.reading == 1
+        reading_ticks = (plan.tick + plan.n_ticks)[reading]
         rows = self._note_readings(reading_ticks)
         n_rows = len(rows)
         if self.score is not None:
             plan = plan.copy()
-            plan[reading, bk.FLAGS] = self._flags(reading_ticks, rows)
+            plan.score_flags[reading] = self._flags(reading_ticks, rows)
             plan.flags.writeable = False  # as the cached plans: one compiled signature
-        z = draw(self._generators, int(plan[-1, bk.Z_FIRST] + _n_samples(plan[-1]))) if self.noise_lsb.any() else \
+        z = draw(self._generators, int(plan.z_first[-1] + _n_samples(plan[-1]))) if self.noise_lsb.any() else \
             np.zeros((1, 1))
-        records = tuple(np.zeros((self.n_lanes, n_rows if self.record else 0), dtype)
-                        for dtype in (np.int16, np.int16, float, float))
-        istate = self._pack()
-        fw = self._firmware_constants()
+        records = bk.Records(*(np.zeros((self.n_lanes, n_rows if self.record else 0), dtype)
+                               for dtype in (np.int16, np.int16, float, float)))
+        state = LaneState(self._pack(), self.law.read_state(self.lanes.control).view(np.recarray), self._ring,
+                          self.score_i, self.score_f)
         for group in self.groups:
-            self._run_group(group, plan, kinds, fw, istate, z, records)
-        self._unpack(istate)
+            self._run_group(group, self._board_plan(group, plan), kinds, state, z, records)
+        self._unpack(state.board)
+        self.law.write_state(self.lanes.control, state.state)
         adc.phase, adc.temp_count, lanes.pwm_count = end
         adc.raw_ready = False
         if n_rows:
@@ -449,8 +438,24 @@ class BatchTwin:
         lanes.ticks += stop - self.tick
         self.tick = stop
 
-    def _run_group(self, group: LaneGroup, plan: np.ndarray, kinds: tuple, fw: np.ndarray, istate: np.ndarray,
-                   z: np.ndarray, records: tuple) -> None:
+    def _board_plan(self, group: LaneGroup, plan: np.recarray) -> np.recarray:
+        """The plan with the E stepper's position at each reading, for a law that reads the board: the
+        filament the group's plant has been fed (its flow since it last changed), as ``Twin`` moves it."""
+        if not self.law.reads_board:
+            return plan
+        fed_mm, fed_tick, flow = group.fed
+        if group.plant.flow_mm_s != flow:
+            fed_mm, fed_tick, flow = fed_mm + flow * (self.tick - fed_tick) * TICK_S, self.tick, group.plant.flow_mm_s
+            group.fed = (fed_mm, fed_tick, flow)
+        plan = plan.copy()
+        ticks = plan.tick + plan.n_ticks
+        plan.e_position_steps = [wrap_s32(math.floor((fed_mm + flow * (int(t) - fed_tick) * TICK_S) * E_STEPS_PER_MM))
+                                 for t in ticks]
+        plan.flags.writeable = False
+        return plan
+
+    def _run_group(self, group: LaneGroup, plan: np.recarray, kinds: tuple, state: LaneState, z: np.ndarray,
+                   records: bk.Records) -> None:
         """Every lane of a group over the plan (a radiating plant's lanes in as many rounds as bins need)."""
         def tables_for(g: LaneGroup) -> Tables:
             if g.plant.linear:
@@ -458,18 +463,20 @@ class BatchTwin:
             assert g.bins is not None  # set by run_group
             return bin_tables(g.plant, g.plant.d, kinds, TICKS_PER_READING, *g.bins)
 
+        kernel = bk.law_kernel(self.law)
+        adc_maps = bk.AdcMaps(*self._adc_tables(), _raw_lut(self.lanes.table))
+        noise = bk.Noise(self.noise_lsb, self.streams, z)
+
         def run_part(part: np.ndarray, q_start: np.ndarray, t: Tables, stop: np.ndarray, need: np.ndarray,
-                     periods: np.ndarray = plan, probe: bool = False, state: LaneState | None = None) -> None:
-            fw_part = fw.copy()
-            fw_part[bk.BIN_LO], fw_part[bk.RADIATING] = t.bin_lo, int(not group.plant.linear)
-            fw_part[bk.PROBE] = probe
-            lane_state = state or LaneState(istate, group.x, self._ring, self.score_i, self.score_f)
-            scratch = (np.zeros((2, 2, bk.MAX_PULSES), np.int64), np.zeros((2, group.x.shape[0])),
-                       np.zeros(MAX_SAMPLES), np.zeros(7, np.int64))
-            bk.run_lanes(part, group.lanes, q_start, periods, t.px, t.pdd, t.fx, t.fdd, t.sample_rows, *t.chords,
-                         t.steps, t.io, *self._adc_tables(), _raw_lut(self.lanes.table), fw_part, self._cparams, _RULES,
-                         lane_state.istate, lane_state.x, self.noise_lsb, self.streams, z, lane_state.ring,
-                         lane_state.score_i, lane_state.score_f, self._score_array(), *records, *scratch, stop, need)
+                     periods: np.ndarray = plan, probe: bool = False, lane_state: LaneState = state,
+                     x: np.ndarray | None = None) -> None:
+            fw = self._firmware_constants(t.bin_lo, not group.plant.linear, probe, group.plant.fan)
+            scratch = bk.Scratch(np.zeros((2, 2, bk.MAX_PULSES), np.int64), np.zeros((2, group.x.shape[0])),
+                                 np.zeros(MAX_SAMPLES), np.zeros(1, BOARD_INPUTS).view(np.recarray))
+            kernel(bk.Work(part, group.lanes, q_start, stop, need), periods, _plant_maps(t), adc_maps, fw,
+                   bk.Lanes(lane_state.board, self._params, lane_state.state, group.x if x is None else x,
+                            lane_state.ring), noise,
+                   bk.Score(lane_state.score_i, lane_state.score_f, self._score_array()), records, scratch)
 
         def run(q_start: np.ndarray, threads: int, **options) -> np.ndarray:
             """Each lane of the group from q_start to the end of ``options["periods"]`` (else the plan)."""
@@ -477,16 +484,16 @@ class BatchTwin:
             return run_group(group, n_ops, self.lanes.target_c, tables_for, functools.partial(run_part, **options),
                              threads, q_start)
 
-        run(self._shared_prefix(group, plan, run, istate, records), self.threads)
+        run(self._shared_prefix(group, plan, run, state, records), self.threads)
 
-    def _shared_prefix(self, group: LaneGroup, plan: np.ndarray, run: Callable[..., np.ndarray], istate: np.ndarray,
-                       records: tuple) -> np.ndarray:
+    def _shared_prefix(self, group: LaneGroup, plan: np.recarray, run: Callable[..., np.ndarray], state: LaneState,
+                       records: bk.Records) -> np.ndarray:
         """Each lane's first period to run. Lanes in the same state, on the same noise and with the same
-        ``UNTUNED_PARAMS`` run the same periods until their controllers first read their own tuning (a
-        heat-up at full power, typically): one of them runs those periods, found by a probe on a copy of
-        the state, and the others take its state (and records) there."""
+        parameters outside their law's ``tuning`` run the same periods until their controllers first read
+        their own tuning (a heat-up at full power, typically): one of them runs those periods, found by a
+        probe on a copy of the state, and the others take its state (and records) there."""
         q_start = np.zeros(len(group.lanes), np.int64)
-        classes = _alike(self._untuned_keys(group, istate))
+        classes = _alike(self._untuned_keys(group, state))
         if not classes:
             return q_start
         firsts = np.array([members[0] for members in classes])
@@ -495,38 +502,35 @@ class BatchTwin:
             """A start for the given lanes, the end for the others (they sit out)."""
             return np.where(np.isin(np.arange(len(q_start)), lanes), 0, end)
 
-        probe_state = LaneState(istate.copy(), group.x.copy(), self._ring.copy(), self.score_i.copy(),
-                                self.score_f.copy())
-        stop = run(only(firsts, len(plan)), 1, probe=True, state=probe_state)
+        stop = run(only(firsts, len(plan)), 1, probe=True, lane_state=state.copy(), x=group.x.copy())
         for q in np.unique(stop[firsts]):
             if q:
                 run(only(firsts[stop[firsts] == q], q), 1, periods=plan[:q])
-        n_rows = records[0].shape[1]
+        n_rows = records.temp.shape[1]
         for members in classes:
             q = int(stop[members[0]])
             first, others = group.lanes[members[0]], group.lanes[members[1:]]
-            istate[others], self._ring[others] = istate[first], self._ring[first]
-            self.score_i[others], self.score_f[others] = self.score_i[first], self.score_f[first]
+            for lane_array in (state.board, state.state, self._ring, self.score_i, self.score_f):
+                lane_array[others] = lane_array[first]
             group.x[:, members[1:]] = group.x[:, members[:1]]
-            rows = int(plan[q, bk.ROW]) if q < len(plan) else n_rows
+            rows = int(plan.row[q]) if q < len(plan) else n_rows
             for record in records:
                 record[others, :rows] = record[first, :rows]
             q_start[members] = q
             self.shared_lane_periods += q * len(others)
         return q_start
 
-    def _untuned_keys(self, group: LaneGroup, istate: np.ndarray) -> np.ndarray:
+    def _untuned_keys(self, group: LaneGroup, state: LaneState) -> np.ndarray:
         """Per lane of the group (rows): everything its periods depend on before its controller reads its
-        tuning, as int64 (floats by their bits)."""
+        tuning, as bytes."""
         lanes = group.lanes
         noisy = self.noise_lsb[lanes] != 0.0
-        columns = [istate[lanes], group.x.T.copy().view(np.int64), self._ring[lanes].reshape(len(lanes), -1),
-                   self.score_i[lanes], self.score_f[lanes].view(np.int64),
-                   self.noise_lsb[lanes, None].view(np.int64), np.where(noisy, self.streams[lanes], -1)[:, None],
-                   self._cparams[lanes][:, list(bk.UNTUNED_PARAMS[self.control_kind])]]
-        return np.hstack(columns)
+        columns = [state.board[lanes], state.state[lanes], group.x.T.copy(), self._ring[lanes],
+                   self.score_i[lanes], self.score_f[lanes], self.noise_lsb[lanes],
+                   np.where(noisy, self.streams[lanes], -1), *(self._params[name][lanes] for name in self.law.untuned)]
+        return np.hstack([np.ascontiguousarray(c).view(np.uint8).reshape(len(lanes), -1) for c in columns])
 
-    def _adc_tables(self) -> tuple:
+    def _adc_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """edges, slopes, bounds and the thermistor's constants for the kernel's ADC."""
         divider = self.sensor.divider
         edges = adc_table.adc_edges_c(divider)
@@ -540,60 +544,46 @@ class BatchTwin:
     def _score_array(self) -> np.ndarray:
         return self._score_params() if self.score is not None else np.zeros(3)
 
-    def _pack(self) -> np.ndarray:
-        """The lanes' state as the kernel's (N, N_STATE) int64 matrix."""
+    def _pack(self) -> np.recarray:
+        """The lanes' boards as the kernel's (N,) ``BOARD`` records."""
         lanes = self.lanes
-        columns = {bk.AMOUNT: lanes.amount, bk.COUNT: lanes.count, bk.PINS: lanes.pins, bk.TEMP: lanes.temp_q5,
-                   bk.HALTED: lanes.halted, bk.TRIP: lanes.trip_code, bk.R_STATE: lanes.runaway_state,
-                   bk.R_TIMER: lanes.runaway_timer_ms, bk.W_TARGET: lanes.watch_target_c,
-                   bk.W_NEXT: lanes.watch_next_ms, bk.ACC: lanes.adc.acc[0], bk.HINT: self._adc_hint,
-                   bk.R_PENDING: lanes.runaway_c != lanes.target_c, bk.RING_HEAD: self._ring_state[:, 0],
-                   bk.RING_LEN: self._ring_state[:, 1]}
-        istate = np.zeros((self.n_lanes, bk.N_STATE), np.int64)
-        for column, values in columns.items():
-            istate[:, column] = np.asarray(values)
-        istate[:, bk.C0:bk.C3 + 1] = _controller_state(lanes.control)
-        return istate
+        return _records(bk.BOARD, amount=lanes.amount, count=lanes.count, pins=lanes.pins, temp_q5=lanes.temp_q5,
+                        halted=lanes.halted, trip=lanes.trip_code, runaway_state=lanes.runaway_state,
+                        runaway_timer_ms=lanes.runaway_timer_ms, watch_target_c=lanes.watch_target_c,
+                        watch_next_ms=lanes.watch_next_ms, acc=lanes.adc.acc[0], hint=self._adc_hint,
+                        runaway_pending=lanes.runaway_c != lanes.target_c, ring_head=self._ring_state[:, 0],
+                        ring_len=self._ring_state[:, 1], n=self.n_lanes)
 
-    def _unpack(self, istate: np.ndarray) -> None:
+    def _unpack(self, board: np.recarray) -> None:
         lanes = self.lanes
-        col = istate.T.copy()
-        lanes.amount, lanes.count, lanes.temp_q5 = col[bk.AMOUNT], col[bk.COUNT], col[bk.TEMP]
-        lanes.pins, lanes.halted = col[bk.PINS].astype(bool), col[bk.HALTED].astype(bool)
-        lanes.trip_code, lanes.runaway_state, lanes.runaway_timer_ms = col[bk.TRIP], col[bk.R_STATE], col[bk.R_TIMER]
-        lanes.watch_target_c, lanes.watch_next_ms = col[bk.W_TARGET], col[bk.W_NEXT]
-        _set_controller_state(lanes.control, istate[:, bk.C0:bk.C3 + 1])
-        lanes.adc.acc = [col[bk.ACC]]
-        self._adc_hint = col[bk.HINT]
-        self._ring_state = np.column_stack([col[bk.RING_HEAD], col[bk.RING_LEN]])
+        lanes.amount, lanes.count, lanes.temp_q5 = board.amount.copy(), board.count.copy(), board.temp_q5.copy()
+        lanes.pins, lanes.halted = board.pins.astype(bool), board.halted.astype(bool)
+        lanes.trip_code, lanes.runaway_state = board.trip.copy(), board.runaway_state.copy()
+        lanes.runaway_timer_ms = board.runaway_timer_ms.copy()
+        lanes.watch_target_c, lanes.watch_next_ms = board.watch_target_c.copy(), board.watch_next_ms.copy()
+        lanes.adc.acc = [board.acc.copy()]
+        self._adc_hint = board.hint.copy()
+        self._ring_state = np.column_stack([board.ring_head, board.ring_len])
 
-    def _firmware_constants(self) -> np.ndarray:
-        """The kernel's ``fw`` vector: this run's target and limits, the firmware's constants."""
+    def _firmware_constants(self, bin_lo: int, radiating: bool, probe: bool, fan: float) -> np.ndarray:
+        """The kernel's ``fw`` record: this run's target and limits, the firmware's constants, the call's
+        settings (a radiating plant's first bin, probing) and the part fan the board drives (M106)."""
         lanes = self.lanes
-        fw = np.zeros(bk.N_FW, np.int64)
         limits = lanes.temp_range
-        for index, value in {
-            bk.TARGET: lanes.target_c, bk.RAW_MAX: limits.raw_max, bk.RAW_MIN: limits.raw_min,
-            bk.MINTEMP_Q5: limits.mintemp_c << TEMP_FRAC_BITS, bk.MAXTEMP_Q5: limits.maxtemp_c << TEMP_FRAC_BITS,
-            bk.R_PERIOD_MS: lanes.runaway_period_ms, bk.R_HYST_C: lanes.runaway_hysteresis_c,
-            bk.W_INC_C: lanes.watch_increase_c, bk.W_HYST_C: lanes.watch_hysteresis_c,
-            bk.W_PERIOD_MS: lanes.watch_period_ms, bk.P_SHIFT: P_SHIFT, bk.I_SHIFT: I_SHIFT, bk.D_SHIFT: D_SHIFT,
-            bk.D_LIMIT_Q8: D_RAW_LIMIT_Q8, bk.RANGE_Q5: FUNCTIONAL_RANGE_Q5,
-            bk.OUT_MAX_Q8: OUT_MAX_Q8, bk.OUT_FRAC_BITS: OUT_FRAC_BITS, bk.TEMP_FRAC_BITS: TEMP_FRAC_BITS,
-            bk.PWM_PERIOD: SOFT_PWM_PERIOD_TICKS, bk.ADC_MAX: ADC_MAX,
-            bk.CONTROL: self.control_kind, bk.BANG_MAX: BANG_MAX, bk.DELAY: self._delay, bk.RECORD: self.record,
-            bk.SCORE: self.score is not None, bk.SKIP_ROWS: 0 if self.score is None else self.score.skip_rows,
-            bk.ROW_BASE: self._rows, bk.FZ_BR_BITS: BR_BITS, bk.FZ_GRID_BITS: GRID_BITS,
-            bk.FZ_CENTROID_BITS: CENTROID_BITS, bk.FZ_DUTY_BITS: DUTY_BITS, bk.FP_POS_SHIFT: POS_SHIFT,
-            bk.FP_P_SHIFT: FP_P_SHIFT, bk.FP_I_SHIFT: FP_I_SHIFT, bk.FP_D_SHIFT: FP_D_SHIFT,
-        }.items():
-            fw[index] = value
-        return fw
+        return _records(
+            bk.FIRMWARE, target_c=lanes.target_c, raw_max=limits.raw_max, raw_min=limits.raw_min,
+            mintemp_q5=limits.mintemp_c << TEMP_FRAC_BITS, maxtemp_q5=limits.maxtemp_c << TEMP_FRAC_BITS,
+            runaway_period_ms=lanes.runaway_period_ms, runaway_hysteresis_c=lanes.runaway_hysteresis_c,
+            watch_increase_c=lanes.watch_increase_c, watch_hysteresis_c=lanes.watch_hysteresis_c,
+            watch_period_ms=lanes.watch_period_ms, pwm_period=SOFT_PWM_PERIOD_TICKS, adc_max=ADC_MAX,
+            delay=self._delay, bin_lo=bin_lo, radiating=radiating, record=self.record, score=self.score is not None,
+            row_base=self._rows, probe=probe, fan_speed=round(FAN_SPEED_MAX * fan), n=1)
 
     # -- records ------------------------------------------------------------------------------
     def bytes_per_lane(self) -> float:
         """Memory held per lane: plant state, firmware state, constants, dead-time ring, score and records."""
-        arrays = [*(g.x for g in self.groups), self._pack(), self._cparams, self._ring, self.score_i, self.score_f]
+        arrays = [*(g.x for g in self.groups), self._pack(), self._params, self.law.read_state(self.lanes.control),
+                  self._ring, self.score_i, self.score_f]
         arrays += [a for chunk in self._chunks for a in chunk[1:]]
         return sum(a.nbytes for a in arrays) / self.n_lanes
 
@@ -672,33 +662,21 @@ def _bin_range(need: np.ndarray, current: tuple[int, int] | None) -> tuple[int, 
     return (lo, hi) if current is None else (min(lo, current[0]), max(hi, current[1]))
 
 
-_RULES = np.array(RULES, dtype=np.int64)
-_RULES.flags.writeable = False
+def _plant_maps(t: Tables) -> bk.PlantMaps:
+    """A group's tables as the kernel reads them."""
+    return bk.PlantMaps(t.px, t.pdd, t.fx, t.fdd, t.sample_rows, *t.chords, t.steps, t.io)
 
 
-def _controller_state(control: PidLanes | ScalarLanes) -> np.ndarray:
-    """The controllers' state as the kernel's C0..C3 columns (N, 4)."""
-    if isinstance(control, PidLanes):
-        return np.column_stack([control.i_sum_q5, control.d_term_q8, control.prev_q5, control.reset_pending])
-    state = np.zeros((len(control.controllers), 4), np.int64)
-    for lane, c in enumerate(control.controllers):
-        if isinstance(c, FuzzyPi):
-            state[lane, :3] = c.duty_q16, c.err_prev_q5, c.have_prev
-        elif isinstance(c, FuzzyPid):
-            state[lane, :3] = c.i_q8, c.e_prev_q5, c.have_prev
-    return state
-
-
-def _set_controller_state(control: PidLanes | ScalarLanes, state: np.ndarray) -> None:
-    if isinstance(control, PidLanes):
-        control.i_sum_q5, control.d_term_q8, control.prev_q5 = (state[:, k].copy() for k in range(3))
-        control.reset_pending = state[:, 3].astype(bool)
-        return
-    for lane, c in enumerate(control.controllers):
-        if isinstance(c, FuzzyPi):
-            c.duty_q16, c.err_prev_q5, c.have_prev = (int(v) for v in state[lane, :3])
-        elif isinstance(c, FuzzyPid):
-            c.i_q8, c.e_prev_q5, c.have_prev = (int(v) for v in state[lane, :3])
+def _records(dtype: np.dtype, n: int, **columns) -> np.recarray:
+    """(n,) records of ``dtype`` with every field given (ValueError names a missing or unknown one)."""
+    names = set(field_names(dtype))
+    if set(columns) != names:
+        missing, unknown = names - set(columns), set(columns) - names
+        raise ValueError(f"record fields: missing {sorted(missing)}, unknown {sorted(unknown)}")
+    out = np.zeros(n, dtype).view(np.recarray)
+    for name, values in columns.items():
+        out[name] = values
+    return out
 
 
 def _score_lanes(si: np.ndarray, sf: np.ndarray, sp: np.ndarray, row: int, flags: int, temp_c: np.ndarray,
@@ -720,9 +698,9 @@ def _score_lanes(si: np.ndarray, sf: np.ndarray, sp: np.ndarray, row: int, flags
     sf[:, bk.PREV_DUTY] = duty
 
 
-def _n_samples(row: np.ndarray) -> int:
+def _n_samples(row: np.record) -> int:
     """ADC samples in one plan row's period."""
-    n, s0 = int(row[bk.N_TICKS]), int(row[bk.FIRST_SAMPLE])
+    n, s0 = int(row.n_ticks), int(row.first_sample)
     return len(range(s0, n, MIN_ADC_ISR_LOOPS))
 
 
@@ -741,7 +719,7 @@ def _output(row: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def _clock_plan(phase: int, temp_count: int, pwm_count: int, tick: int, stop: int) -> tuple:
-    """The shared clock's periods from ``tick`` to ``stop``: (plan (P, PLAN_COLUMNS), kinds, end state).
+    """The shared clock's periods from ``tick`` to ``stop``: (plan (P,) ``PLAN`` records, kinds, end state).
 
     Each period runs to the next reading (or to ``stop``), as the numpy path's ``_period``;
     a kind is one (length, sample offsets) pair. End state: ADC phase, temp_count, PWM count.
@@ -762,12 +740,12 @@ def _clock_plan(phase: int, temp_count: int, pwm_count: int, tick: int, stop: in
         first_wrap = (SOFT_PWM_PERIOD_TICKS - pwm_count) % SOFT_PWM_PERIOD_TICKS
         last = (pwm_count + n - 1) % SOFT_PWM_PERIOD_TICKS
         rows.append((n, offsets.start, reading, pwm_count, ticks_to_ms(tick + n), kind, tick, n_read, 0, z_first,
-                     first_wrap, last))
+                     first_wrap, last, 0))
         n_read += reading
         z_first += len(offsets)
         tick += n
         pwm_count = last + 1
-    plan = np.array(rows, np.int64).reshape(-1, bk.PLAN_COLUMNS)
+    plan = np.array(rows, np.int64).reshape(-1, len(field_names(bk.PLAN))).view(bk.PLAN)[:, 0].view(np.recarray)
     plan.flags.writeable = False
     return plan, tuple(kinds), (adc.phase, adc.temp_count, pwm_count)
 

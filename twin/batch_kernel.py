@@ -7,9 +7,11 @@ plant's exact tick maps, the ADC sums, ``updateTemperaturesFromRawValues`` and
 ``manage_hotends``: protection and the controller) runs lane by lane over a whole stretch
 between scenario events, each lane's state in one cache line or two. What a lane can run:
 
-- controllers: Marlin's fixed-point PID (either prev-temperature mode), bang-bang, seed 004's
-  fuzzy-like PI and seed 001's fuzzy-PID, each the integer law of its scalar class
-  (firmware_port), one family per batch, parameters per lane;
+- controllers: any family that declares a lane law beside its scalar class
+  (firmware_port/lane_law.py: Marlin's PID, bang-bang and MPC, seed 004's fuzzy PI, seed 001's
+  fuzzy-PID, a user's own): the law's step is compiled into this loop, one compiled loop per law
+  (``law_kernel``), one family per batch, parameters and state per lane as the law's records.
+  This module holds the board and the plant, no family's maths;
 - the ADC: a noiseless chain through a table of switching temperatures (``twin.adc_table``), or a
   noisy one: ``floor(analog + noise)`` with the noise drawn outside (one stream per seed, shared
   by the lanes that name it) and the analog value taken from a straight line between the edges
@@ -40,14 +42,18 @@ The loop releases the GIL, so ``BatchTwin`` spreads lanes over threads.
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import inspect
 import os
+import types
+from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
-from firmware_port.fuzzy_pid import FACTOR_BITS as FP_FACTOR_BITS, GRID as FP_GRID, GRID_MAX as FP_GRID_MAX, \
-    HALF as FP_HALF, N_SETS as FP_SETS, POS_BITS as FP_POS_BITS, SPAN_BITS as FP_SPAN_BITS
+from firmware_port.lane_law import LaneLaw
 from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, TICKS_PER_READING  # frozen in: constant divisors
-from firmware_port.marlin.pid import D_FILTER_DIVISOR  # 20: frozen into the code, a constant divisor is a multiply
 from firmware_port.marlin.lanes import (
     FIRST_HEATING,
     INACTIVE,
@@ -58,45 +64,41 @@ from firmware_port.marlin.lanes import (
     STABLE,
     WATCH_TRIP,
 )
+from firmware_port.thermistor import TEMP_FRAC_BITS
+from twin.numba_cache import cached_njit
 
 try:
     import numba
+    from numba.extending import register_jitable
 except ImportError:  # the optional `fast` extra
     numba = None  # type: ignore[assignment]
 
 KERNELS = ("numba", "numpy")
 KERNEL_ENV = "HEATER_TWIN_KERNEL"
 
-# Per-lane integer state, the columns of ``istate`` (N, N_STATE). C0..C3: the controller's state
-# (PID: i_sum_q5, d_term_q8, prev_q5, reset_pending; fuzzy PI: duty_q16, err_prev_q5, have_prev;
-# fuzzy-PID: i_q8, e_prev_q5, have_prev). R_PENDING: the target changed since the lane's last
-# reading (the runaway monitor restarts). RING_HEAD, RING_LEN: the dead-time ring of pulses.
-(AMOUNT, COUNT, PINS, TEMP, HALTED, TRIP, R_STATE, R_TIMER, W_TARGET, W_NEXT, C0, C1, C2, C3, ACC, HINT,
- R_PENDING, RING_HEAD, RING_LEN) = range(19)
-N_STATE = 19
-# Controllers, ``fw[CONTROL]``, and their per-lane constants, the columns of ``cparams`` (N, N_CPARAMS).
-PID, BANG_BANG, FUZZY_PI, FUZZY_PID = range(4)
-KP, KI, KD, I_MAX, EVERY = range(5)  # PID: PidFixed's scales; EVERY: prev temperature on every sample
-N_SETS, ERR_RANGE, DERR_RANGE, DU_RANGE, OUT_MAX = range(5)  # fuzzy PI: FuzzyPi's fields
-KE, KEC, SPAN, FKP, FKI, FKD, LITERAL = range(7)  # fuzzy-PID: FixedConstants, reading literal
-N_CPARAMS = 8
-# Per family, the ``cparams`` columns its law reads where ``_tuned`` is false: lanes that agree on these
-# and on their state run the same periods up to their first tuned reading (``BatchTwin``'s shared prefix):
-# a PID's heat-up at full power; a bang-bang's whole run; a fuzzy controller's only with its very twin.
-UNTUNED_PARAMS = {PID: (EVERY,), BANG_BANG: (), FUZZY_PI: tuple(range(N_CPARAMS)), FUZZY_PID: tuple(range(N_CPARAMS))}
-# Firmware constants, the entries of ``fw``: passed in, not frozen into the cached machine code.
-(TARGET, RAW_MAX, RAW_MIN, MINTEMP_Q5, MAXTEMP_Q5, R_PERIOD_MS, R_HYST_C, W_INC_C, W_HYST_C, W_PERIOD_MS,
- P_SHIFT, I_SHIFT, D_SHIFT, D_LIMIT_Q8, RANGE_Q5, OUT_MAX_Q8, OUT_FRAC_BITS, TEMP_FRAC_BITS,
- PWM_PERIOD, ADC_MAX, CONTROL, BANG_MAX, DELAY, BIN_LO, RADIATING, RECORD, SCORE, SKIP_ROWS,
- ROW_BASE, FZ_BR_BITS, FZ_GRID_BITS, FZ_CENTROID_BITS, FZ_DUTY_BITS, FP_POS_SHIFT, FP_P_SHIFT, FP_I_SHIFT,
- FP_D_SHIFT, PROBE) = range(38)
-N_FW = 38  # PROBE: stop a lane at its first reading whose control reads the lane's own parameters (``_tuned``)
+
+def _int64_record(names: str) -> np.dtype:
+    return np.dtype([(name, np.int64) for name in names.split()])
+
+
+# A lane's board (``Lanes.board``): soft PWM (amount, count, pins), the last reading, protection, the ADC's
+# running sum and a search start for the next count (hint), the dead-time ring's head and length.
+# runaway_pending: the target changed since the lane's last reading (the runaway monitor restarts).
+BOARD = _int64_record("amount count pins temp_q5 halted trip runaway_state runaway_timer_ms watch_target_c "
+                      "watch_next_ms acc hint runaway_pending ring_head ring_len")
+# The board's constants and this call's settings (one record, ``fw``): passed in, not frozen into the
+# cached machine code. probe: stop a lane at its first reading whose control reads its tuning (``tuned``).
+FIRMWARE = _int64_record("target_c raw_max raw_min mintemp_q5 maxtemp_q5 runaway_period_ms runaway_hysteresis_c "
+                         "watch_increase_c watch_hysteresis_c watch_period_ms pwm_period adc_max delay bin_lo "
+                         "radiating record score row_base probe fan_speed")
+# The plan of a stretch, one record per period: its ticks, its first sample's offset, whether it ends
+# in a reading, the soft-PWM counter at its start, millis() at its end, its kind (tables' index), its
+# first tick, its reading's row, the row's objective flags, its first noise draw, the soft-PWM
+# counter's first wrap and its phase at the last tick, the E stepper at the reading (``BoardInputs``).
+PLAN = _int64_record("n_ticks first_sample reading pwm_count millis kind tick row score_flags z_first first_wrap "
+                     "last_phase e_position_steps")
 PROBED = -(1 << 62)  # ``need_bin`` of a lane the probe stopped (not a bin: no block is that cold)
-# The plan of a stretch, one row per period: its columns.
-(N_TICKS, FIRST_SAMPLE, READING, PWM_COUNT, MILLIS, KIND, TICK, ROW, FLAGS, Z_FIRST, FIRST_WRAP,
- LAST_PHASE) = range(12)
-PLAN_COLUMNS = 12
-SCORED, HEAT, LAST_HEAT = 1, 2, 4  # FLAGS bits of a reading row: after the skipped rows, in the heat-up, its last
+SCORED, HEAT, LAST_HEAT = 1, 2, 4  # ``score_flags`` bits of a reading row: after the skipped rows, in the heat-up, its last
 # The heater objective's inputs per lane, streamed: floats ``score_f`` and integers ``score_i``.
 MAX_BEYOND, ABS_ERROR_SUM, DUTY_STEP_SUM, PREV_DUTY = range(4)
 HOLDING, REACHED, FIRST_ROW, HOLD_ROWS = range(4)
@@ -109,6 +111,94 @@ UNROLLED_STATES = 3  # the plant size whose loops are compiled unrolled (hotend_
 MAX_PULSES = 4  # a run of <= 160 ticks holds the tail of a pulse and at most two 127-tick wraps (and a spare)
 ROW_OFFSET = TICKS_PER_READING  # ``rows``: row o + ROW_OFFSET is the sensor step at each sample, o = s0 - pulse edge
 CHORD_MARGIN_C = 1e-9  # the chord shortcut's band: beyond the float rounding of a sample (about 1e-12 C)
+
+
+class Work(NamedTuple):
+    """Which lanes a call runs (``todo``: their places in the group, ``lane_ids``: their lane numbers), from
+    where (``q_start``), and where each stopped (``stop``, ``need_bin``), per place."""
+
+    todo: np.ndarray
+    lane_ids: np.ndarray
+    q_start: np.ndarray
+    stop: np.ndarray
+    need_bin: np.ndarray
+
+
+class PlantMaps(NamedTuple):
+    """A group's plant tables by model m and period kind (twin/lane_tables.py ``Tables``): px (M, kinds,
+    n_x, samples) and pdd the sensor's free response at each sample, fx and fdd the state's; rows
+    (M, ROW_OFFSET + 10, samples) the heater's sensor step at each sample; chord_* how far samples stray
+    from their chord (``Tables.chords``); steps (M, 161, n_x) the state's step response; io (M, 3,
+    n_x + 1): the heater's one-tick response, then the block and sensor outputs with their constants."""
+
+    px: np.ndarray
+    pdd: np.ndarray
+    fx: np.ndarray
+    fdd: np.ndarray
+    rows: np.ndarray
+    chord_x: np.ndarray
+    chord_sum: np.ndarray
+    chord_d: np.ndarray
+    chord_rows: np.ndarray
+    steps: np.ndarray
+    io: np.ndarray
+
+
+class AdcMaps(NamedTuple):
+    """The ADC: switching temperatures (``twin.adc_table``), the noisy line's slopes and bounds, the
+    thermistor's constants (``sensor_p``), and the firmware's temperature of every raw sum (``lut``)."""
+
+    edges: np.ndarray
+    slopes: np.ndarray
+    bounds: np.ndarray
+    sensor_p: np.ndarray
+    lut: np.ndarray
+
+
+class Lanes(NamedTuple):
+    """Per lane: the board (``BOARD``), the law's parameters and state (its records), the plant state
+    (n_x, group places) and the dead-time ring of past pulses (N, cap, 2)."""
+
+    board: np.ndarray
+    params: np.ndarray
+    state: np.ndarray
+    x: np.ndarray
+    ring: np.ndarray
+
+
+class Noise(NamedTuple):
+    """Lane k's noise at sample j of a period: ``noise_lsb[k] * z[streams[k], z_first + j]``."""
+
+    noise_lsb: np.ndarray
+    streams: np.ndarray
+    z: np.ndarray
+
+
+class Score(NamedTuple):
+    """The heater objective's accumulators per lane (``score_i``, ``score_f``) and its constants."""
+
+    score_i: np.ndarray
+    score_f: np.ndarray
+    score_p: np.ndarray
+
+
+class Records(NamedTuple):
+    """One column per reading row, one row per lane: the reading, the amount, the block and the sensor."""
+
+    temp: np.ndarray
+    amount: np.ndarray
+    block: np.ndarray
+    sensor: np.ndarray
+
+
+class Scratch(NamedTuple):
+    """A call's working memory: pulses (2, 2, MAX_PULSES) int64, x_pair (2, n_x) and ys (samples,) float64,
+    the law's ``BoardInputs`` (1,) record."""
+
+    pulses: np.ndarray
+    x_pair: np.ndarray
+    ys: np.ndarray
+    inputs: np.ndarray
 
 
 def default_kernel() -> str:
@@ -139,8 +229,8 @@ NUMBA_OPTIONS = {"_nrt": False, "error_model": "numpy"}
 
 
 def jit(fn):
-    """A kernel: compiled, cached, releasing the GIL (BatchTwin runs lanes on threads)."""
-    return numba.njit(cache=True, nogil=True, **NUMBA_OPTIONS)(fn) if numba is not None else fn
+    """A kernel: compiled, cached (twin/numba_cache.py), releasing the GIL (BatchTwin runs lanes on threads)."""
+    return cached_njit(fn, nogil=True, **NUMBA_OPTIONS) if numba is not None else fn
 
 
 def inline(fn):
@@ -149,273 +239,28 @@ def inline(fn):
 
 
 @inline
-def shr_round(x, n):
-    return (x + (1 << (n - 1))) >> n
-
-
-@inline
-def div_round(a, b):
-    """fixed.div_round for b > 0: nearest, halves away from zero."""
-    half = b // 2
-    return (a + half) // b if a >= 0 else -((-a + half) // b)
-
-
-@inline
-def _clamp(x, lo, hi):
-    return lo if x < lo else hi if x > hi else x
-
-
-@inline
-def _wrap_s32(x):
-    return ((x + (1 << 31)) & 0xFFFFFFFF) - (1 << 31)
-
-
-@inline
 def _trip(st, code):
     """_temp_error: heater off, board halted (once)."""
-    if st[HALTED] == 0:
-        st[TRIP], st[HALTED], st[AMOUNT], st[COUNT], st[PINS] = code, 1, 0, 0, 0
-
-
-# -- the controllers -----------------------------------------------------------------------------
-@inline
-def _pid_band(st, temp, e, cp, fw):
-    """The PID law inside the functional range; state kept in ``st``."""
-    i_sum, d_term = (0, 0) if st[C3] else (st[C0], st[C1])
-    i_sum = min(max(i_sum + e, 0), cp[I_MAX])
-    p = shr_round(cp[KP] * e, fw[P_SHIFT])
-    i = shr_round(cp[KI] * i_sum, fw[I_SHIFT])
-    d_in = min(max(shr_round(cp[KD] * (st[C2] - temp), fw[D_SHIFT]), -fw[D_LIMIT_Q8]), fw[D_LIMIT_Q8])
-    d_term = d_term + div_round(d_in - d_term, D_FILTER_DIVISOR)
-    st[C0], st[C1], st[C2], st[C3] = i_sum, d_term, temp, 0
-    return min(max(p + i + d_term, 0), fw[OUT_MAX_Q8])
-
-
-@inline
-def _in_band(e, target, fw):
-    """Whether the PID's error e (Q5) lies in its functional range: the law that reads the gains."""
-    return -fw[RANGE_Q5] <= e <= fw[RANGE_Q5] and target != 0
-
-
-@inline
-def _pid(st, temp, target, cp, fw):
-    """``PidFixed.update_q8`` on one active lane: Q.8 output."""
-    e = (target << fw[TEMP_FRAC_BITS]) - temp
-    if _in_band(e, target, fw):
-        return _pid_band(st, temp, e, cp, fw)
-    st[C3] = 1
-    if cp[EVERY]:
-        st[C2] = temp
-    return fw[OUT_MAX_Q8] if target != 0 and e > fw[RANGE_Q5] else 0
-
-
-@inline
-def _membership(pos, k, n_sets, br):
-    """fuzzy_pi.membership: set k of n_sets at pos, in units of 1/br (outer sets trapezoids)."""
-    centre = (k + 1) * br
-    if (k == 0 and pos <= centre) or (k == n_sets - 1 and pos >= centre):
-        return br
-    return max(0, br - abs(pos - centre))
-
-
-@inline
-def _fuzzify(pos, n, fw):
-    """fuzzy_pi._fuzzify: (first set, its degree, second set, its degree); a degree 0 when absent."""
-    one = 1 << fw[FZ_BR_BITS]
-    left = min((pos >> fw[FZ_BR_BITS]) - 1, n - 1)
-    k0, mu0, k1, mu1 = -1, 0, -1, 0
-    for k in (left, left + 1):
-        if 0 <= k < n:
-            mu = _membership(pos, k, n, one)
-            if mu > 0:
-                if k0 < 0:
-                    k0, mu0 = k, mu
-                else:
-                    k1, mu1 = k, mu
-    if k1 < 0:
-        k1 = k0
-    return k0, mu0, k1, mu1
-
-
-@inline
-def _normalise(value, value_range, n, fw):
-    """FuzzyPi._normalise: eq. (1) on the integer axis, saturated."""
-    half = (n + 1) << (fw[FZ_BR_BITS] - 1)
-    value = _clamp(value, -value_range, value_range)
-    return half + div_round(_wrap_s32(value * half), value_range)
-
-
-@inline
-def _fuzzy_pi_change(err, derr, cp, fw):
-    """FuzzyPi.change_q16: min-max inference over the (at most four) fired rules, sampled centroid."""
-    n = cp[N_SETS]
-    ek0, emu0, ek1, emu1 = _fuzzify(_normalise(err, cp[ERR_RANGE], n, fw), n, fw)
-    dk0, dmu0, dk1, dmu1 = _fuzzify(_normalise(derr, cp[DERR_RANGE], n, fw), n, fw)
-    k_lo, k_hi = ek0 + dk0, ek1 + dk1
-    s0 = s1 = s2 = 0  # strengths of output sets k_lo, k_lo + 1, k_lo + 2
-    for a in range(2):
-        i, mu_e = (ek0, emu0) if a == 0 else (ek1, emu1)
-        if a == 1 and (emu1 == 0 or ek1 == ek0):
-            continue
-        for b in range(2):
-            j, mu_d = (dk0, dmu0) if b == 0 else (dk1, dmu1)
-            if b == 1 and (dmu1 == 0 or dk1 == dk0):
-                continue
-            w, slot = min(mu_e, mu_d), i + j - k_lo
-            if slot == 0:
-                s0 = max(s0, w)
-            elif slot == 1:
-                s1 = max(s1, w)
-            else:
-                s2 = max(s2, w)
-    grid_bits = fw[FZ_GRID_BITS]
-    grid = 1 << grid_bits
-    shift = fw[FZ_BR_BITS] - grid_bits
-    y_mid = (k_lo + k_hi + 2) << (grid_bits - 1)
-    num = den = 0
-    for y in range(k_lo << grid_bits, ((k_hi + 2) << grid_bits) + 1):
-        mu = 0
-        for k in range(k_lo, k_hi + 1):
-            strength = s0 if k == k_lo else s1 if k == k_lo + 1 else s2
-            mu = max(mu, min(strength, _membership(y, k, 2 * n - 1, grid) << shift))
-        num += (y - y_mid) * mu
-        den += mu
-    offset = ((y_mid - n * grid) << fw[FZ_CENTROID_BITS]) + div_round(_wrap_s32(num << fw[FZ_CENTROID_BITS]), den)
-    return div_round(_wrap_s32(offset * cp[DU_RANGE]), n)
-
-
-@inline
-def _fuzzy_pi(st, temp, target, cp, fw):
-    """FuzzyPi.update: the duty (0..out_max counts) after this sample's change."""
-    if target == 0:
-        st[C0], st[C2] = 0, 0
-        return 0
-    err = (target << fw[TEMP_FRAC_BITS]) - temp
-    derr = err - st[C1] if st[C2] else 0
-    st[C1], st[C2] = err, 1
-    change = _fuzzy_pi_change(err, derr, cp, fw)
-    st[C0] = _clamp(st[C0] + change, 0, cp[OUT_MAX] << fw[FZ_DUTY_BITS])
-    return shr_round(st[C0], fw[FZ_DUTY_BITS])
-
-
-# The fuzzy-PID's shape (7 sets on [-3, 3] in Q8, an output grid of 8 points a set step) is frozen
-# into the compiled code; its tuning constants come in ``fw`` and ``cparams``.
-FP_POS_ONE = 1 << FP_POS_BITS
-FP_POS_MAX = FP_HALF << FP_POS_BITS
-FP_GRID_SHIFT = FP_POS_BITS - 3  # a grid degree (0..8) to Q8
-FP_ZO_Q12 = 3 << (FP_FACTOR_BITS - 1)  # the output universe's middle, 1.5, in Q12
-FP_SPAN_DIVISOR = 3 << (FP_SPAN_BITS - 1)  # 1.5 in the span's Q4: span (c - 1.5) / 1.5
-
-
-@inline
-def _fuzzify_q8(x):
-    """fuzzy_pid._fuzzify_q8: (set, degree) twice; the second degree 0 when absent."""
-    left = min((x + FP_POS_MAX) >> FP_POS_BITS, FP_SETS - 1)
-    k0, mu0, k1, mu1 = -1, 0, -1, 0
-    for k in (left, left + 1):
-        if k < FP_SETS:
-            mu = FP_POS_ONE - abs(x - ((k - FP_HALF) << FP_POS_BITS))
-            if mu > 0:
-                if k0 < 0:
-                    k0, mu0 = k, mu
-                else:
-                    k1, mu1 = k, mu
-    return k0, mu0, k1, mu1
-
-
-@inline
-def _centroid_q12(strengths):
-    """fuzzy_pid.centroid_q12 over the support of the fired sets (elsewhere every degree is 0)."""
-    y_lo, y_hi = FP_GRID_MAX, 0
-    for j in range(FP_SETS):
-        if strengths[j]:
-            y_lo, y_hi = min(y_lo, max(0, (j - 1) * FP_GRID)), max(y_hi, min(FP_GRID_MAX, (j + 1) * FP_GRID))
-    num = den = 0
-    for y in range(y_lo, y_hi + 1):
-        mu = 0
-        for j in range(FP_SETS):
-            if strengths[j]:
-                mu = max(mu, min(strengths[j], max(0, FP_GRID - abs(y - j * FP_GRID)) << FP_GRID_SHIFT))
-        num += y * mu
-        den += mu
-    return div_round(num << FP_POS_BITS, den)
-
-
-@inline
-def _fuzzy_pid(st, temp, target, cp, fw, rules, strengths):
-    """FuzzyPid.update_q8: the fuzzy-corrected gains, then the PID with its clamped integral."""
-    if target == 0:
-        st[C0], st[C1], st[C2] = 0, 0, 0
-        return 0
-    e = _clamp((target << fw[TEMP_FRAC_BITS]) - temp, -32768, 32767)
-    derr = _clamp(e - st[C1], -32768, 32767) if st[C2] else 0
-    st[C1], st[C2] = e, 1
-    ek0, emu0, ek1, emu1 = _fuzzify_q8(_clamp(shr_round(e * cp[KE], fw[FP_POS_SHIFT]), -FP_POS_MAX, FP_POS_MAX))
-    dk0, dmu0, dk1, dmu1 = _fuzzify_q8(_clamp(shr_round(derr * cp[KEC], fw[FP_POS_SHIFT]), -FP_POS_MAX, FP_POS_MAX))
-    f_p = f_i = f_d = 0
-    for t in range(3):
-        for j in range(FP_SETS):
-            strengths[j] = 0
-        for a in range(2):
-            i, mu_e = (ek0, emu0) if a == 0 else (ek1, emu1)
-            if mu_e == 0:
-                continue
-            for b in range(2):
-                c, mu_d = (dk0, dmu0) if b == 0 else (dk1, dmu1)
-                if mu_d == 0:
-                    continue
-                k = rules[t, i, c]
-                strengths[k] = max(strengths[k], min(mu_e, mu_d))
-        c_q12 = _centroid_q12(strengths)
-        factor = c_q12 if cp[LITERAL] else (1 << FP_FACTOR_BITS) + div_round(cp[SPAN] * (c_q12 - FP_ZO_Q12), FP_SPAN_DIVISOR)
-        if t == 0:
-            f_p = factor
-        elif t == 1:
-            f_i = factor
-        else:
-            f_d = factor
-    p = shr_round(cp[FKP] * f_p * e, fw[FP_P_SHIFT])
-    st[C0] = _clamp(st[C0] + shr_round(cp[FKI] * f_i * e, fw[FP_I_SHIFT]), 0, fw[OUT_MAX_Q8])
-    d = _clamp(shr_round(cp[FKD] * f_d * derr, fw[FP_D_SHIFT]), -(1 << 31), (1 << 31) - 1)
-    return _clamp(p + st[C0] + d, 0, fw[OUT_MAX_Q8])
-
-
-@inline
-def _control(st, temp, target, cp, fw, rules, strengths):
-    """The lane's controller's ``update``: its output on the 0..255 scale."""
-    kind = fw[CONTROL]
-    if kind == PID:
-        return _pid(st, temp, target, cp, fw) >> fw[OUT_FRAC_BITS]
-    if kind == BANG_BANG:
-        return fw[BANG_MAX] if temp < target << fw[TEMP_FRAC_BITS] else 0
-    if kind == FUZZY_PI:
-        return _fuzzy_pi(st, temp, target, cp, fw)
-    return _fuzzy_pid(st, temp, target, cp, fw, rules, strengths) >> fw[OUT_FRAC_BITS]
-
-
-@inline
-def _tuned(temp, target, fw):
-    """Whether the lane's controller reads its own tuning at this reading, parameters beyond
-    ``UNTUNED_PARAMS``: the PID in its band (the other families have every parameter there)."""
-    return fw[CONTROL] == PID and _in_band((target << fw[TEMP_FRAC_BITS]) - temp, target, fw)
+    if st.halted == 0:
+        st.trip, st.halted, st.amount, st.count, st.pins = code, 1, 0, 0, 0
 
 
 # -- protection and the main loop ---------------------------------------------------------------
 @inline
 def _runaway(st, temp, target, now, fw):
     """``RunawayMonitor.run``; R_PENDING: the target changed since the lane's last reading."""
-    if st[R_PENDING] and st[HALTED] == 0:
-        st[R_STATE] = FIRST_HEATING if target > 0 else INACTIVE
-    st[R_PENDING] = 0
-    state = st[R_STATE]
-    if state == FIRST_HEATING and temp >= target << fw[TEMP_FRAC_BITS]:
+    if st.runaway_pending and st.halted == 0:
+        st.runaway_state = FIRST_HEATING if target > 0 else INACTIVE
+    st.runaway_pending = 0
+    state = st.runaway_state
+    if state == FIRST_HEATING and temp >= target << TEMP_FRAC_BITS:
         state = STABLE
     if state == STABLE:
-        if temp >= (target - fw[R_HYST_C]) << fw[TEMP_FRAC_BITS]:
-            st[R_TIMER] = now + fw[R_PERIOD_MS]
-        elif now >= st[R_TIMER]:
+        if temp >= (target - fw.runaway_hysteresis_c) << TEMP_FRAC_BITS:
+            st.runaway_timer_ms = now + fw.runaway_period_ms
+        elif now >= st.runaway_timer_ms:
             state = RUNAWAY
-    st[R_STATE] = state
+    st.runaway_state = state
     if state == RUNAWAY:
         _trip(st, RUNAWAY_TRIP)
 
@@ -423,40 +268,35 @@ def _runaway(st, temp, target, now, fw):
 @inline
 def _watch(st, temp, target, now, fw):
     """``HeaterWatch.heating_failed``: re-arm from the current temperature if risen enough, else trip."""
-    if st[W_NEXT] == 0 or now < st[W_NEXT]:
+    if st.watch_next_ms == 0 or now < st.watch_next_ms:
         return
-    whole_c = temp >> fw[TEMP_FRAC_BITS] if temp >= 0 else -((-temp) >> fw[TEMP_FRAC_BITS])
-    if whole_c < st[W_TARGET]:
+    whole_c = temp >> TEMP_FRAC_BITS if temp >= 0 else -((-temp) >> TEMP_FRAC_BITS)
+    if whole_c < st.watch_target_c:
         _trip(st, WATCH_TRIP)
         return
-    cur = whole_c + fw[W_INC_C]
-    if target != 0 and cur < target - fw[W_HYST_C] - 1:
-        st[W_TARGET], st[W_NEXT] = cur, now + fw[W_PERIOD_MS]
+    cur = whole_c + fw.watch_increase_c
+    if target != 0 and cur < target - fw.watch_hysteresis_c - 1:
+        st.watch_target_c, st.watch_next_ms = cur, now + fw.watch_period_ms
     else:
-        st[W_NEXT] = 0
+        st.watch_next_ms = 0
 
 
 @inline
-def _task(st, raw, now, lut, cp, fw, rules, strengths):
-    """``HotendLanes.task`` on one lane with a fresh reading; True, having stopped before the control,
-    when probing (``fw[PROBE]``) and the control would read the lane's tuning."""
-    target = fw[TARGET]
-    if st[HALTED] == 0:
-        st[TEMP] = lut[raw]
-        if raw < fw[RAW_MAX]:
+def _protect(st, raw, now, lut, fw):
+    """``HotendLanes.task`` up to the controller, on one lane with a fresh reading: the temperature, the
+    MAXTEMP, MINTEMP and runaway checks; whether the controller runs (the lane alive, in range)."""
+    target = fw.target_c
+    if st.halted == 0:
+        st.temp_q5 = lut[raw]
+        if raw < fw.raw_max:
             _trip(st, MAXTEMP_TRIP)
-    temp = st[TEMP]
-    if target > 0 and raw > fw[RAW_MIN]:
+    temp = st.temp_q5
+    if target > 0 and raw > fw.raw_min:
         _trip(st, MINTEMP_TRIP)
-    if temp > fw[MAXTEMP_Q5]:
+    if temp > fw.maxtemp_q5:
         _trip(st, MAXTEMP_TRIP)
     _runaway(st, temp, target, now, fw)
-    in_range = st[HALTED] == 0 and fw[MINTEMP_Q5] < temp < fw[MAXTEMP_Q5]
-    if fw[PROBE] and in_range and _tuned(temp, target, fw):
-        return True
-    st[AMOUNT] = _control(st, temp, target, cp, fw, rules, strengths) >> 1 if in_range else 0
-    _watch(st, temp, target, now, fw)
-    return False
+    return st.halted == 0 and fw.mintemp_q5 < temp < fw.maxtemp_q5
 
 
 # -- the soft PWM and the plant -------------------------------------------------------------------
@@ -465,13 +305,13 @@ def _pulses(st, pwm, first_wrap, n, fw, alpha, beta):
     """``HotendLanes.pulses``: the heater is on over ticks [alpha, beta); returns how many pulses.
     ``first_wrap``: the soft-PWM counter's first wrap in the run (the plan's, shared by the lanes)."""
     alpha[0] = 0
-    beta[0] = min(max(st[COUNT] - pwm, 0), min(first_wrap, n)) if st[PINS] else 0
+    beta[0] = min(max(st.count - pwm, 0), min(first_wrap, n)) if st.pins else 0
     k = 1
     wrap = first_wrap
     while wrap < n:  # not range(first_wrap, n, step): its length would cost a division every period
-        alpha[k], beta[k] = wrap, min(wrap + st[AMOUNT], n)
+        alpha[k], beta[k] = wrap, min(wrap + st.amount, n)
         k += 1
-        wrap += fw[PWM_PERIOD]
+        wrap += fw.pwm_period
     return k
 
 
@@ -480,12 +320,12 @@ def _latch(st, first_wrap, last, n):
     """``HotendLanes.skip``'s soft PWM: counts latched at each wrap, the pin after the last tick (the
     counter's phase ``last`` there)."""
     if first_wrap < n:
-        st[COUNT] = st[AMOUNT]
-        st[PINS] = 1 if last < st[AMOUNT] else 0
-    elif last >= st[COUNT]:
-        st[PINS] = 0
-    if st[HALTED]:
-        st[PINS] = 0
+        st.count = st.amount
+        st.pins = 1 if last < st.amount else 0
+    elif last >= st.count:
+        st.pins = 0
+    if st.halted:
+        st.pins = 0
 
 
 @inline
@@ -494,14 +334,14 @@ def _ring_push(st, ring, start, end):
     if end <= start:
         return
     cap = ring.shape[0]
-    if st[RING_LEN]:
-        last = (st[RING_HEAD] + st[RING_LEN] - 1) % cap
+    if st.ring_len:
+        last = (st.ring_head + st.ring_len - 1) % cap
         if ring[last, 1] == start:
             ring[last, 1] = end
             return
-    slot = (st[RING_HEAD] + st[RING_LEN]) % cap
+    slot = (st.ring_head + st.ring_len) % cap
     ring[slot, 0], ring[slot, 1] = start, end
-    st[RING_LEN] += 1
+    st.ring_len += 1
 
 
 @inline
@@ -509,12 +349,12 @@ def _ring_delayed(st, ring, tick, n, delay, alpha, beta):
     """The pulses the plant sees over ticks [tick, tick + n): the ring's, ``delay`` ticks late,
     relative to ``tick`` and cut to the run; pulses that ended before the run leave the ring."""
     cap = ring.shape[0]
-    while st[RING_LEN] and ring[st[RING_HEAD], 1] + delay <= tick:
-        st[RING_HEAD] = (st[RING_HEAD] + 1) % cap
-        st[RING_LEN] -= 1
+    while st.ring_len and ring[st.ring_head, 1] + delay <= tick:
+        st.ring_head = (st.ring_head + 1) % cap
+        st.ring_len -= 1
     k = 0
-    for i in range(st[RING_LEN]):
-        slot = (st[RING_HEAD] + i) % cap
+    for i in range(st.ring_len):
+        slot = (st.ring_head + i) % cap
         start = ring[slot, 0] + delay - tick
         if start >= n:
             break
@@ -527,10 +367,10 @@ def _ring_delayed(st, ring, tick, n, delay, alpha, beta):
 def _ring_cut_last(st, ring):
     """The main loop switched the pin off for the period's last tick: the last pulse ends a tick early."""
     cap = ring.shape[0]
-    last = (st[RING_HEAD] + st[RING_LEN] - 1) % cap
+    last = (st.ring_head + st.ring_len - 1) % cap
     ring[last, 1] -= 1
     if ring[last, 1] <= ring[last, 0]:
-        st[RING_LEN] -= 1
+        st.ring_len -= 1
 
 
 @inline
@@ -615,7 +455,7 @@ def _chord_states(n_x, st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord
             y0 += rows[m, ra, 0] - rows[m, rb, 0]
             y1 += rows[m, ra, last] - rows[m, rb, last]
             band += chord_rows[m, ra] + chord_rows[m, rb]
-    hot = adc_count(max(y0, y1) + band, st[HINT], edges, adc_max)
+    hot = adc_count(max(y0, y1) + band, st.hint, edges, adc_max)
     return hot, adc_count(min(y0, y1) - band, hot, edges, adc_max), y0, y1, band
 
 
@@ -678,7 +518,7 @@ def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, 
                 beta, edges, fw, ys, noise_lsb, z, z0, slopes, bounds, sensor_p):
     """The ADC counts of the sensor node at ticks s0, s0 + 10, ... < n, summed (a noisy lane's each
     with its noise)."""
-    adc_max = fw[ADC_MAX]
+    adc_max = fw.adc_max
     n_samples = (n - s0 + MIN_ADC_ISR_LOOPS - 1) // MIN_ADC_ISR_LOOPS if n > s0 else 0  # a constant divisor
     if n_samples == 0:
         return 0
@@ -686,11 +526,11 @@ def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, 
         hot, cold, y0, y1, band = _chord(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, kind, s0,
                                          n_pulses, alpha, beta, edges, adc_max, n_samples)
         if cold - hot <= 1:
-            st[HINT] = hot
+            st.hint = hot
             return _chord_sum(hot, cold, y0, y1, band, n_samples, xl, px, pdd, rows, m, kind, s0, n_pulses, alpha,
                               beta, edges, noise_lsb, z, z0, slopes, bounds, sensor_p, adc_max)
     _samples(xl, px, pdd, rows, m, kind, s0, n_samples, n_pulses, alpha, beta, ys)
-    count = st[HINT]
+    count = st.hint
     total = 0
     for j in range(n_samples):
         count = adc_count(ys[j], count, edges, adc_max)
@@ -698,7 +538,7 @@ def _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, 
             total += _noisy_count(ys[j], count, noise_lsb * z[z0 + j], edges, slopes, bounds, sensor_p, adc_max)
         else:
             total += count
-    st[HINT] = count
+    st.hint = count
     return total
 
 
@@ -756,98 +596,181 @@ def score_row(si, sf, sp, row, flags, temp_c, duty):
 
 
 @inline
-def _plant_pulses(st, plan, q, fw, pulses, ring):
+def _plant_pulses(st, row, fw, pulses, ring):
     """The soft PWM's pulses this period into pulses[0]; the ones the plant sees into pulses[1] when it
     has a dead time (the ring's, ``delay`` ticks late). Returns (the PWM's count, the plant's count)."""
-    n, pwm = plan[q, N_TICKS], plan[q, PWM_COUNT]
-    n_pulses = _pulses(st, pwm, plan[q, FIRST_WRAP], n, fw, pulses[0, 0], pulses[0, 1])
-    if not fw[DELAY]:
+    n = row.n_ticks
+    n_pulses = _pulses(st, row.pwm_count, row.first_wrap, n, fw, pulses[0, 0], pulses[0, 1])
+    if not fw.delay:
         return n_pulses, n_pulses
     for p in range(n_pulses):
-        _ring_push(st, ring, plan[q, TICK] + pulses[0, 0, p], plan[q, TICK] + pulses[0, 1, p])
-    return n_pulses, _ring_delayed(st, ring, plan[q, TICK], n, fw[DELAY], pulses[1, 0], pulses[1, 1])
+        _ring_push(st, ring, row.tick + pulses[0, 0, p], row.tick + pulses[0, 1, p])
+    return n_pulses, _ring_delayed(st, ring, row.tick, n, fw.delay, pulses[1, 0], pulses[1, 1])
 
 
 @inline
 def _plant_bin(xl, io, fw, n_bins):
-    """The model a radiating lane runs this period: its block's bin from BIN_LO (0 when linear);
+    """The model a radiating lane runs this period: its block's bin from ``bin_lo`` (0 when linear);
     n_bins when the tables lack it."""
-    if not fw[RADIATING]:
+    if not fw.radiating:
         return 0
-    m = int(np.rint(output(io[0], 1, xl) * 2.0)) - fw[BIN_LO]
+    m = int(np.rint(output(io[0], 1, xl) * 2.0)) - fw.bin_lo
     return m if 0 <= m < n_bins else n_bins
 
 
 @inline
-def _reading(st, si, sf, score_p, fw, plan, q, io, m, xl, lane, rec_temp, rec_amount, rec_block, rec_sensor):
+def _board_inputs(inputs, st, fw, row):
+    """What a law that reads the board sees at this reading (``BoardInputs``)."""
+    inputs.amount, inputs.fan_speed, inputs.e_position_steps = st.amount, fw.fan_speed, row.e_position_steps
+    return inputs
+
+
+@inline
+def _end_period(st, ring, xl, xn, g, fw, pins_before):
+    """The plant state at the period's end: where the main loop switched the pin for the last tick, the
+    heater's one-tick response g (without dead time) or the ring's last pulse (with it) takes that in."""
+    if fw.delay and pins_before and not st.pins:
+        _ring_cut_last(st, ring)  # the last pulse ends a tick early
+    diff = 0.0 if fw.delay else float(st.pins - pins_before)
+    for i in range(xl.shape[0]):
+        xl[i] = xn[i] + g[i] * diff
+
+
+@inline
+def _reading(st, score, lane, fw, row, io, m, xl, records):
     """A reading's record and its heater-objective accumulation."""
-    r = plan[q, ROW]
-    if fw[RECORD]:
-        rec_temp[lane, r], rec_amount[lane, r] = st[TEMP], st[AMOUNT]
-        rec_block[lane, r] = output(io[m], 1, xl)
-        rec_sensor[lane, r] = output(io[m], 2, xl)
-    if fw[SCORE] and plan[q, FLAGS] & SCORED:
-        score_row(si, sf, score_p, fw[ROW_BASE] + r, plan[q, FLAGS], st[TEMP] / (1 << fw[TEMP_FRAC_BITS]),
-                  float(st[AMOUNT]))
+    r = row.row
+    if fw.record:
+        records.temp[lane, r], records.amount[lane, r] = st.temp_q5, st.amount
+        records.block[lane, r] = output(io[m], 1, xl)
+        records.sensor[lane, r] = output(io[m], 2, xl)
+    if fw.score and row.score_flags & SCORED:
+        score_row(score.score_i[lane], score.score_f[lane], score.score_p, fw.row_base + r, row.score_flags,
+                  st.temp_q5 / (1 << TEMP_FRAC_BITS), float(st.amount))
 
 
-@jit
-def run_lanes(todo, lane_ids, q_start, plan, px, pdd, fx, fdd, rows, chord_x, chord_sum, chord_d, chord_rows, steps, io,
-              edges, slopes, bounds, sensor_p, lut, fw, cparams, rules, istate, x, noise_lsb, streams, z, ring, score_i,
-              score_f, score_p, rec_temp, rec_amount, rec_block, rec_sensor, pulses, x_pair, ys, strengths, stop,
-              need_bin):
-    """Every period of ``plan`` from ``q_start[k]`` on each lane k of ``todo`` (its column of ``x``;
-    ``lane_ids[k]`` its row of the per-lane arrays); ``stop[k]``: where it stopped (len(plan) when done,
-    else the period whose block bin ``need_bin[k]`` the tables lack, or, probing, the first tuned
-    reading's, ``need_bin[k]`` then ``PROBED``).
+def never_tuned(p, s, temp_q5, target_c):
+    """A law without ``tuning``: no reading reads parameters beyond those lanes sharing a run agree on."""
+    return False
 
-    plan (P, PLAN_COLUMNS) int64 (see the columns above). Tables by model m (the radiating bin from
-    ``fw[BIN_LO]``; one model when linear) and period kind: px (M, kinds, n_x, samples) and pdd the
-    sensor's free response at each sample, fx and fdd the state's; rows (M, ROW_OFFSET + 10, samples)
-    the heater's sensor step at each sample; chord_* how far samples stray from their chord
-    (``Tables.chords``); steps (M, 161, n_x) the state's step response; io (M, 3, n_x + 1): the
-    heater's one-tick response, then the block and sensor outputs with their constants. Noise: lane's
-    ``noise_lsb`` times ``z[streams[lane], Z_FIRST + j]``. ring (N, cap, 2): past pulses (dead time
-    ``fw[DELAY]`` ticks). Scratch: pulses (2, 2, MAX_PULSES) int64, x_pair (2, n_x) and ys float64,
-    strengths (7,) int64.
-    """
-    xl, xn = x_pair[0], x_pair[1]
-    n_bins = px.shape[0]
-    seen = 1 if fw[DELAY] else 0  # which pulses the plant sees: the PWM's, or the ring's
-    for k in todo:
-        lane = lane_ids[k]
-        st, cp = istate[lane], cparams[lane]
-        for i in range(xl.shape[0]):
-            xl[i] = x[i, k]
-        q = q_start[k]
-        while q < plan.shape[0]:
-            m = _plant_bin(xl, io, fw, n_bins)
-            if m == n_bins:  # the block left the tables: BatchTwin builds more bins
-                need_bin[k] = int(np.rint(output(io[0], 1, xl) * 2.0))
-                break
-            n, s0 = plan[q, N_TICKS], plan[q, FIRST_SAMPLE]
-            n_pulses, n_seen = _plant_pulses(st, plan, q, fw, pulses, ring[lane])
-            a, b = pulses[seen, 0], pulses[seen, 1]
-            st[ACC] += _sample_sum(st, xl, px, pdd, rows, chord_x, chord_sum, chord_d, chord_rows, m, plan[q, KIND],
-                                   s0, n, n_seen, a, b, edges, fw, ys, noise_lsb[lane], z[streams[lane]],
-                                   plan[q, Z_FIRST], slopes, bounds, sensor_p)
-            _latch(st, plan[q, FIRST_WRAP], plan[q, LAST_PHASE], n)
-            pins_before = st[PINS]
-            if plan[q, READING]:
-                raw, st[ACC] = st[ACC], 0
-                if _task(st, raw, plan[q, MILLIS], lut, cp, fw, rules, strengths):
-                    need_bin[k] = PROBED  # its state is left mid-period
-                    break
-            _advance(xl, xn, fx, fdd, steps, m, plan[q, KIND], n, n_seen, a, b)
-            if fw[DELAY] and pins_before and not st[PINS]:
-                _ring_cut_last(st, ring[lane])  # the main loop switched the pin off for the last tick
-            diff = 0.0 if fw[DELAY] else float(st[PINS] - pins_before)  # (without dead time: now)
+
+@functools.cache
+def law_kernel(law: LaneLaw) -> Callable[..., None]:
+    """The batch's loop with ``law``'s step compiled in: one compiled function per law (numba caches
+    each on disk, keyed by the law's source, ``law_source``)."""
+    step, tuned = jitable(law.step), jitable(law.tuned or never_tuned)
+    source = law_source(law)
+
+    def run_lanes(work, plan, maps, adc, fw, lanes, noise, score, records, scratch):
+        """Every period of ``plan`` from ``work.q_start[k]`` on each lane k of ``work.todo`` (its column of
+        ``lanes.x``; ``work.lane_ids[k]`` its row of the per-lane arrays); ``work.stop[k]``: where it
+        stopped (len(plan) when done, else the period whose block bin ``work.need_bin[k]`` the tables
+        lack, or, probing, the first tuned reading's, ``need_bin[k]`` then ``PROBED``).
+
+        plan: (P,) ``PLAN`` records; maps: ``PlantMaps``; adc: ``AdcMaps``; fw: (1,) ``FIRMWARE``
+        record; lanes: ``Lanes`` (the board, the law's parameters and state, the plant states, the
+        dead-time rings); noise: lane k's noise is ``noise_lsb[k] * z[streams[k], z_first + j]``.
+        """
+        if not source:  # never (law_source is odd): a closure variable, so numba's cache key holds the law
+            return
+        f = fw[0]
+        target = f.target_c
+        xl, xn = scratch.x_pair[0], scratch.x_pair[1]
+        pulses, inputs = scratch.pulses, scratch.inputs[0]
+        n_bins = maps.px.shape[0]
+        seen = 1 if f.delay else 0  # which pulses the plant sees: the PWM's, or the ring's
+        for k in work.todo:
+            lane = work.lane_ids[k]
+            st, p, s, ring = lanes.board[lane], lanes.params[lane], lanes.state[lane], lanes.ring[lane]
             for i in range(xl.shape[0]):
-                xl[i] = xn[i] + io[m, 0, i] * diff
-            if plan[q, READING]:
-                _reading(st, score_i[lane], score_f[lane], score_p, fw, plan, q, io, m, xl, lane, rec_temp, rec_amount,
-                         rec_block, rec_sensor)
-            q += 1
-        stop[k] = q
-        for i in range(xl.shape[0]):
-            x[i, k] = xl[i]
+                xl[i] = lanes.x[i, k]
+            q = work.q_start[k]
+            while q < plan.shape[0]:
+                row = plan[q]
+                m = _plant_bin(xl, maps.io, f, n_bins)
+                if m == n_bins:  # the block left the tables: BatchTwin builds more bins
+                    work.need_bin[k] = int(np.rint(output(maps.io[0], 1, xl) * 2.0))
+                    break
+                n, s0 = row.n_ticks, row.first_sample
+                n_pulses, n_seen = _plant_pulses(st, row, f, pulses, ring)
+                a, b = pulses[seen, 0], pulses[seen, 1]
+                st.acc += _sample_sum(st, xl, maps.px, maps.pdd, maps.rows, maps.chord_x, maps.chord_sum, maps.chord_d,
+                                      maps.chord_rows, m, row.kind, s0, n, n_seen, a, b, adc.edges, f, scratch.ys,
+                                      noise.noise_lsb[lane], noise.z[noise.streams[lane]], row.z_first, adc.slopes,
+                                      adc.bounds, adc.sensor_p)
+                _latch(st, row.first_wrap, row.last_phase, n)
+                pins_before = st.pins
+                if row.reading:
+                    raw, st.acc = st.acc, 0
+                    in_range = _protect(st, raw, row.millis, adc.lut, f)
+                    if f.probe and in_range and tuned(p, s, st.temp_q5, target):
+                        work.need_bin[k] = PROBED  # its state is left mid-period
+                        break
+                    st.amount = step(p, s, st.temp_q5, target, _board_inputs(inputs, st, f, row)) >> 1 \
+                        if in_range else 0
+                    _watch(st, st.temp_q5, target, row.millis, f)
+                _advance(xl, xn, maps.fx, maps.fdd, maps.steps, m, row.kind, n, n_seen, a, b)
+                _end_period(st, ring, xl, xn, maps.io[m, 0], f, pins_before)
+                if row.reading:
+                    _reading(st, score, lane, f, row, maps.io, m, xl, records)
+                q += 1
+            work.stop[k] = q
+            for i in range(xl.shape[0]):
+                lanes.x[i, k] = xl[i]
+
+    return jit(run_lanes)
+
+
+def jitable(fn: Callable) -> Callable:
+    """A law's plain-Python function made callable from compiled code (inlined there), with every
+    module-level plain function it calls; the function itself, unchanged, without numba."""
+    if numba is not None and fn not in _JITABLE:
+        _JITABLE.add(fn)
+        register_jitable(**NUMBA_OPTIONS)(fn)
+        for value in _globals_read(fn).values():
+            if isinstance(value, types.FunctionType):
+                jitable(value)
+    return fn
+
+
+_JITABLE: set[Callable] = set()
+
+
+def law_source(law: LaneLaw) -> int:
+    """A hash of what the law's compiled step is made of: the source of its step, its ``tuned`` and every
+    plain function they call, and the module-level constants those read. numba keys a cached function by
+    its own file only; this key makes an edited law compile afresh."""
+    parts: list[str] = []
+    seen: set[Callable] = set()
+
+    def walk(fn: Callable) -> None:
+        if fn in seen:
+            return
+        seen.add(fn)
+        try:
+            parts.append(inspect.getsource(fn))
+        except OSError:  # defined where no source is kept (an interactive session): its bytecode
+            parts.append(fn.__code__.co_code.hex())
+        for name, value in sorted(_globals_read(fn).items()):
+            if isinstance(value, types.FunctionType):
+                walk(value)
+            elif isinstance(value, np.ndarray):
+                parts.append(f"{name}={value.dtype}{value.shape}{value.tobytes().hex()}")
+            elif not isinstance(value, types.ModuleType):
+                parts.append(f"{name}={value!r}")
+
+    walk(law.step)
+    walk(law.tuned or never_tuned)
+    digest = hashlib.sha256("\n".join(parts).encode()).digest()
+    return int.from_bytes(digest[:7], "little") | 1  # positive, non-zero
+
+
+def _globals_read(fn: Callable) -> dict[str, object]:
+    """The module-level names a function's code (and its nested code) reads, with their values."""
+    names: set[str] = set()
+    codes = [fn.__code__]
+    while codes:
+        code = codes.pop()
+        names.update(code.co_names)
+        codes.extend(c for c in code.co_consts if isinstance(c, types.CodeType))
+    return {name: fn.__globals__[name] for name in names if name in fn.__globals__}

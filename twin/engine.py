@@ -29,11 +29,12 @@ from firmware_port.controller import Controller, ControllerSpec, Observable
 from firmware_port.firmwares import build_controllers
 from firmware_port.fixed import wrap_s32
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL, MarlinBoard
-from firmware_port.marlin.constants import E_STEPS_PER_MM
+from firmware_port.marlin.constants import E_STEPS_PER_MM, TICKS_PER_READING
 from firmware_port.marlin.pid import PidGains
 from firmware_port.marlin.serial import Console
 from firmware_port.thermistor import TEMP_ONE
 from twin.clock import TICK_S, EventQueue, ticks_at
+from twin.limits import DURATION_MAX_S, PHYSICAL_RANGE_C, TARGET_RANGE_C, check_trace_bytes, checked, checked_seed
 from twin.linear import BLOCK, SENSOR
 from twin.result import HEATERS, RunResult
 from twin.sensor import SensorChain, seeded_chains
@@ -44,6 +45,9 @@ HALTED_RUN_TICKS = 160  # record cadence while the board is dead
 NORMAL, DISCONNECTED, STUCK_ON = "normal", "heater_disconnected", "heater_stuck_on"
 HEATER_NAMES = ("hotend", "bed")  # by channel
 BOOT_S = 2.0  # Twin.create: the board runs this long before time 0
+# A trace row's memory: about 400 bytes for a hotend, 560 with a bed, a PID's terms included (tracemalloc
+# over 600 s of heat_hold); the bound that refuses a run whose trace would not fit in memory.
+TRACE_ROW_BYTES = 600
 
 
 class HeaterHandle:
@@ -59,7 +63,7 @@ class HeaterHandle:
     @target_c.setter
     def target_c(self, value: float) -> None:
         """M104/M140 S<value>: the firmware clamps to its maximum as Marlin does."""
-        self._twin.board.set_target(self.channel, int(value))
+        self._twin.board.set_target(self.channel, int(checked("target_c", value, *TARGET_RANGE_C, "C")))
 
     @property
     def gains(self) -> PidGains:
@@ -109,7 +113,7 @@ class Twin:
             raise ValueError(f"engine must be one of {ENGINES}, not {engine!r}")
         self.engine = engine
         self.plants = plants
-        self.sensors = seeded_chains(len(plants), seed, noise_lsb) if sensors is None else sensors
+        self.sensors = seeded_chains(len(plants), checked_seed("seed", seed), noise_lsb) if sensors is None else sensors
         self.firmware = firmware
         if len(controllers) > len(plants):
             raise ValueError(f"{len(controllers)} controllers for {len(plants)} heaters")
@@ -143,6 +147,7 @@ class Twin:
         no bed unless named), booted so that time 0 is a running board."""
         from twin.plants import DEFAULT_HOTEND, make_plant
 
+        checked("boot_s", boot_s, 0.0, DURATION_MAX_S, "s")
         plants = [make_plant(hotend or DEFAULT_HOTEND, ambient_c=ambient_c)]
         if bed is not None:
             plants.append(make_plant(bed, ambient_c=ambient_c))
@@ -185,9 +190,9 @@ class Twin:
         return HeaterHandle(self, BED_CHANNEL)
 
     def run(self, seconds: float) -> RunResult:
-        """Run ``seconds`` more of virtual time; the result of everything recorded since time 0."""
-        if not seconds >= 0:
-            raise ValueError(f"seconds must be >= 0, not {seconds}")
+        """Run ``seconds`` more of virtual time; the result of everything recorded since time 0 (``result()``
+        without running)."""
+        checked("seconds", seconds, 0.0, DURATION_MAX_S - self.time_s, "s", above=True)
         self.run_until(self.time_s + seconds)
         return self.result()
 
@@ -220,7 +225,7 @@ class Twin:
 
     @flow_mm_s.setter
     def flow_mm_s(self, value: float) -> None:
-        value = float(value)
+        value = checked("flow_mm_s", value)
         if value != self._flow_mm_s:
             self._fed_mm, self._fed_tick = self._fed_at(self.tick), self.tick
             self._flow_mm_s = value
@@ -239,7 +244,8 @@ class Twin:
 
     def schedule(self, at_s: float, action: Callable[[Twin], None]) -> None:
         """Run ``action(twin)`` at the first tick at or after ``at_s`` (before that tick's ISR)."""
-        self._events.push(self.origin_tick + ticks_at(at_s), action, self)
+        self._events.push(self.origin_tick + ticks_at(checked("at_s", at_s, -DURATION_MAX_S, DURATION_MAX_S, "s")),
+                          action, self)
 
     def set_heater_mode(self, channel: int, mode: str) -> None:
         """Heater wiring faults: normal, heater_disconnected (no power), heater_stuck_on (MOSFET shorted)."""
@@ -252,7 +258,7 @@ class Twin:
         self.sensors[channel].set_fault(fault, self.tick, sensor_c, self.ambient_c)
 
     def set_ambient(self, ambient_c: float) -> None:
-        self.ambient_c = float(ambient_c)
+        self.ambient_c = checked("ambient_c", ambient_c, *PHYSICAL_RANGE_C, "C", above=True)
         for sensor in self.sensors:
             sensor.set_ambient(self.ambient_c, self.tick)
 
@@ -264,8 +270,21 @@ class Twin:
 
     # -- running ----------------------------------------------------------------------------
     def run_until(self, t_s: float) -> None:
-        """Advance the clock to scenario time ``t_s`` seconds."""
+        """Advance the clock to scenario time ``t_s`` seconds (at most DURATION_MAX_S, when Marlin's millis()
+        wraps; ValueError if the trace would outgrow memory)."""
+        self.check_horizon(t_s)
         self.run_ticks(self.origin_tick + ticks_at(t_s) - self.tick)
+
+    def check_horizon(self, t_s: float) -> None:
+        """ValueError unless a run to scenario time ``t_s`` is possible: finite, before Marlin's millis()
+        wraps, and with a trace that fits in memory (a row per reading, or per ``record_every_s``)."""
+        checked("t_s", t_s, -DURATION_MAX_S, DURATION_MAX_S, "s")
+        every_s = checked("record_every_s", self.record_every_s, 0.0, DURATION_MAX_S, "s")
+        if not self.recording:
+            return
+        rows = len(self.trace.rows) + max(0.0, t_s - self.time_s) / max(every_s, TICKS_PER_READING * TICK_S)
+        check_trace_bytes(t_s, rows * TRACE_ROW_BYTES,
+                          "record fewer rows (record_every_s, twin-sim --record-every) or run shorter")
 
     def run_ticks(self, n_ticks: int) -> None:
         """Advance the clock by ``n_ticks``, applying scheduled events on their ticks."""

@@ -9,6 +9,11 @@ runs them (compiled with numba, else as plain Python), spread over threads; a la
 computes in float, so does the kernel, in the same order, and the plant agrees with the scalar twin's
 to rounding.
 
+Kalico's control: pid computes exactly what Klipper's does (firmware_port/kalico), so Kalico lanes are these
+lanes with Kalico's PWM rules: setups built with ``kalico_extruder_setup`` (a ``KalicoHeaterConfig``) run its
+absolute 0.05 change threshold and its lost_update_tolerance resend margin. pid_v and mpc run on
+``KlipperTwin`` only.
+
 Noise: ``seed`` for every lane or per lane (None: KlipperTwin's default, 0). Common random numbers
 (twin/lane_noise.py): lanes that name the same seed draw the same normal sequence, scaled by their own
 noise_lsb, and it is the one ``KlipperTwin([setup], seed=seed)``'s heater draws (SAMPLE_COUNT normals
@@ -35,7 +40,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from firmware_port.klipper import CommandError, HeaterConfig, KlipperHeater, VerifyHeater
+from firmware_port.klipper import CommandError, HeaterConfig, VerifyHeater
 from firmware_port.klipper.heater import PWM_RESEND_2025_08, REPORT_TIME, SAMPLE_COUNT, \
     SAMPLE_TIME
 from firmware_port.klipper.verify_heater import CHECK_INTERVAL_S
@@ -44,15 +49,18 @@ from twin import adc_table, batch_kernel as bk, klipper_kernel as kk
 from twin.batch import LaneGroup, lane_threads, run_group
 from twin.clock import TICK_S, EventQueue, tick_near
 from twin.klipper_twin import ADC_FIRST_SAMPLE_S, PRIO_ADC, PRIO_REPORT, PRIO_USER, PRIO_VERIFY, RANGE_CHECK_COUNT, \
-    STM32F103, HeaterSetup, Mcu, calc_adc, calc_temp
+    STM32F103, HeaterSetup, Mcu, calc_adc, calc_temp, host_heater
 from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import Tables, bin_tables, linear_tables
+from twin.limits import DURATION_MAX_S, check_trace_bytes, checked
 from twin.result import RunResult
 from twin.streaming import ScoreSpec, ScoreTotals
 
 INTERVALS = kk.MAX_INTERVALS
 KLIPPER_HOTTEST_C = 3000.0  # a 12-bit converter still counts 1 at 1000 C: its bisection's hot end
 DEFAULT_SEED = 0  # KlipperTwin's
+# A record row's memory: per lane the reading, duty, sensor and block (float64); per row its time and target.
+RECORD_LANE_BYTES, RECORD_ROW_BYTES = 32, 16
 
 
 def _config_without_gains(config: HeaterConfig) -> HeaterConfig:
@@ -166,7 +174,7 @@ class KlipperBatch:
         self.streams, self._generators = seed_streams(DEFAULT_SEED if seed is None else seed, self.n_lanes)
         self.record, self.score = record, score
         self.threads = lane_threads(threads)
-        self.heaters = [KlipperHeater(s.config) for s in setups]
+        self.heaters = [host_heater(s.config) for s in setups]
         self.groups = self._group([s.plant for s in setups])
         self.first_sample_s = ADC_FIRST_SAMPLE_S  # the heater's query slot: the first and only one
         self.edges, self.temps = _converter(first.part, first.pullup_ohm, mcu.adc_bits)
@@ -217,6 +225,7 @@ class KlipperBatch:
             kk.C_MAX_POWER: heater.max_power, kk.C_INV_SMOOTH: heater.inv_smooth_time, kk.C_SMOOTH: heater.smooth_time,
             kk.C_PWM_DELAY: heater.pwm_delay, kk.C_MIN_PWM_CHANGE: heater.min_pwm_change,
             kk.C_MAX_HEAT: heater.max_heat_time, kk.C_RESEND_2025_08: heater.config.pwm_resend == PWM_RESEND_2025_08,
+            kk.C_LOST_REPORTS: heater.lost_reports,
             kk.C_CYCLE_S: cycle_ticks / mcu.clock_hz, kk.C_CYCLE_TICKS: cycle_ticks, kk.C_CLOCK_HZ: mcu.clock_hz,
             kk.C_MIN_SUM: max(0, min(0xFFFF, int(low * max_sum))),
             kk.C_MAX_SUM: max(0, min(0xFFFF, math.ceil(high * max_sum))), kk.C_RANGE_COUNT: RANGE_CHECK_COUNT,
@@ -266,18 +275,25 @@ class KlipperBatch:
 
     def set_target(self, temp_c: float) -> None:
         """SET_HEATER_TEMPERATURE on every lane (CommandError out of range, as Klipper)."""
+        checked("temp_c", temp_c)  # Klipper's range check lets NaN through: full power
         self.heaters[0].set_target(temp_c)
         self.cfg[kk.C_TARGET] = temp_c
 
     def schedule(self, at_s: float, action: Callable[[KlipperBatch], None]) -> None:
         """Run ``action(batch)`` at at_s, before the heater events due then; each plant first runs to the
         tick nearest at_s (as KlipperTwin's scenario events do)."""
+        checked("at_s", at_s, 0.0, DURATION_MAX_S, "s")
         if at_s < self.time_s:
             raise ValueError(f"cannot schedule at {at_s} s: the batch is at {self.time_s} s")
         self._events.push(at_s, action, self)
 
     def run_until(self, t_s: float) -> None:
-        """Advance to t_s seconds, running every event due up to and including it."""
+        """Advance to t_s seconds, running every event due up to and including it (at most DURATION_MAX_S;
+        ValueError if the records would outgrow memory)."""
+        checked("t_s", t_s, 0.0, DURATION_MAX_S, "s")
+        if self.record:
+            check_trace_bytes(t_s, t_s / REPORT_TIME * (RECORD_LANE_BYTES * self.n_lanes + RECORD_ROW_BYTES),
+                              "keep no trace (record=False, score=ScoreSpec(...)), run fewer lanes or run shorter")
         if t_s < self.time_s:
             raise ValueError(f"cannot run back to {t_s} s from {self.time_s} s")
         while (due := self._events.next_at()) is not None and due <= t_s:

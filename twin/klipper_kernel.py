@@ -54,8 +54,8 @@ G_KP, G_KI, G_KD, G_INTEG_MAX = range(4)
 (C_TARGET, C_MAX_POWER, C_INV_SMOOTH, C_SMOOTH, C_PWM_DELAY, C_MIN_PWM_CHANGE, C_MAX_HEAT, C_RESEND_2025_08,
  C_CYCLE_S, C_CYCLE_TICKS, C_CLOCK_HZ, C_MIN_SUM, C_MAX_SUM, C_RANGE_COUNT, C_V_HYST, C_V_MAX_ERROR, C_V_GAIN,
  C_V_GAIN_TIME, C_STALE_S, C_TICK_S, C_DELAY, C_ADC_MAX, C_BIN_LO, C_RADIATING, C_RECORD, C_SCORE,
- C_ROW_BASE) = range(27)
-N_CFG = 27
+ C_ROW_BASE, C_LOST_REPORTS) = range(28)
+N_CFG = 28
 # ``sensor_p``: the thermistor's Steinhart-Hart model and the converter, for a noisy sample's analog value.
 SP_C1, SP_C2, SP_C3, SP_P27, SP_KELVIN, SP_PULLUP, SP_SCALE = range(7)
 N_SP = 7
@@ -237,7 +237,7 @@ def _set_pwm(ks, fs, seg, cfg, read_time, value):
         return
     pwm_time = read_time + cfg[C_PWM_DELAY]
     if cfg[C_RESEND_2025_08]:
-        fs[NEXT_PWM_TIME] = pwm_time + cfg[C_MAX_HEAT] - (3.0 * cfg[C_PWM_DELAY] + 0.001)
+        fs[NEXT_PWM_TIME] = pwm_time + cfg[C_MAX_HEAT] - (cfg[C_LOST_REPORTS] * cfg[C_PWM_DELAY] + 0.001)
     else:
         fs[NEXT_PWM_TIME] = pwm_time + 0.75 * cfg[C_MAX_HEAT]
     fs[LAST_PWM] = value

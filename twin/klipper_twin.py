@@ -23,6 +23,12 @@ The plant's heater input is only known 0.3 s ahead, which is all the plants need
 advanced in one run from one ADC window to the next (a LinearPlant run is one matrix product
 however the pin switches), and reads its 8 samples from the same run's output map.
 
+Kalico (the Klipper fork) is a flavour of the same loop, chosen by the config: a ``KalicoHeaterConfig``
+(``kalico_extruder_setup``, ``kalico_bed_setup``) gives the heater Kalico's host code (firmware_port/kalico:
+its PWM rules, pid_v, MPC), ``pid_calibrate`` runs Kalico's PID_CALIBRATE on it and ``mpc_calibrate`` its
+MPC_CALIBRATE, waiting as Kalico's ``printer.wait_while`` does on the twin's clock. An MPC section naming its
+part fan (``MpcConfig.cooling_fan``) reads the plant's fan; the twin has no toolhead, so MPC sees no extrusion.
+
 Not modelled: the MCU's max_duration check on the heater pin (the host's resend rule keeps it
 from firing while reports flow), MCU clock quantisation of event times (14 ns at 72 MHz), serial
 latency, and the toolhead (``print_time`` in the Stats line is the twin's time).
@@ -30,6 +36,7 @@ latency, and the toolhead (``print_time`` in the Stats line is the twin's time).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -39,6 +46,17 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from firmware_port.kalico import (
+    CONTROLS_WITH_GAINS,
+    ControlMPC,
+    KalicoHeater,
+    KalicoHeaterConfig,
+    MpcCalibrate,
+    MpcCalibration,
+    PidCalibration,
+)
+from firmware_port.kalico import pid_calibrate as kalico_pid_calibrate
+from firmware_port.kalico.pid_calibrate import TUNE_PID_TOL
 from firmware_port.klipper import (
     CommandError,
     HeaterConfig,
@@ -52,6 +70,7 @@ from firmware_port.klipper.heater import REPORT_TIME, SAMPLE_COUNT, SAMPLE_TIME
 from firmware_port.thermistor import KLIPPER_SENSORS, SteinhartHart
 from twin.clock import TICK_S, EventQueue, tick_near
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
+from twin.limits import DURATION_MAX_S, NOISE_MAX_LSB, PHYSICAL_RANGE_C, check_trace_bytes, checked, checked_seed
 from twin.linear import BLOCK, SENSOR
 from twin.plants import make_plant
 from twin.result import KLIPPER_NAMES, RunResult
@@ -70,9 +89,14 @@ KLIPPER_HEATERS = {klipper: ours for ours, klipper in KLIPPER_NAMES.items()}  # 
 PWM_CYCLE_TIME_S = 0.100  # pwm_cycle_time default; must be <= pwm_delay
 # klippy/extras/statistics.py
 STATS_INTERVAL_S = 1.0
+# What a heater's records (reports, Stats lines, replies) hold per virtual second: about 1.5 kB
+# (tracemalloc over 600 s of a heat-up); the bound that refuses a run whose records would not fit.
+RECORD_BYTES_PER_S = 1600
 # klippy/extras/heaters.py _wait_for_temperature: M109-style waits report once a second
 WAIT_REPORT_S = 1.0
 PID_CALIBRATE_TIMEOUT_S = 7200.0  # the twin's guard; Klipper waits until cancelled
+WAIT_LIMIT_S = 7200.0  # the twin's guard on a Kalico command's waits; Kalico waits until cancelled
+WAIT_INTERRUPTED = "Command interrupted"  # klippy/printer.py WaitInterruption: a wait ended by a shutdown
 
 # klippy/extras/error_mcu.py: how klippy words an MCU shutdown (message, clarification, hint)
 MCU_SHUTDOWN = "MCU shutdown"
@@ -82,6 +106,7 @@ ADC_RANGE_HINT = """
 This generally occurs when a heater temperature exceeds
 its configured min_temp or max_temp."""
 SHUTDOWN_STATE = "Transition to shutdown state: "  # klippy.py invoke_shutdown's log line
+PORT_LOGGERS = ("firmware_port.klipper", "firmware_port.kalico")  # their lines are klippy.log's
 
 # Events due at the same time run in this order.
 PRIO_USER, PRIO_ADC, PRIO_MCU_SHUTDOWN, PRIO_REPORT, PRIO_STATS, PRIO_VERIFY = range(6)
@@ -129,34 +154,60 @@ class HeaterSetup:
     noise_lsb: float = 0.0  # Gaussian noise of each ADC conversion, in LSB of the MCU's converter
 
     def __post_init__(self):
+        for option in dataclasses.fields(self.config):  # Klipper's config reads floats as they come, NaN too
+            if isinstance(value := getattr(self.config, option.name), (int, float)):
+                checked(f"[{self.config.name}] {option.name}", value)
         if isinstance(self.sensor, str) and self.sensor not in KLIPPER_SENSORS:
             raise ValueError(f"unknown sensor_type {self.sensor!r}; valid: {', '.join(KLIPPER_SENSORS)}")
         if not 0.0 < self.pwm_cycle_time_s <= self.config.pwm_delay_s:
             raise ValueError(f"[{self.config.name}] pwm_cycle_time must be in (0, pwm_delay]")
-        if not self.noise_lsb >= 0:
-            raise ValueError(f"[{self.config.name}] noise_lsb must be >= 0, got {self.noise_lsb!r}")
+        checked(f"[{self.config.name}] noise_lsb", self.noise_lsb, 0.0, NOISE_MAX_LSB, "LSB")
 
     @property
     def part(self) -> SteinhartHart:
         return KLIPPER_SENSORS[self.sensor] if isinstance(self.sensor, str) else self.sensor
 
 
+def host_heater(config: HeaterConfig) -> KlipperHeater:
+    """The host's heater for a section: Kalico's for a KalicoHeaterConfig, else Klipper's."""
+    return KalicoHeater(config) if isinstance(config, KalicoHeaterConfig) else KlipperHeater(config)
+
+
+EXAMPLE_EXTRUDER_GAINS = {"pid_kp": 22.2, "pid_ki": 1.08, "pid_kd": 114.0}  # config/example-cartesian.cfg
+EXTRUDER_MAX_C, BED_MAX_C = 250.0, 130.0
+
+
+def _setup(config_class: type[HeaterConfig], name: str, max_temp_c: float, plant, options: dict) -> HeaterSetup:
+    limits = options.pop("min_temp_c", 0.0), options.pop("max_temp_c", max_temp_c)
+    return HeaterSetup(config_class(name, *limits, **options), plant)
+
+
 def extruder_setup(plant=None, **config) -> HeaterSetup:
     """[extruder] of Klipper's config/example-cartesian.cfg (pid_Kp 22.2, pid_Ki 1.08, pid_Kd 114,
     EPCOS 100K) with max_temp 250, on the default hotend plant; config overrides HeaterConfig fields."""
-    options = {"pid_kp": 22.2, "pid_ki": 1.08, "pid_kd": 114.0, **config}
-    limits = options.pop("min_temp_c", 0.0), options.pop("max_temp_c", 250.0)
-    return HeaterSetup(HeaterConfig("extruder", *limits, **options),
-                       make_plant("hotend") if plant is None else plant)
+    return _setup(HeaterConfig, "extruder", EXTRUDER_MAX_C, make_plant("hotend") if plant is None else plant,
+                  {**EXAMPLE_EXTRUDER_GAINS, **config})
 
 
 def bed_setup(plant=None, **config) -> HeaterSetup:
     """[heater_bed] of config/example-cartesian.cfg (control: watermark, EPCOS 100K) with max_temp
     130, on the bed plant; config overrides HeaterConfig fields."""
-    options = {"control": "watermark", **config}
-    limits = options.pop("min_temp_c", 0.0), options.pop("max_temp_c", 130.0)
-    return HeaterSetup(HeaterConfig("heater_bed", *limits, **options),
-                       make_plant("bed") if plant is None else plant)
+    return _setup(HeaterConfig, "heater_bed", BED_MAX_C, make_plant("bed") if plant is None else plant,
+                  {"control": "watermark", **config})
+
+
+def kalico_extruder_setup(plant=None, **config) -> HeaterSetup:
+    """``extruder_setup`` on Kalico, with Kalico's defaults: config overrides KalicoHeaterConfig fields
+    (``control="mpc", mpc=MpcConfig(heater_power_w=40.0)``: MPC, which heats once it has its constants)."""
+    gains = EXAMPLE_EXTRUDER_GAINS if config.get("control", "pid") in CONTROLS_WITH_GAINS else {}
+    return _setup(KalicoHeaterConfig, "extruder", EXTRUDER_MAX_C, make_plant("hotend") if plant is None else plant,
+                  {**gains, **config})
+
+
+def kalico_bed_setup(plant=None, **config) -> HeaterSetup:
+    """``bed_setup`` on Kalico (control: watermark unless config says otherwise)."""
+    return _setup(KalicoHeaterConfig, "heater_bed", BED_MAX_C, make_plant("bed") if plant is None else plant,
+                  {"control": "watermark", **config})
 
 
 class SoftPwm:
@@ -249,7 +300,7 @@ class _Channel:
     """A heater's runtime: host heater, verify check, plant, ADC and pin state."""
 
     def __init__(self, index: int, setup: HeaterSetup, mcu: Mcu, rng: np.random.Generator):
-        self.heater = KlipperHeater(setup.config)
+        self.heater = host_heater(setup.config)
         self.noise_lsb, self.rng = setup.noise_lsb, rng
         self.name = self.heater.short_name
         self.plant = setup.plant
@@ -257,6 +308,9 @@ class _Channel:
         self.pullup_ohm = setup.pullup_ohm
         self.verify = None if setup.verify is None else VerifyHeater(self.heater, **setup.verify)
         self.pwm = SoftPwm(setup.pwm_cycle_time_s, mcu.clock_hz)
+        mpc = getattr(setup.config, "mpc", None)
+        if isinstance(self.heater.control, ControlMPC) and mpc is not None and mpc.cooling_fan:
+            self.heater.control.fan_speed = lambda print_time: self.plant.fan
         self.mode = NORMAL
         self.plant_tick = 0  # the plant's state is at this tick
         self.first_sample_s = ADC_FIRST_SAMPLE_S + index * QUERY_SLOT_S
@@ -309,6 +363,7 @@ class KlipperTwin:
     """A Klipper printer's heaters on one clock: host control, MCU ADC and soft PWM, plants."""
 
     def __init__(self, heaters: Sequence[HeaterSetup], mcu: Mcu = STM32F103, seed: int = 0):
+        checked_seed("seed", seed)
         if SAMPLE_COUNT * mcu.adc_max >= ADC_SUM_LIMIT:
             raise ValueError(f"ADC sample_count={SAMPLE_COUNT} too large for MCU")
         self.mcu = mcu
@@ -319,6 +374,7 @@ class KlipperTwin:
         self.shutdown_message: str | None = None
         self.shutdown_time_s: float | None = None
         self._events = EventQueue()  # actions due at a time in seconds
+        self._logging = False  # inside _klippy_logging
         with self._klippy_logging():
             self.channels: dict[str, _Channel] = {}
             streams = np.random.SeedSequence(seed).spawn(len(heaters))
@@ -340,12 +396,14 @@ class KlipperTwin:
 
     def schedule(self, at_s: float, action: Callable[[KlipperTwin], None]) -> None:
         """Run ``action(twin)`` at time at_s (before the sensor reports due then)."""
+        checked("at_s", at_s, 0.0, DURATION_MAX_S, "s")
         if at_s < self.time_s:
             raise ValueError(f"cannot schedule at {at_s} s: the twin is at {self.time_s} s")
         self._push(at_s, PRIO_USER, action, self)
 
     def set_target(self, name: str, temp_c: float, at_s: float | None = None) -> None:
         """SET_HEATER_TEMPERATURE HEATER=<name> TARGET=<temp_c>, now or at at_s."""
+        checked("temp_c", temp_c)  # Klipper's range check lets NaN through: full power
         heater = self.heater(name)
         if at_s is None:
             heater.set_target(temp_c)
@@ -380,6 +438,9 @@ class KlipperTwin:
     def set_plant_inputs(self, name: str, fan: float, flow_mm_s: float, ambient_c: float,
                          at_s: float | None = None) -> None:
         """The plant's part fan (0..1), filament flow (mm/s) and ambient (degC), now or at at_s."""
+        checked("fan", fan, 0.0, 1.0)
+        checked("flow_mm_s", flow_mm_s)
+        checked("ambient_c", ambient_c, *PHYSICAL_RANGE_C, "C", above=True)
         channel = self._channel(name)
 
         def apply(twin):
@@ -392,7 +453,10 @@ class KlipperTwin:
             self.schedule(at_s, apply)
 
     def run_until(self, t_s: float) -> None:
-        """Advance the clock to t_s seconds, running every event due up to and including it."""
+        """Advance the clock to t_s seconds, running every event due up to and including it (at most
+        DURATION_MAX_S; ValueError if the records would outgrow memory)."""
+        checked("t_s", t_s, 0.0, DURATION_MAX_S, "s")
+        check_trace_bytes(t_s, t_s * RECORD_BYTES_PER_S * len(self.channels), "the Klipper twin keeps every report: run shorter")
         if t_s < self.time_s:
             raise ValueError(f"cannot run back to {t_s} s from {self.time_s} s")
         with self._klippy_logging():
@@ -416,8 +480,12 @@ class KlipperTwin:
         """PID_CALIBRATE HEATER=<name> TARGET=<target_c>: run the relay test until it finishes.
 
         Waits as Klipper does (a check and an M105-style reply every second). Raises CommandError
-        ("pid_calibrate interrupted") on a shutdown or after timeout_s."""
+        ("pid_calibrate interrupted") on a shutdown or after timeout_s. A Kalico heater: kalico_pid_calibrate."""
+        checked("target_c", target_c)
+        checked("timeout_s", timeout_s, 0.0, DURATION_MAX_S, "s")
         heater = self.heater(name)
+        if isinstance(heater, KalicoHeater):
+            raise ValueError(f"heater {name} runs Kalico: use kalico_pid_calibrate")
         started_s = self.time_s
         with self._klippy_logging():
             calibrate = PidCalibrate(heater, target_c)
@@ -439,6 +507,50 @@ class KlipperTwin:
         _, tu_s, ku, peak_to_peak_c = invert_calibration(kp, ki, kd, heater.max_power)
         return PidCalibrateResult(lines, kp, ki, kd, list(calibrate.tune.peaks), tu_s, ku, peak_to_peak_c,
                                   started_s, self.time_s, calibrate.tune.heattest_text())
+
+    def kalico_pid_calibrate(self, name: str, target_c: float, tolerance: float = TUNE_PID_TOL) -> PidCalibration:
+        """Kalico's PID_CALIBRATE HEATER=<name> TARGET=<target_c> [TOLERANCE=] on a Kalico heater, to the end.
+        Raises CommandError ("pid_calibrate interrupted", "Command interrupted" on a shutdown)."""
+        heater = self._kalico_heater(name)
+        with self._klippy_logging(), self._command_errors():
+            return kalico_pid_calibrate(self, heater, target_c, tolerance, heater_name=name)
+
+    def mpc_calibrate(self, name: str, **options) -> MpcCalibration:
+        """Kalico's MPC_CALIBRATE HEATER=<name> on a heater with control: mpc, to the end; options are
+        MpcCalibrate's (target_c, threshold_c, use_delta, ...). Raises CommandError ("MPC_CALIBRATE failed:
+        ...") if it fails. ``MpcCalibration.config(mpc)`` is the section after SAVE_CONFIG."""
+        heater = self._kalico_heater(name)
+        with self._klippy_logging(), self._command_errors():
+            return MpcCalibrate(self, heater, **options).run()
+
+    # -- what Kalico's commands ask of the printer (firmware_port.kalico.Printer) --------------------
+    def monotonic(self) -> float:
+        return self.time_s
+
+    def wait_while(self, condition: Callable[[float], bool], interval_s: float = 1.0) -> None:
+        """klippy's printer.wait_while on the twin's clock: condition(eventtime) now and every interval_s
+        after until False; CommandError("Command interrupted") once the printer has shut down, or after
+        WAIT_LIMIT_S (the twin's guard)."""
+        started_s = eventtime = self.time_s
+        while condition(eventtime):
+            if self.halted:
+                raise CommandError(WAIT_INTERRUPTED)
+            if eventtime - started_s > WAIT_LIMIT_S:
+                raise CommandError(f"{WAIT_INTERRUPTED}: the twin's wait limit of {WAIT_LIMIT_S:.0f} s passed")
+            eventtime += interval_s
+            self.run_until(eventtime)
+
+    def respond_info(self, text: str) -> None:
+        """gcode.respond_info: the message's lines, stripped, each as "// <line>"."""
+        self.respond_raw("// " + "\n// ".join(line.strip() for line in text.strip().split("\n")))
+
+    def respond_raw(self, text: str) -> None:
+        self.replies.append((self.time_s, text))
+
+    def set_part_fan(self, heater_name: str, speed: float) -> None:
+        """The part fan blowing on the heater's plant at speed 0..1 from now (flow and ambient kept)."""
+        plant = self._channel(heater_name).plant
+        self.set_plant_inputs(heater_name, speed, plant.flow_mm_s, plant.ambient_c)
 
     def m105(self, eventtime: float) -> str:
         """Klipper's M105 reply: "T0:<smoothed> /<target> B:..." for the heaters with a G-code id."""
@@ -486,6 +598,21 @@ class KlipperTwin:
         return self._channel(name).sends
 
     # -- events ---------------------------------------------------------------------------------
+    def _kalico_heater(self, name: str) -> KalicoHeater:
+        heater = self.heater(name)
+        if not isinstance(heater, KalicoHeater):
+            raise ValueError(f"heater {name} runs Klipper: give it a KalicoHeaterConfig (kalico_extruder_setup)")
+        return heater
+
+    @contextmanager
+    def _command_errors(self):
+        """A command's error also goes to the console as "!! <message>", as klippy reports it."""
+        try:
+            yield
+        except CommandError as error:
+            self.replies.append((self.time_s, f"!! {error}"))
+            raise
+
     def _channel(self, name: str) -> _Channel:
         try:
             return self.channels[name]
@@ -579,21 +706,29 @@ class KlipperTwin:
 
     @contextmanager
     def _klippy_logging(self):
-        """Collect the Klipper port's log lines into self.log; if INFO was off for them, turn it on
-        for the twin only (no propagation), so a caller's log is not flooded."""
-        logger = logging.getLogger("firmware_port.klipper")
+        """Collect the Klipper and Kalico ports' log lines into self.log; if INFO was off for them, turn it
+        on for the twin only (no propagation), so a caller's log is not flooded. Re-entrant: a command's
+        waits run the clock inside it."""
+        if self._logging:
+            yield
+            return
         handler = _LogList(self)
-        saved = logger.level, logger.propagate
-        if not logger.isEnabledFor(logging.INFO):
-            logger.setLevel(logging.INFO)
-            logger.propagate = False
-        logger.addHandler(handler)
+        loggers = [logging.getLogger(name) for name in PORT_LOGGERS]
+        saved = [(logger.level, logger.propagate) for logger in loggers]
+        for logger in loggers:
+            if not logger.isEnabledFor(logging.INFO):
+                logger.setLevel(logging.INFO)
+                logger.propagate = False
+            logger.addHandler(handler)
+        self._logging = True
         try:
             yield
         finally:
-            logger.removeHandler(handler)
-            logger.setLevel(saved[0])
-            logger.propagate = saved[1]
+            self._logging = False
+            for logger, (level, propagate) in zip(loggers, saved):
+                logger.removeHandler(handler)
+                logger.setLevel(level)
+                logger.propagate = propagate
 
 
 def _gcode_id(short_name: str) -> str | None:

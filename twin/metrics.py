@@ -18,12 +18,33 @@ start (``start_s``). All times below are measured from ``t0``; ``e(t) = target_c
 - settling_time_2pct_s / _5pct_s: the time after which ``|e| <= 0.02 |D|`` (``0.05 |D|``) holds up
   to the end of the segment.
 - steady_state_error_c: the time-weighted mean of ``e`` over the last ``min(steady_window_s,
-  10 % of the segment)`` seconds of the segment.
+  10 % of the segment)`` seconds of the segment; None where the hold limit-cycles (no steady state).
+- limit_cycle_amplitude_c / limit_cycle_period_s: a sustained periodic oscillation during the hold
+  (from time_to_band on), well above the readings' noise and quantisation (``limit_cycle``):
+  half its median peak-to-peak and its median period; None where the hold has none.
 - iae_c_s = integral of ``|e| dt``; itae_c_s2 = integral of ``(t - t0) |e| dt``;
   duty_sq_s = integral of ``duty^2 dt`` with duty in 0..1 (control effort, as in a quadratic cost).
 - recovery_time_s (after a disturbance at ``disturbance_s``): the time after which
   ``|e| <= band_c`` holds up to the end of the trace; max_deviation_c: the largest ``|e|``
   from ``disturbance_s`` on.
+
+A limit cycle (``limit_cycle``, also on a (rows, lanes) batch): the error about its mean over the
+hold, ``x``, counted as crossing only when it goes from below ``-h`` to above ``+h`` or back (a
+Schmitt trigger), ``h`` the larger of
+- LIMIT_CYCLE_NOISE_SIGMAS = 4 standard deviations of the readings' sample-to-sample noise, from the
+  median absolute second difference (a smooth oscillation's second difference over one reading is
+  nearly 0; white noise's has standard deviation sqrt(6) sigma): a Gaussian reading passes 4 sigma
+  on a given side in 3e-5 of its samples, so noise alone makes a crossing about once in 10^4.5
+  readings (1.5 h of Marlin's 0.164 s readings), and a cycle needs two in a row;
+- LIMIT_CYCLE_READING_STEPS = 2 reading steps, the median non-zero change between two readings: a
+  quantised loop that holds dithers over 2 or 3 adjacent readings (peak-to-peak up to 2 steps, a
+  half-amplitude of 1); an oscillation of 4 steps peak-to-peak or more is no dither.
+It is a limit cycle where the crossings span LIMIT_CYCLE_MIN_CYCLES = 2 full periods or more, the
+last crossing is less than one period before the end of the hold (it is still going), and the last
+period's peak-to-peak (from its first crossing to the end) lies within LIMIT_CYCLE_SWING_RATIO = 2 of
+the median one (sustained: an oscillation that decays is settling, one that grows diverges). The
+period is the median time between crossings in the same direction; the amplitude, half the median
+peak-to-peak between them. A hold that is noisy but stable never crosses both thresholds in turn.
 
 Conventions:
 - Crossing times are linearly interpolated between the two samples around the crossing.
@@ -47,6 +68,7 @@ comes out 20 % short, its 2 % settling band is 1.2 C instead of 0.7 C and its ov
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import astuple, dataclass, fields
 
@@ -55,6 +77,13 @@ import numpy as np
 RISE_FROM, RISE_TO = 0.1, 0.9  # 10-90 %, the default of MATLAB stepinfo and python-control step_info
 SETTLING_BANDS = (0.02, 0.05)  # fractions of the step size
 STEADY_FRACTION = 0.1  # steady window at most this fraction of the segment
+# A limit cycle's thresholds (module docstring says why these values)
+LIMIT_CYCLE_NOISE_SIGMAS = 4.0  # the crossing threshold in standard deviations of the reading noise
+LIMIT_CYCLE_READING_STEPS = 2.0  # ... and at least this many reading steps
+LIMIT_CYCLE_MIN_CYCLES = 2  # full periods the crossings must span
+LIMIT_CYCLE_SWING_RATIO = 2.0  # the last period's swing within this factor of the median: sustained
+MAD_TO_SIGMA = 1.4826  # a Gaussian's standard deviation per median absolute deviation
+SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)  # std of x[i+1] - 2 x[i] + x[i-1] for white noise of std 1
 
 
 @dataclass(frozen=True)
@@ -71,7 +100,9 @@ class StepMetrics:
     peak_time_s: float | None
     settling_time_2pct_s: float | None
     settling_time_5pct_s: float | None
-    steady_state_error_c: float
+    steady_state_error_c: float | None  # None: the hold limit-cycles, there is no steady state
+    limit_cycle_amplitude_c: float | None
+    limit_cycle_period_s: float | None
     iae_c_s: float
     itae_c_s2: float
     duty_sq_s: float | None
@@ -149,6 +180,81 @@ def _steady_error(t: np.ndarray, e: np.ndarray, window_s: float) -> float:
     return _trapezoid(t[last], e[last]) / float(t[-1] - t[last][0])
 
 
+@dataclass(frozen=True)
+class LimitCycle:
+    """A sustained oscillation during a hold (module docstring): half its median peak-to-peak, its median
+    period, and how many full periods its crossings span."""
+
+    amplitude_c: float
+    period_s: float
+    cycles: int
+
+
+def _nanmedian(a: np.ndarray) -> np.ndarray:
+    """The median over axis 0 of the non-NaN values; NaN for a lane with none."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # "All-NaN slice": a lane that never reached the band
+        return np.nanmedian(a, axis=0)
+
+
+def _crossing_threshold_c(temp: np.ndarray, hold: np.ndarray) -> np.ndarray:
+    """Per lane, the Schmitt threshold h (module docstring): LIMIT_CYCLE_NOISE_SIGMAS noise sigmas or
+    LIMIT_CYCLE_READING_STEPS reading steps over the hold, the larger; inf where the readings never change."""
+    second = np.where(hold[:-2], temp[2:] - 2.0 * temp[1:-1] + temp[:-2], np.nan)
+    sigma_c = MAD_TO_SIGMA * _nanmedian(np.abs(second - _nanmedian(second))) / SECOND_DIFFERENCE_GAIN
+    change = np.abs(np.diff(temp, axis=0))
+    step_c = _nanmedian(np.where(hold[:-1] & (change > 0), change, np.nan))
+    h = np.fmax(LIMIT_CYCLE_NOISE_SIGMAS * sigma_c, LIMIT_CYCLE_READING_STEPS * step_c)
+    return np.where(np.isfinite(h) & (h > 0), h, np.inf)
+
+
+def _lane_cycle(t: np.ndarray, x: np.ndarray, passes: np.ndarray) -> LimitCycle | None:
+    """One lane's limit cycle from the samples where x passed the opposite threshold, or None."""
+    if passes.size < 2 * LIMIT_CYCLE_MIN_CYCLES + 1:
+        return None
+    period_s = float(np.median(t[passes[2:]] - t[passes[:-2]]))
+    swing_c = float(np.median([np.ptp(x[a : b + 1]) for a, b in zip(passes[:-2], passes[2:])]))
+    last_swing_c = float(np.ptp(x[passes[-3] :]))
+    if t[-1] - t[passes[-1]] > period_s or not 1 / LIMIT_CYCLE_SWING_RATIO <= last_swing_c / swing_c \
+            <= LIMIT_CYCLE_SWING_RATIO:
+        return None  # it died out, or it grows or decays: not sustained
+    return LimitCycle(swing_c / 2.0, period_s, (passes.size - 1) // 2)
+
+
+def limit_cycles(t_s, temp_c, target_c, *, band_c: float = 2.0) -> list[LimitCycle | None]:
+    """The limit cycle of each lane's hold (module docstring), or None where it has none.
+
+    temp_c: (rows, lanes) readings at t_s; target_c a scalar or an array like t_s, constant (one step);
+    the hold of a lane starts at its first reading within band_c of the target."""
+    t = _times(t_s)
+    temp = np.asarray(temp_c, dtype=float)
+    if temp.ndim != 2 or temp.shape[0] != t.size:
+        raise ValueError(f"temp_c must be (rows, lanes) with {t.size} rows, got shape {temp.shape}")
+    if not np.all(np.isfinite(temp)):
+        raise ValueError("temp_c holds NaN or infinite values")
+    target = _like(t, "target_c", target_c)
+    if np.any(target != target[0]):
+        raise ValueError("target_c changes: a limit cycle is sought in one step's hold (split with segments())")
+    error = target[0] - temp
+    inside = np.abs(error) <= band_c
+    rows = np.arange(t.size)[:, None]
+    hold = (rows >= np.argmax(inside, axis=0)) & inside.any(axis=0)
+    centre = np.sum(np.where(hold, error, 0.0), axis=0) / np.maximum(np.count_nonzero(hold, axis=0), 1)
+    x = error - centre
+    h = _crossing_threshold_c(temp, hold)
+    side = np.where(hold & (x >= h), 1, np.where(hold & (x <= -h), -1, 0))
+    last = np.maximum.accumulate(np.where(side != 0, rows, 0), axis=0)  # the last sample past a threshold
+    state = np.take_along_axis(side, last, axis=0)  # the side last passed, 0 before any
+    passed = (state[1:] != state[:-1]) & (state[:-1] != 0)
+    return [_lane_cycle(t, x[:, k], np.flatnonzero(passed[:, k]) + 1) for k in range(temp.shape[1])]
+
+
+def limit_cycle(t_s, temp_c, target_c, *, band_c: float = 2.0) -> LimitCycle | None:
+    """The limit cycle of one trace's hold (``limit_cycles`` on one lane), or None."""
+    t = _times(t_s)
+    return limit_cycles(t, _like(t, "temp_c", temp_c, scalar_ok=False)[:, None], target_c, band_c=band_c)[0]
+
+
 def step_metrics(
     t_s,
     temp_c,
@@ -210,6 +316,7 @@ def step_metrics(
         peak_time = float(t[i_peak]) - t0 if overshoot > 0 else None
         settling = [_settled_after(t, e, fraction * size_c, t0) for fraction in SETTLING_BANDS]
 
+    cycle = limit_cycle(t, temp, goal, band_c=band_c)
     return StepMetrics(
         start_c=start,
         target_c=goal,
@@ -221,7 +328,9 @@ def step_metrics(
         peak_time_s=peak_time,
         settling_time_2pct_s=settling[0],
         settling_time_5pct_s=settling[1],
-        steady_state_error_c=_steady_error(t, e, steady_window_s),
+        steady_state_error_c=_steady_error(t, e, steady_window_s) if cycle is None else None,
+        limit_cycle_amplitude_c=None if cycle is None else cycle.amplitude_c,
+        limit_cycle_period_s=None if cycle is None else cycle.period_s,
         iae_c_s=_trapezoid(t, np.abs(e)),
         itae_c_s2=_trapezoid(t, (t - t0) * np.abs(e)),
         duty_sq_s=None if duty is None else float(np.sum(np.diff(t) * duty[:-1] ** 2)),

@@ -25,6 +25,7 @@ from typing import ClassVar, NamedTuple, Protocol
 import numpy as np
 import scipy.signal
 
+from twin.limits import PHYSICAL_RANGE_C, checked
 from twin.linear import BLOCK, SENSOR, TICK_S, LinearPlant, Lti
 
 PARAMETER_MAX = 1e9  # any plant parameter's magnitude: far beyond physics, far below float overflow
@@ -438,6 +439,9 @@ def make_plant(preset: str = DEFAULT_HOTEND, *, ambient_c: float = 25.0, initial
     """
     if preset not in SPECS:
         raise ValueError(f"unknown plant preset {preset!r}; valid: {', '.join(SPECS)}")
+    checked("ambient_c", ambient_c, *PHYSICAL_RANGE_C, "C", above=True)
+    if initial_c is not None:
+        checked("initial_c", initial_c, *PHYSICAL_RANGE_C, "C", above=True)
     spec = SPECS[preset]
     names = [field.name for field in dataclasses.fields(spec)]
     for name, value in params.items():

@@ -117,13 +117,16 @@ class RunResult:
         return found
 
     def report(self, disturbances: Sequence[tuple[float, str]] = ()) -> str:
-        """Step metrics per setpoint of each heater, then the hotend's recovery after each
-        disturbance (time, description)."""
+        """Step metrics per setpoint of each heater, a line for each step whose hold limit-cycles, then the
+        hotend's recovery after each disturbance (time, description)."""
         out = []
         for name, heater in self.heaters.items():
             steps = heater.steps()
             if steps:
                 out += [f"{name} (firmware-measured temperature):", format_metrics_table(steps)]
+            out += [f"{name} step {k}: limit cycle in the hold, +-{m.limit_cycle_amplitude_c:.2f} C every "
+                    f"{m.limit_cycle_period_s:.1f} s: it never settles (no steady_state_error_c)"
+                    for k, m in enumerate(steps, 1) if m.limit_cycle_amplitude_c is not None]
             if name != "hotend":
                 continue
             for at_s, what in disturbances:

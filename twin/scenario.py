@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, NoReturn, cast
 
 from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
+from twin.limits import AMBIENT_RANGE_C, DURATION_MAX_S, INITIAL_RANGE_C, TARGET_RANGE_C, check_regular_file
 
 HEATERS = ("hotend", "bed")
 FAULT_KINDS = (
@@ -31,11 +32,7 @@ FAULT_KINDS = (
     "heater_stuck_on",  # MOSFET failed short: full heater power whatever the pin says
     "fan_failure",  # the part fan stops whatever its PWM says (no heater)
 )
-TARGET_RANGE_C = (0, 400)  # setpoints; the firmware clamps further (Marlin: hotend 260, bed 140)
-AMBIENT_RANGE_C = (-40.0, 120.0)  # a cold garage to a heated industrial chamber
-INITIAL_RANGE_C = (-40.0, 400.0)
 DEFAULT_AMBIENT_C = 25.0
-DURATION_MAX_S = 2**32 / 1000  # Marlin's millis() is a uint32
 # Filament feed: at most Marlin's DEFAULT_MAX_FEEDRATE for E (Configuration.h), the fastest its
 # planner ever feeds (60 mm^3/s of 1.75 mm filament, beyond any hotend's melt rate); far beyond
 # it the lumped model's loss term dwarfs the rest and its discretisation loses all precision.
@@ -296,11 +293,14 @@ def parse_scenario(text: str, source: str) -> Scenario:
 def load_scenario(path: str | Path) -> Scenario:
     """The scenario in the TOML file at `path`."""
     try:
+        check_regular_file(path)
         text = Path(path).read_text(encoding="utf-8")
     except OSError as error:
         raise ScenarioError(f"{path}: cannot read: {error.strerror or error}") from None
     except UnicodeDecodeError as error:
         raise ScenarioError(f"{path}: not UTF-8 text (byte {error.start})") from None
+    except ValueError as error:  # not a regular file
+        raise ScenarioError(f"{path}: {error}") from None
     return parse_scenario(text, str(path))
 
 

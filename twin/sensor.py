@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, Divider
+from twin.limits import NOISE_MAX_LSB, checked
 from twin.linear import TICK_S
 
 OPEN, SHORT, DETACHED = "thermistor_open", "thermistor_short", "thermistor_detached"
@@ -35,8 +36,7 @@ class SensorChain:
         detached_tau_s: float = DETACHED_TAU_S,
         gradient_fraction: float = 0.0,
     ):
-        if noise_lsb < 0:
-            raise ValueError("noise_lsb must be >= 0")
+        noise_lsb = checked("noise_lsb", noise_lsb, 0.0, NOISE_MAX_LSB, "LSB")
         if not 0.0 <= gradient_fraction < 1.0:
             raise ValueError(f"gradient_fraction must be within [0, 1), got {gradient_fraction!r}")
         self.gradient_fraction = float(gradient_fraction)

@@ -17,7 +17,7 @@ them (the registry's klippy, which the referee tests run: tests/firmware_port/kl
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple, Protocol
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 KLIPPER_COMMIT = "84104bbbd7625d28b4eaaad83f4562972460ecd9"  # Klipper3d/klipper mainline, 2026-08-07: the defaults
 
@@ -39,6 +39,7 @@ PID_SETTLE_SLOPE = 0.1  # ControlPID.check_busy: |filtered derivative| in degC/s
 # ("Missed scheduling of next digital out event" if no PWM comes in time); an unchanged value is
 # sent again once read_time reaches next_pwm_time.
 PWM_RESEND_2025_08 = "2025-08"  # 2ddfa32dd: next = pwm_time + MAX_HEAT_TIME - (3*pwm_delay + 0.001)
+LOST_REPORTS_2025_08 = 3.0  # that rule's 3: reports that may be lost before the MCU's max_duration fires
 PWM_RESEND_2025_04 = "2025-04"  # 0f94f6c8e: MAX_HEAT_TIME 5 -> 3, next = pwm_time + 0.75*MAX_HEAT_TIME
 PWM_RESEND_BEFORE_2025_04 = "before 2025-04"  # MAX_HEAT_TIME 5, next = pwm_time + 0.75*MAX_HEAT_TIME
 MAX_HEAT_TIME = {PWM_RESEND_2025_08: 3.0, PWM_RESEND_2025_04: 3.0, PWM_RESEND_BEFORE_2025_04: 5.0}
@@ -82,6 +83,7 @@ class PwmEvent(NamedTuple):
 class HeaterConfig:
     """One [extruder] / [heater_bed] / [heater_generic ...] section, with Klipper's defaults."""
 
+    CONTROLS: ClassVar[tuple[str, ...]] = (CONTROL_WATERMARK, CONTROL_PID)  # the control options this firmware knows
     name: str  # section name; its last word is the short name ("extruder", "heater_bed")
     min_temp_c: float
     max_temp_c: float
@@ -105,8 +107,8 @@ class HeaterConfig:
             raise ValueError(f"[{self.name}] max_power must be in (0, 1]")
         if self.smooth_time_s <= 0.0 or self.max_delta_c <= 0.0 or self.pwm_delay_s <= 0.0:
             raise ValueError(f"[{self.name}] smooth_time, max_delta and pwm_delay must be above 0")
-        if self.control not in CONTROLS:
-            raise ValueError(f"[{self.name}] control must be one of {', '.join(CONTROLS)}")
+        if self.control not in self.CONTROLS:
+            raise ValueError(f"[{self.name}] control must be one of {', '.join(self.CONTROLS)}")
         if self.control == CONTROL_PID and None in (self.pid_kp, self.pid_ki, self.pid_kd):
             raise ValueError(f"[{self.name}] control: pid needs pid_kp, pid_ki and pid_kd")
         if self.pwm_resend not in MAX_HEAT_TIME:
@@ -151,13 +153,18 @@ class KlipperHeater:
             self.min_pwm_change = self.max_power * MIN_PWM_CHANGE_RATIO
         else:
             self.min_pwm_change = MIN_PWM_CHANGE_BEFORE_2026_03_VALUE
+        self.lost_reports = LOST_REPORTS_2025_08
         self.verify_mainthread_time = -999.0
         self.is_shutdown = False
         self.last_temp = self.smoothed_temp = self.target_temp = 0.0
         self.last_temp_time = 0.0
         self.next_pwm_time = 0.0
         self.last_pwm_value = 0.0  # the last value sent to the MCU
-        self.control: Control = CONTROLS[config.control](self, config)  # type: ignore[assignment]
+        self.control: Control = self.new_control(config)
+
+    def new_control(self, config: HeaterConfig) -> Control:
+        """The control object ``config.control`` names, for this heater."""
+        return CONTROLS[config.control](self, config)  # type: ignore[return-value]
 
     def set_pwm(self, read_time: float, value: float) -> PwmEvent | None:
         """Send ``value`` for ``read_time + pwm_delay`` unless the change is too small to send."""
@@ -168,7 +175,7 @@ class KlipperHeater:
             return None  # no significant change: suppressed
         pwm_time = read_time + self.pwm_delay
         if self.config.pwm_resend == PWM_RESEND_2025_08:
-            self.next_pwm_time = pwm_time + self.max_heat_time - (3.0 * self.pwm_delay + 0.001)
+            self.next_pwm_time = pwm_time + self.max_heat_time - (self.lost_reports * self.pwm_delay + 0.001)
         else:
             self.next_pwm_time = pwm_time + 0.75 * self.max_heat_time
         self.last_pwm_value = value
@@ -259,6 +266,12 @@ class ControlBangBang:
         return smoothed_temp < target_temp - self.max_delta
 
 
+def duty_gains(config: HeaterConfig) -> tuple[float, float, float]:
+    """(Kp, Ki, Kd) in duty fraction per degC (per degC*s, per degC/s): the config gains / PID_PARAM_BASE."""
+    assert config.pid_kp is not None and config.pid_ki is not None and config.pid_kd is not None  # HeaterConfig checks
+    return config.pid_kp / PID_PARAM_BASE, config.pid_ki / PID_PARAM_BASE, config.pid_kd / PID_PARAM_BASE
+
+
 class ControlPID:
     """control: pid. Derivative on the measurement through a smooth_time filter, conditional
     integration (the integral is kept only when the output is not clipped), integral clamp."""
@@ -266,11 +279,7 @@ class ControlPID:
     def __init__(self, heater: KlipperHeater, config: HeaterConfig):
         self.heater = heater
         self.heater_max_power = heater.max_power
-        # duty fraction per degC (per degC*s, per degC/s): the config gains / PID_PARAM_BASE
-        assert config.pid_kp is not None and config.pid_ki is not None and config.pid_kd is not None  # HeaterConfig checks
-        self.kp = config.pid_kp / PID_PARAM_BASE
-        self.ki = config.pid_ki / PID_PARAM_BASE
-        self.kd = config.pid_kd / PID_PARAM_BASE
+        self.kp, self.ki, self.kd = duty_gains(config)
         self.min_deriv_time = heater.smooth_time
         self.temp_integ_max = self.heater_max_power / self.ki if self.ki else 0.0
         self.prev_temp = AMBIENT_TEMP

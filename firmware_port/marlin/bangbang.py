@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from firmware_port.lane_law import LaneLaw, record_dtype, register
 from firmware_port.marlin.constants import BANG_MAX, BED_CHECK_INTERVAL_MS, BED_HYSTERESIS_C, MAX_BED_POWER
 from firmware_port.thermistor import TEMP_FRAC_BITS
 
@@ -18,6 +19,15 @@ class BangBangHotend:
     def update(self, temp_q5: int, target_c: int, now_ms: int = 0) -> int:
         """``is_below_target()``: celsius < target."""
         return BANG_MAX if temp_q5 < target_c << TEMP_FRAC_BITS else 0
+
+
+def bang_bang_lane(p, s, temp_q5, target_c, board):
+    """``BangBangHotend.update`` on one lane of the compiled batch (no parameters, no state)."""
+    return BANG_MAX if temp_q5 < target_c << TEMP_FRAC_BITS else 0
+
+
+BANG_BANG_LAW = register(LaneLaw("bangbang", BangBangHotend, record_dtype(()), record_dtype(()),
+                                 bang_bang_lane))
 
 
 class BangBangBed:

@@ -18,26 +18,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from firmware_port.fixed_lanes import div_round, trunc_c
+from firmware_port.lane_law import ScalarLanes
 from firmware_port.marlin.adc import AdcSequencer
-from firmware_port.marlin.constants import SOFT_PWM_PERIOD_TICKS, ticks_to_ms
-from firmware_port.marlin.pid import (
-    D_FILTER_DIVISOR,
-    D_RAW_LIMIT_Q8,
-    D_SHIFT,
-    FUNCTIONAL_RANGE_Q5,
-    I_SHIFT,
-    KD_Q16,
-    KI_Q24,
-    KP_Q12,
-    OUT_FRAC_BITS,
-    OUT_MAX_Q8,
-    P_SHIFT,
-    PREV_TEMP_EVERY_SAMPLE,
-    PREV_TEMP_IN_BAND,
-    PidFixed,
-    PidGains,
-    i_max_q5,
-)
+from firmware_port.marlin.constants import ticks_to_ms, SOFT_PWM_PERIOD_TICKS
+from firmware_port.marlin.pid import PREV_TEMP_EVERY_SAMPLE, PidGains, PidLanes
 from firmware_port.marlin.protection import HeaterWatch, RunawayMonitor, TempRange
 from firmware_port.thermistor import B3950_TABLE, TEMP_FRAC_BITS, TempTable
 
@@ -45,22 +30,6 @@ INACTIVE, FIRST_HEATING, STABLE, RUNAWAY = 0, 1, 2, 3
 # What a lane died of: codes into TRIP_TEXTS (the TempError texts), 0 while it runs.
 MAXTEMP_TRIP, MINTEMP_TRIP, RUNAWAY_TRIP, WATCH_TRIP = 1, 2, 3, 4
 TRIP_TEXTS = ("", "MAXTEMP triggered", "MINTEMP triggered", "Thermal Runaway", "Heating failed")
-
-
-def shr_round(x: np.ndarray, n: int) -> np.ndarray:
-    """``fixed.shr_round`` on int64 lanes."""
-    return (x + (1 << (n - 1))) >> n
-
-
-def div_round(a: np.ndarray, b) -> np.ndarray:
-    """``fixed.div_round`` on int64 lanes, positive divisor(s): nearest, halves away from zero."""
-    half = b // 2
-    return np.where(a >= 0, (a + half) // b, -((-a + half) // b))
-
-
-def trunc_c(temp_q5: np.ndarray) -> np.ndarray:
-    """celsius_q5 to celsius_t, truncated toward zero as C converts a float."""
-    return np.where(temp_q5 >= 0, temp_q5 >> TEMP_FRAC_BITS, -((-temp_q5) >> TEMP_FRAC_BITS))
 
 
 def lookup_q5(table: TempTable, raw: np.ndarray) -> np.ndarray:
@@ -71,69 +40,6 @@ def lookup_q5(table: TempTable, raw: np.ndarray) -> np.ndarray:
     v0, v1, t0, t1 = raws[hi - 1], raws[hi], temps[hi - 1], temps[hi]
     value = t0 + div_round((raw - v0) * (t1 - t0), v1 - v0)
     return np.where(raw <= raws[0], temps[0], np.where(raw >= raws[-1], temps[-1], value))
-
-
-class PidLanes:
-    """``PidFixed.update_q8`` on N lanes; gains scaled by the scalar class itself; the prev-temperature
-    mode one for all lanes or one per lane."""
-
-    def __init__(self, gains: Sequence[PidGains | PidFixed], prev_temp_mode: str | Sequence[str] = PREV_TEMP_EVERY_SAMPLE):
-        """One lane per gain set (in ``prev_temp_mode``), or per ``PidFixed`` (its gains and mode)."""
-        modes = [prev_temp_mode] * len(gains) if isinstance(prev_temp_mode, str) else list(prev_temp_mode)
-        if len(modes) != len(gains) or not set(modes) <= {PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND}:
-            raise ValueError(f"prev_temp_mode: one of {PREV_TEMP_EVERY_SAMPLE!r}, {PREV_TEMP_IN_BAND!r} per lane")
-        modes = [g.prev_temp_mode if isinstance(g, PidFixed) else mode for g, mode in zip(gains, modes)]
-        self.every_sample = np.array([mode == PREV_TEMP_EVERY_SAMPLE for mode in modes], dtype=bool)
-        # PidFixed's own scaling (QScale, i_max_q5), on arrays: the gains of the lanes given as PidGains
-        user = np.array([(p.kp, p.ki, p.kd) for p in (g.gains if isinstance(g, PidFixed) else g for g in gains)],
-                        dtype=float).reshape(-1, 3)
-        self.kp_q12, self.ki_q24, self.kd_q16 = (q.many(user[:, i]) for i, q in enumerate((KP_Q12, KI_Q24, KD_Q16)))
-        self.i_max_q5 = np.array([i_max_q5(int(ki)) for ki in self.ki_q24], dtype=np.int64)
-        n = len(gains)
-        self.i_sum_q5 = np.zeros(n, np.int64)
-        self.d_term_q8 = np.zeros(n, np.int64)
-        self.prev_q5 = np.zeros(n, np.int64)
-        self.reset_pending = np.ones(n, bool)
-
-    def update_q8(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray) -> np.ndarray:
-        """One step on the ``active`` lanes (others keep their state); Q.8 output, 0 elsewhere."""
-        e = (target_c << TEMP_FRAC_BITS) - temp_q5
-        off = active & ((target_c == 0) | (e < -FUNCTIONAL_RANGE_Q5))
-        full = active & ~off & (e > FUNCTIONAL_RANGE_Q5)
-        band = active & ~off & ~full
-        fresh = band & self.reset_pending
-        self.reset_pending = (self.reset_pending | off | full) & ~band
-        i_sum = np.where(fresh, 0, self.i_sum_q5)
-        d_term = np.where(fresh, 0, self.d_term_q8)
-        i_sum = np.clip(i_sum + e, 0, self.i_max_q5)
-        p = shr_round(self.kp_q12 * e, P_SHIFT)
-        i = shr_round(self.ki_q24 * i_sum, I_SHIFT)
-        d_in = np.clip(shr_round(self.kd_q16 * (self.prev_q5 - temp_q5), D_SHIFT), -D_RAW_LIMIT_Q8, D_RAW_LIMIT_Q8)
-        d_term = d_term + div_round(d_in - d_term, D_FILTER_DIVISOR)
-        self.i_sum_q5 = np.where(band, i_sum, self.i_sum_q5)
-        self.d_term_q8 = np.where(band, d_term, self.d_term_q8)
-        self.prev_q5 = np.where(np.where(self.every_sample, active, band), temp_q5, self.prev_q5)
-        in_band = np.clip(p + i + d_term, 0, OUT_MAX_Q8)
-        return np.where(full, OUT_MAX_Q8, np.where(band, in_band, 0))
-
-    def output(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray, now_ms: int) -> np.ndarray:
-        """``PidFixed.update`` on the active lanes: 0..255 (0 elsewhere)."""
-        return self.update_q8(temp_q5, target_c, active) >> OUT_FRAC_BITS
-
-
-class ScalarLanes:
-    """Any controller on N lanes, one instance per lane called in turn: the numpy lanes' way to run a law
-    that is not vectorised (the compiled batch kernel has its own copy of each law it runs)."""
-
-    def __init__(self, controllers: Sequence):
-        self.controllers = list(controllers)
-
-    def output(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray, now_ms: int) -> np.ndarray:
-        """Each active lane's ``update``: 0..255 (0 elsewhere, where its controller is not called)."""
-        out = np.zeros(len(self.controllers), np.int64)
-        for lane in np.flatnonzero(active):
-            out[lane] = self.controllers[lane].update(int(temp_q5[lane]), target_c, now_ms)
-        return out
 
 
 @functools.lru_cache(maxsize=8)

@@ -26,6 +26,7 @@ import numpy as np
 
 from firmware_port.controller import BoardInputs
 from firmware_port.fixed import wrap_s32
+from firmware_port.lane_law import LaneLaw, register
 from firmware_port.marlin.constants import (
     ACTUAL_ADC_SAMPLES,
     BANG_MAX,
@@ -220,6 +221,72 @@ class MpcController:
         if 1 <= amount <= 126 or abs(f(block_delta + delta)) < self._steady:
             step = max(delta, self._min_change) if delta > f(0) else min(delta, -self._min_change)
             self.ambient_c = f(self.ambient_c + step)
+
+
+# -- the compiled batch's lane law (firmware_port/lane_law.py): the float32 controller ----------------
+# MpcController's float32 constants of the build (Configuration.h and the planner), as it computes them.
+DT_PER_127 = F32(MPC_DT_F32 / F32(127))
+STEADY = F32(F32(MPC_STEADYSTATE_K_S) * MPC_DT_F32)
+MIN_CHANGE = F32(F32(MPC_MIN_AMBIENT_CHANGE_K_S) * MPC_DT_F32)
+PER_255 = F32(F32(1) / F32(255))
+MM_PER_STEP = F32(F32(1) / F32(E_STEPS_PER_MM))
+MAX_FEEDRATE = F32(E_MAX_FEEDRATE_MM_S)
+INIT_AMBIENT_MAX = F32(MPC_INIT_AMBIENT_MAX_C)
+SMOOTHING = F32(MPC_SMOOTHING_FACTOR)
+TEMP_ONE_F32, ZERO, ONE, TWO, F254, MPC_MAX_F32 = F32(TEMP_ONE), F32(0), F32(1), F32(2), F32(254), F32(MPC_MAX)
+# MPC_t as the controller holds it (P, C, R * MPC_dT, A, F - A, H) and MPCHeaterInfo's state.
+LANE_PARAMS = np.dtype([(name, np.float32) for name in ("_p", "_c", "_r_dt", "_a", "_fan_adj", "_h")])
+LANE_STATE = np.dtype([("ambient_c", np.float32), ("block_c", np.float32), ("sensor_c", np.float32),
+                       ("e_position_steps", np.int64)])
+
+
+def _transfer_lane(p, s, board):
+    """``MpcController._transfer_coefficient`` on a lane: every operation on float32 operands."""
+    k = p._a + np.float32(board.fan_speed) * PER_255 * p._fan_adj
+    e_speed = np.float32(wrap_s32(board.e_position_steps - s.e_position_steps)) * MM_PER_STEP / MPC_DT_F32
+    if abs(e_speed) > MAX_FEEDRATE:
+        s.e_position_steps = board.e_position_steps
+    elif e_speed > ZERO:
+        k = k + e_speed * p._h
+        s.e_position_steps = board.e_position_steps
+    return k
+
+
+def _model_lane(p, s, amount, celsius, k):
+    """``MpcController._step_model`` on a lane."""
+    block_delta = np.float32(amount) * p._p * DT_PER_127 / p._c
+    block_delta = block_delta + (s.ambient_c - s.block_c) * k * MPC_DT_F32 / p._c
+    s.block_c = s.block_c + block_delta
+    s.sensor_c = s.sensor_c + (s.block_c - s.sensor_c) * p._r_dt
+    delta = (celsius - s.sensor_c) * SMOOTHING
+    s.block_c = s.block_c + delta
+    s.sensor_c = s.sensor_c + delta
+    if 1 <= amount <= 126 or abs(block_delta + delta) < STEADY:
+        s.ambient_c = s.ambient_c + (max(delta, MIN_CHANGE) if delta > ZERO else min(delta, -MIN_CHANGE))
+
+
+def mpc_lane(p, s, temp_q5, target_c, board):
+    """``MpcController.update`` on one lane of the compiled batch (float32 throughout): 0..255."""
+    celsius = np.float32(temp_q5) / TEMP_ONE_F32
+    if math.isnan(s.block_c):
+        s.ambient_c = min(INIT_AMBIENT_MAX, celsius)
+        s.block_c = celsius
+        s.sensor_c = celsius
+    k = _transfer_lane(p, s, board)
+    _model_lane(p, s, board.amount, celsius, k)
+    power = ZERO
+    if target_c != 0:
+        power = (np.float32(target_c) - s.block_c) * p._c / TWO
+        power = power - (s.ambient_c - s.block_c) * k
+    out = power * F254 / p._p + ONE
+    if math.isnan(out):
+        return 0
+    return 0 if out < ZERO else MPC_MAX if out > MPC_MAX_F32 else int(out)
+
+
+# Every constant is read from the first reading on: lanes share a run only with their twins.
+MPC_LAW = register(LaneLaw("mpc", MpcController, LANE_PARAMS, LANE_STATE, mpc_lane, reads_board=True,
+                           fits=lambda c: c.f is np.float32))
 
 
 def mpc_controller(heater_power_w: float = MPC_HEATER_POWER_W,

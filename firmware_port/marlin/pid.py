@@ -16,12 +16,15 @@ checks the bounds over the whole documented domain):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from fractions import Fraction
 
 import numpy as np
 
+from firmware_port import fixed_lanes
 from firmware_port.controller import PidGains
 from firmware_port.fixed import checked_s32, checked_s64, clamp, div_round, shr_round
+from firmware_port.lane_law import LaneLaw, field_names, record_dtype, register
 from firmware_port.marlin.constants import (
     DEFAULT_BED_KD,
     DEFAULT_BED_KI,
@@ -202,6 +205,111 @@ class PidFixed:
         """The last update's P and I terms (0 outside the band, where the output is bang-bang) and the
         filtered D term, in output counts of 0..255."""
         return {"p_counts": self.p_q8 / 256, "i_counts": self.i_q8 / 256, "d_counts": self.d_term_q8 / 256}
+
+
+# -- lanes: the numpy batch's vectorised law, and the compiled batch's lane law ------------------------
+class PidLanes:
+    """``PidFixed.update_q8`` on N lanes; gains scaled by the scalar class itself; the prev-temperature
+    mode one for all lanes or one per lane."""
+
+    def __init__(self, gains: Sequence[PidGains | PidFixed], prev_temp_mode: str | Sequence[str] = PREV_TEMP_EVERY_SAMPLE):
+        """One lane per gain set (in ``prev_temp_mode``), or per ``PidFixed`` (its gains and mode)."""
+        modes = [prev_temp_mode] * len(gains) if isinstance(prev_temp_mode, str) else list(prev_temp_mode)
+        if len(modes) != len(gains) or not set(modes) <= {PREV_TEMP_EVERY_SAMPLE, PREV_TEMP_IN_BAND}:
+            raise ValueError(f"prev_temp_mode: one of {PREV_TEMP_EVERY_SAMPLE!r}, {PREV_TEMP_IN_BAND!r} per lane")
+        modes = [g.prev_temp_mode if isinstance(g, PidFixed) else mode for g, mode in zip(gains, modes)]
+        self.every_sample = np.array([mode == PREV_TEMP_EVERY_SAMPLE for mode in modes], dtype=bool)
+        # PidFixed's own scaling (QScale, i_max_q5), on arrays: the gains of the lanes given as PidGains
+        user = np.array([(p.kp, p.ki, p.kd) for p in (g.gains if isinstance(g, PidFixed) else g for g in gains)],
+                        dtype=float).reshape(-1, 3)
+        self.kp_q12, self.ki_q24, self.kd_q16 = (q.many(user[:, i]) for i, q in enumerate((KP_Q12, KI_Q24, KD_Q16)))
+        self.i_max_q5 = np.array([i_max_q5(int(ki)) for ki in self.ki_q24], dtype=np.int64)
+        n = len(gains)
+        self.i_sum_q5 = np.zeros(n, np.int64)
+        self.d_term_q8 = np.zeros(n, np.int64)
+        self.prev_q5 = np.zeros(n, np.int64)
+        self.reset_pending = np.ones(n, bool)
+
+    def update_q8(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray) -> np.ndarray:
+        """One step on the ``active`` lanes (others keep their state); Q.8 output, 0 elsewhere."""
+        e = (target_c << TEMP_FRAC_BITS) - temp_q5
+        off = active & ((target_c == 0) | (e < -FUNCTIONAL_RANGE_Q5))
+        full = active & ~off & (e > FUNCTIONAL_RANGE_Q5)
+        band = active & ~off & ~full
+        fresh = band & self.reset_pending
+        self.reset_pending = (self.reset_pending | off | full) & ~band
+        i_sum = np.where(fresh, 0, self.i_sum_q5)
+        d_term = np.where(fresh, 0, self.d_term_q8)
+        i_sum = _constrain(i_sum + e, 0, self.i_max_q5)
+        p = fixed_lanes.shr_round(self.kp_q12 * e, P_SHIFT)
+        i = fixed_lanes.shr_round(self.ki_q24 * i_sum, I_SHIFT)
+        d_in = np.clip(fixed_lanes.shr_round(self.kd_q16 * (self.prev_q5 - temp_q5), D_SHIFT), -D_RAW_LIMIT_Q8, D_RAW_LIMIT_Q8)
+        d_term = d_term + fixed_lanes.div_round(d_in - d_term, D_FILTER_DIVISOR)
+        self.i_sum_q5 = np.where(band, i_sum, self.i_sum_q5)
+        self.d_term_q8 = np.where(band, d_term, self.d_term_q8)
+        self.prev_q5 = np.where(np.where(self.every_sample, active, band), temp_q5, self.prev_q5)
+        in_band = np.clip(p + i + d_term, 0, OUT_MAX_Q8)
+        return np.where(full, OUT_MAX_Q8, np.where(band, in_band, 0))
+
+    def output(self, temp_q5: np.ndarray, target_c: int, active: np.ndarray, now_ms: int) -> np.ndarray:
+        """``PidFixed.update`` on the active lanes: 0..255 (0 elsewhere)."""
+        return self.update_q8(temp_q5, target_c, active) >> OUT_FRAC_BITS
+
+
+def _constrain(x: np.ndarray, lo: int, hi: np.ndarray) -> np.ndarray:
+    """``fixed.clamp`` on lanes: a ceiling below the floor (a negative Ki's) wins only above the floor."""
+    return np.where(x < lo, lo, np.where(x > hi, hi, x))
+
+
+PID_PARAMS = record_dtype(("kp_q12", "ki_q24", "kd_q16", "i_max_q5", "every_sample"))  # PidFixed's, its mode
+PID_STATE = record_dtype(("i_sum_q5", "d_term_q8", "prev_q5", "reset_pending"))  # PidFixed's state
+
+
+def in_band(e_q5: int, target_c: int) -> bool:
+    """Whether the error lies in the functional range, where the law reads its gains."""
+    return -FUNCTIONAL_RANGE_Q5 <= e_q5 <= FUNCTIONAL_RANGE_Q5 and target_c != 0
+
+
+def pid_lane(p, s, temp_q5, target_c, board):
+    """``PidFixed.update`` on one lane of the compiled batch: 0..255 (``p``, ``s``: PID_PARAMS, PID_STATE)."""
+    e_q5 = (target_c << TEMP_FRAC_BITS) - temp_q5
+    if not in_band(e_q5, target_c):
+        s.reset_pending = 1
+        if p.every_sample:
+            s.prev_q5 = temp_q5
+        return PID_MAX if target_c != 0 and e_q5 > FUNCTIONAL_RANGE_Q5 else 0
+    i_sum, d_term = (0, 0) if s.reset_pending else (s.i_sum_q5, s.d_term_q8)
+    i_sum = clamp(i_sum + e_q5, 0, p.i_max_q5)
+    p_q8 = shr_round(p.kp_q12 * e_q5, P_SHIFT)
+    i_q8 = shr_round(p.ki_q24 * i_sum, I_SHIFT)
+    d_in_q8 = clamp(shr_round(p.kd_q16 * (s.prev_q5 - temp_q5), D_SHIFT), -D_RAW_LIMIT_Q8, D_RAW_LIMIT_Q8)
+    d_term = d_term + div_round(d_in_q8 - d_term, D_FILTER_DIVISOR)
+    s.i_sum_q5, s.d_term_q8, s.prev_q5, s.reset_pending = i_sum, d_term, temp_q5, 0
+    return clamp(p_q8 + i_q8 + d_term, 0, OUT_MAX_Q8) >> OUT_FRAC_BITS
+
+
+def pid_tuned(p, s, temp_q5, target_c):
+    """The law reads its gains in band only: outside, full power or off (the heat-up before the band)."""
+    return in_band((target_c << TEMP_FRAC_BITS) - temp_q5, target_c)
+
+
+def _records(lanes: PidLanes, dtype: np.dtype) -> np.ndarray:
+    """The lanes' arrays named by the dtype's fields, as (N,) records."""
+    out = np.zeros(len(lanes.kp_q12), dtype)
+    for name in field_names(dtype):
+        out[name] = getattr(lanes, name)
+    return out
+
+
+def _set_pid_state(lanes: PidLanes, state: np.ndarray) -> None:
+    lanes.i_sum_q5, lanes.d_term_q8, lanes.prev_q5 = (state[name].copy() for name in ("i_sum_q5", "d_term_q8", "prev_q5"))
+    lanes.reset_pending = state["reset_pending"].astype(bool)
+
+
+PID_LAW = register(LaneLaw("pid", PidFixed, PID_PARAMS, PID_STATE, pid_lane, tuning=("kp_q12", "ki_q24", "kd_q16",
+                                                                                     "i_max_q5"),
+                           tuned=pid_tuned, lanes=PidLanes, pack=lambda lanes: _records(lanes, PID_PARAMS),
+                           read=lambda lanes: _records(lanes, PID_STATE), write=_set_pid_state))
 
 
 def pid_space(default: PidGains = HOTEND_GAINS, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE) -> ParamSpace:

@@ -24,7 +24,7 @@ from tools.tuning.evaluate import preset_problem, run_scalars, simulate
 from twin import klipper_kernel as kk
 from twin.clock import tick_near
 from twin.klipper_batch import KlipperBatch, gains_setups
-from twin.klipper_twin import PULLUP_OHM, KlipperTwin, calc_adc, extruder_setup
+from twin.klipper_twin import PULLUP_OHM, KlipperTwin, calc_adc, extruder_setup, kalico_extruder_setup
 from twin.plants import ONION_RADIATING_PARAMS, make_plant
 
 PLANT_TOLERANCE_C = 1e-9  # see the module docstring
@@ -175,7 +175,7 @@ def test_a_noisy_conversions_analog_value_is_calc_adcs(sensor):
 
 def test_bad_noise_and_seeds_are_refused():
     setups = gains_setups(extruder_setup(make_plant("hotend_cartridge")), GAINS)
-    with pytest.raises(ValueError, match="noise_lsb must be finite and >= 0"):
+    with pytest.raises(ValueError, match=r"\[extruder\] noise_lsb=inf: must be a finite number"):
         KlipperBatch([dataclasses.replace(setups[0], noise_lsb=np.inf), *setups[1:]])
     with pytest.raises(ValueError, match=r"seed: one value, or one per lane \(3\), not 2"):
         KlipperBatch(setups, seed=[1, 2])
@@ -195,3 +195,33 @@ def test_the_tuners_klipper_batch_is_its_scalar_twins_with_noise():
     np.testing.assert_array_equal(batch.duty, scalar.duty)
     np.testing.assert_array_equal(batch.tripped, scalar.tripped)
     assert batch.tripped.tolist() == [False, False, True]
+
+
+# -- Kalico --------------------------------------------------------------------------------------------
+def test_kalico_lanes_are_kalico_twins():
+    """Kalico's pid lanes (firmware_port/kalico: Klipper's ControlPID, Kalico's PWM rules): max_power 0.6,
+    where Kalico's absolute 0.05 threshold is not Klipper's 0.03, and lost_update_tolerance 0 (resend one
+    report earlier than 2). The same gains on Klipper's rules send other values."""
+    options = {"max_power": 0.6, "lost_update_tolerance": 0}
+    gains = GAINS[:2]
+    batch = KlipperBatch(gains_setups(kalico_extruder_setup(make_plant("hotend_cartridge"), **options), gains))
+    batch.set_target(200.0)
+    batch.run_until(300.0)
+    lanes = batch.result().hotend
+    for lane, (kp, ki, kd) in enumerate(gains):
+        setup = kalico_extruder_setup(make_plant("hotend_cartridge"), pid_kp=kp, pid_ki=ki, pid_kd=kd, **options)
+        twin = KlipperTwin([setup])
+        twin.set_target("extruder", 200.0)
+        twin.run_until(300.0)
+        scalar = twin.result().hotend
+        np.testing.assert_array_equal(lanes.measured_c[:, lane], scalar.measured_c)
+        np.testing.assert_array_equal(lanes.duty[:, lane], scalar.duty)
+        np.testing.assert_allclose(lanes.block_c[:, lane], scalar.block_c, rtol=0, atol=PLANT_TOLERANCE_C)
+    klipper = _batch("hotend_cartridge", gains, 300.0, None, max_power=0.6).result().hotend
+    assert not np.array_equal(klipper.duty, lanes.duty)
+
+
+def test_a_batch_runs_kalicos_pid_only():
+    setup = kalico_extruder_setup(make_plant("hotend_cartridge"), control="pid_v")
+    with pytest.raises(ValueError, match="a Klipper batch runs control: pid, not 'pid_v'"):
+        KlipperBatch([setup])

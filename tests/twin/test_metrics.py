@@ -9,8 +9,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from twin.metrics import (
+    LIMIT_CYCLE_READING_STEPS,
+    LimitCycle,
     StepMetrics,
     format_metrics_table,
+    limit_cycle,
+    limit_cycles,
     max_deviation_c,
     recovery_time_s,
     segments,
@@ -180,9 +184,8 @@ def test_cooling_mirrors_heating(r):
     target = r["start_c"] + r["step_c"]
     m = step_metrics(t, temp, target, r["duty"])
     mirrored = step_metrics(t, -temp, -target, r["duty"])
-    expected = dataclasses.replace(
-        m, start_c=-m.start_c, target_c=-m.target_c, steady_state_error_c=-m.steady_state_error_c
-    )
+    steady = None if m.steady_state_error_c is None else -m.steady_state_error_c
+    expected = dataclasses.replace(m, start_c=-m.start_c, target_c=-m.target_c, steady_state_error_c=steady)
     assert_metrics_close(mirrored, expected)
 
 
@@ -303,31 +306,120 @@ def test_table_is_stable_and_shows_none_as_a_dash():
     heat = StepMetrics(
         start_c=25.0, target_c=200.0, reached=True, rise_time_s=21.972, time_to_band_s=44.716,
         overshoot_c=3.5, overshoot_pct=2.0, peak_time_s=61.25, settling_time_2pct_s=39.12,
-        settling_time_5pct_s=29.957, steady_state_error_c=-0.001, iae_c_s=1749.95,
-        itae_c_s2=17493.644, duty_sq_s=100.0,
+        settling_time_5pct_s=29.957, steady_state_error_c=-0.001, limit_cycle_amplitude_c=None,
+        limit_cycle_period_s=None, iae_c_s=1749.95, itae_c_s2=17493.644, duty_sq_s=100.0,
     )
     cool = dataclasses.replace(
         heat, start_c=200.0, target_c=60.0, reached=False, rise_time_s=None, time_to_band_s=None,
         overshoot_c=0.0, overshoot_pct=0.0, peak_time_s=None, settling_time_2pct_s=None,
         settling_time_5pct_s=None, steady_state_error_c=-120.0, duty_sq_s=None,
     )
-    assert format_metrics_table([heat, cool]) == "\n".join(
+    cycling = dataclasses.replace(heat, settling_time_2pct_s=None, steady_state_error_c=None,
+                                  limit_cycle_amplitude_c=10.534, limit_cycle_period_s=78.479)
+    assert format_metrics_table([heat, cool, cycling]) == "\n".join(
         [
-            "metric                  step 1    step 2",
-            "start_c                  25.00    200.00",
-            "target_c                200.00     60.00",
-            "reached                    yes        no",
-            "rise_time_s              21.97         -",
-            "time_to_band_s           44.72         -",
-            "overshoot_c               3.50      0.00",
-            "overshoot_pct             2.00      0.00",
-            "peak_time_s              61.25         -",
-            "settling_time_2pct_s     39.12         -",
-            "settling_time_5pct_s     29.96         -",
-            "steady_state_error_c      0.00   -120.00",
-            "iae_c_s                1749.95   1749.95",
-            "itae_c_s2             17493.64  17493.64",
-            "duty_sq_s               100.00         -",
+            "metric                     step 1    step 2    step 3",
+            "start_c                     25.00    200.00     25.00",
+            "target_c                   200.00     60.00    200.00",
+            "reached                       yes        no       yes",
+            "rise_time_s                 21.97         -     21.97",
+            "time_to_band_s              44.72         -     44.72",
+            "overshoot_c                  3.50      0.00      3.50",
+            "overshoot_pct                2.00      0.00      2.00",
+            "peak_time_s                 61.25         -     61.25",
+            "settling_time_2pct_s        39.12         -         -",
+            "settling_time_5pct_s        29.96         -     29.96",
+            "steady_state_error_c         0.00   -120.00         -",
+            "limit_cycle_amplitude_c         -         -     10.53",
+            "limit_cycle_period_s            -         -     78.48",
+            "iae_c_s                   1749.95   1749.95   1749.95",
+            "itae_c_s2                17493.64  17493.64  17493.64",
+            "duty_sq_s                  100.00         -    100.00",
         ]
     )
-    assert format_metrics_table(heat) == format_metrics_table([heat]).replace("    step 2", "")
+    assert format_metrics_table(heat) == format_metrics_table([heat])
+
+
+# --- limit cycles ---------------------------------------------------------------------------
+
+T_HOLD = np.arange(0, 900, 0.164)  # Marlin's readings, 15 min
+
+
+def heat_then_cycle(t, amplitude_c, period_s, growth_per_s=0.0, target_c=240.0):
+    """25 C -> target_c (40 s time constant), an oscillation about the target fading in as the heat-up ends."""
+    approach = first_order(t, 25.0, target_c - 25.0, 40.0)
+    swing = amplitude_c * np.exp(growth_per_s * t) * np.sin(2 * np.pi * t / period_s)
+    return approach + swing * (1 - np.exp(-t / 40.0))
+
+
+def quantised(temp_c, step_c):
+    return np.round(temp_c / step_c) * step_c
+
+
+@pytest.mark.parametrize("step_c", [0.0, 0.8])
+def test_a_limit_cycle_gives_its_amplitude_and_period_and_no_steady_state(step_c):
+    """+-10 C every 80 s about 240 C (the cartridge at 240 C on the twin), read raw or in 0.8 C steps (the
+    10-bit ADC there) with 0.2 C of noise."""
+    temp = heat_then_cycle(T_HOLD, 10.0, 80.0) + np.random.default_rng(1).normal(0, 0.2, T_HOLD.size)
+    temp = quantised(temp, step_c) if step_c else temp
+    cycle = limit_cycle(T_HOLD, temp, 240.0)
+    assert cycle is not None and cycle.cycles >= 8
+    assert cycle.amplitude_c == pytest.approx(10.0, abs=0.7) and cycle.period_s == pytest.approx(80.0, abs=1.0)
+    m = step_metrics(T_HOLD, temp, 240.0)
+    assert m.reached and m.steady_state_error_c is None
+    assert (m.limit_cycle_amplitude_c, m.limit_cycle_period_s) == (cycle.amplitude_c, cycle.period_s)
+
+
+@pytest.mark.parametrize("noise_c, step_c", [(0.0, 0.0), (0.3, 0.0), (1.0, 0.0), (0.0, 0.8), (0.3, 0.8), (2.0, 0.8)])
+def test_a_noisy_or_quantised_stable_hold_is_no_limit_cycle(noise_c, step_c):
+    """A first-order heat-up held at 210 C, with Gaussian noise up to 1 C and readings in 0.8 C steps: never flagged,
+    and the steady-state error is a number (several seeds: the thresholds are not tuned to one draw)."""
+    for seed in range(5):
+        temp = first_order(T_HOLD, 25.0, 185.0, 40.0) + np.random.default_rng(seed).normal(0, noise_c, T_HOLD.size)
+        temp = quantised(temp, step_c) if step_c else temp
+        assert limit_cycle(T_HOLD, temp, 210.0) is None
+        assert step_metrics(T_HOLD, temp, 210.0).steady_state_error_c == pytest.approx(0.0, abs=0.5)  # 210 rounds to 209.6
+
+
+def test_a_dither_of_one_reading_step_is_no_limit_cycle_but_several_steps_are():
+    """Readings in 0.8 C steps: a slow cycle between two adjacent readings is as good a hold as a quantised
+    loop gives; one reaching past LIMIT_CYCLE_READING_STEPS steps either side (the threshold) is a cycle."""
+    wave = np.sin(2 * np.pi * T_HOLD / 60.0)
+    assert limit_cycle(T_HOLD, 210.0 + 0.4 * np.sign(wave), 210.0) is None  # one step
+    cycle = limit_cycle(T_HOLD, 210.0 + quantised(0.8 * (LIMIT_CYCLE_READING_STEPS + 1) * wave, 0.8), 210.0)
+    assert cycle is not None and cycle.period_s == pytest.approx(60.0, abs=0.5)
+
+
+@pytest.mark.parametrize("growth_per_s", [-0.02, 0.02])
+def test_an_oscillation_that_decays_or_grows_is_not_sustained(growth_per_s):
+    temp = heat_then_cycle(T_HOLD, 5.0, 80.0, growth_per_s)
+    assert limit_cycle(T_HOLD, temp, 240.0) is None
+    if growth_per_s < 0:
+        assert step_metrics(T_HOLD, temp, 240.0).steady_state_error_c is not None
+
+
+def test_one_that_stops_before_the_end_is_not_sustained():
+    temp = np.where(T_HOLD < 500, heat_then_cycle(T_HOLD, 10.0, 80.0), 240.0)
+    assert limit_cycle(T_HOLD, temp, 240.0) is None
+
+
+def test_a_run_that_never_reaches_the_band_has_no_hold():
+    assert limit_cycle(T_HOLD, heat_then_cycle(T_HOLD, 10.0, 80.0) - 50.0, 240.0) is None
+
+
+def test_lanes_give_what_each_lane_gives_alone():
+    """limit_cycles on (rows, lanes): the tuning layer's batch call, lane by lane the single-trace answer."""
+    rng = np.random.default_rng(3)
+    lanes = np.column_stack([heat_then_cycle(T_HOLD, 10.0, 80.0), first_order(T_HOLD, 25.0, 215.0, 40.0),
+                             heat_then_cycle(T_HOLD, 3.0, 45.0) + rng.normal(0, 0.2, T_HOLD.size),
+                             heat_then_cycle(T_HOLD, 10.0, 80.0) - 50.0])
+    batch = limit_cycles(T_HOLD, lanes, 240.0)
+    assert batch == [limit_cycle(T_HOLD, lanes[:, k], 240.0) for k in range(lanes.shape[1])]
+    assert [isinstance(c, LimitCycle) for c in batch] == [True, False, True, False]
+
+
+def test_limit_cycles_checks_its_inputs():
+    with pytest.raises(ValueError, match=r"\(rows, lanes\)"):
+        limit_cycles(T_HOLD, np.zeros(T_HOLD.size), 240.0)
+    with pytest.raises(ValueError, match="target_c changes"):
+        limit_cycles(T_HOLD, np.zeros((T_HOLD.size, 2)), np.where(T_HOLD < 100, 200.0, 210.0))

@@ -1,12 +1,17 @@
-"""Argument types shared by the CLIs: numbers that refuse NaN, infinities and out-of-range values, and a
-checked plot path (the one-line parser is tools/entry.py's ``OneLineParser``)."""
+"""Argument types shared by the CLIs: numbers that refuse NaN, infinities and out-of-range values, seeds,
+and files checked before any work (an output we can write, an input that is a regular text file). The
+ranges themselves are twin/limits.py's; the one-line parser is tools/entry.py's ``OneLineParser``."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
+
+from tools.validation.doc_compare import replace_section
+from twin.limits import SEED_MAX, check_regular_file
 
 
 def finite_float(text: str) -> float:
@@ -21,22 +26,106 @@ def finite_float(text: str) -> float:
 
 
 def ranged_float(low: float, high: float, unit: str) -> Callable[[str], float]:
-    """An argparse type: a finite number within low..high (unit for the message)."""
+    """An argparse type: a finite number within low..high (unit, if any, for the message)."""
 
     def parse(text: str) -> float:
         value = finite_float(text)
         if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"{value:g} {unit} is outside {low:g}..{high:g} {unit}")
+            suffix = f" {unit}" if unit else ""
+            raise argparse.ArgumentTypeError(f"{value:g}{suffix} is outside {low:g}..{high:g}{suffix}")
         return value
 
     return parse
 
 
+def ranged_int(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: a whole number within low..high."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, not {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{value} is outside {low}..{high}")
+        return value
+
+    return parse
+
+
+seed_int = ranged_int(0, SEED_MAX)  # a random seed, as numpy's SeedSequence takes it
+
+
+def check_output(path: str | Path) -> Path:
+    """An output file, checked before any work: not a folder nor a device, in an existing folder where a
+    file can be created (not /proc), and writable if it exists; ValueError says what is wrong (the caller
+    names the file)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError("a folder, not a file")
+    check_regular_file(path)
+    folder = path.absolute().parent
+    if not folder.is_dir():
+        raise ValueError(f"the folder {str(folder)!r} does not exist")
+    try:
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as exc:
+        raise ValueError(f"cannot create a file in {str(folder)!r}: {exc.strerror or exc}") from None
+    if path.exists():
+        try:
+            with open(path, "r+b"):
+                pass
+        except OSError as exc:
+            raise ValueError(f"cannot write it: {exc.strerror or exc}") from None
+    return path
+
+
+def output_file(text: str) -> Path:
+    """An argparse type: ``check_output``'s file."""
+    try:
+        return check_output(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text}: {exc}") from None
+
+
+def read_text_file(path: str | Path) -> str:
+    """A regular UTF-8 text file's text; ValueError (the reason, for the caller to name the file) for a FIFO,
+    a device, binary data or an unreadable file."""
+    check_regular_file(path)
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ValueError(str(exc.strerror or exc)) from None
+
+
+def section_page(path: str | Path, begin: str, end: str) -> str:
+    """A page whose generated section a command rewrites (``--doc``), checked before any work: a regular
+    UTF-8 file we can write, with the section's markers; its text. ValueError says what is wrong."""
+    text = read_text_file(path)
+    check_output(path)
+    if replace_section(text, "", begin, end) is None:
+        raise ValueError(f"no '{begin} ... -->' / '{end}' markers")
+    return text
+
+
+def doc_page(begin: str, end: str) -> Callable[[str], Path]:
+    """An argparse type: a ``section_page`` with these markers (``--doc``)."""
+
+    def parse(text: str) -> Path:
+        try:
+            section_page(text, begin, end)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"{text}: {exc}") from None
+        return Path(text)
+
+    return parse
+
+
 def plot_path(text: str) -> Path:
-    """A plot file whose folder exists and whose extension matplotlib can write: checked before any work."""
-    path = Path(text)
-    if not path.parent.is_dir():
-        raise argparse.ArgumentTypeError(f"the folder {str(path.parent)!r} does not exist")
+    """A plot file we can write (``check_output``) in a format matplotlib can write: checked before any work."""
+    path = output_file(text)
     try:
         from matplotlib.figure import Figure
     except ImportError:

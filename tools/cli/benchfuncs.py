@@ -17,6 +17,7 @@ from tools.seeds import seed002_benchmark
 from tools.tuning.benchfuncs import BENCHMARKS, BY_NAME, FORMS, PLAIN
 from tools.tuning.optim import METHODS
 from tools.tuning.optim.benchmark import SEED_ITERATIONS, SEED_POPULATION, format_report, run_all, tasks_for
+from tools.cli.args import check_output, section_page
 from tools.entry import OneLineParser, run_main
 from tools.validation.doc_compare import replace_section
 
@@ -64,6 +65,7 @@ def _problem(args: argparse.Namespace) -> str | None:
         (args.population < 5, "--population must be >= 5 (DE needs 5)"),
         (args.iterations < 3, "--iterations must be >= 3 (OCALO's start costs 2 populations)"),
         (args.workers < 1, "--workers must be >= 1"),
+        (args.seed < 0, "--seed must be >= 0"),
         (bool(unknown_methods), f"--methods: unknown {unknown_methods}, choose from {sorted(METHODS)}"),
         (bool(unknown_functions), f"--functions: unknown {unknown_functions}, choose from F1..F23"),
         (bool(unknown_forms), f"--forms: unknown {unknown_forms}, choose from {list(FORMS)}"),
@@ -111,12 +113,13 @@ def run(args: argparse.Namespace, command: str) -> int:
     problem = _problem(args)
     if problem:
         raise ValueError(problem)
-    if args.doc is not None:  # checked before the runs, so that a typo costs nothing
-        problem = _write_doc(args.doc, "", "") if not args.doc.is_file() else None
-        if problem is None and replace_section(args.doc.read_text(), "", DOC_BEGIN, DOC_END) is None:
-            problem = f"no '{DOC_BEGIN} ... -->' / '{DOC_END}' markers"
-        if problem:
-            raise ValueError(f"--doc {args.doc}: {problem}")
+    for flag, path, check in (("--out", args.out, check_output),  # before the runs: a typo costs nothing
+                              ("--doc", args.doc, lambda page: section_page(page, DOC_BEGIN, DOC_END))):
+        try:
+            if path is not None:
+                check(path)
+        except ValueError as exc:
+            raise ValueError(f"{flag} {path}: {exc}") from None
     text = report(args)
     if args.out is None and args.doc is None:
         print(text, end="")

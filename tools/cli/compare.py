@@ -27,6 +27,7 @@ from tools.ident.segments import NotFittable
 from tools.logs import HeattestLog, LogError, M303Log, StatsLog
 from tools.validation import compare, m303_compare
 from tools.validation.tables import WIDTH, markdown_cells, text_tables
+from twin.limits import AMBIENT_RANGE_C
 
 
 
@@ -184,7 +185,7 @@ def build_parser() -> OneLineParser:
                         help="write logged vs twin to FILE (png, pdf, svg, ...); its folder must exist")
     parser.add_argument("--heater", choices=("extruder", "heater_bed"),
                         help="an M303 capture: the heater it tuned (default: from its M303 line or status lines)")
-    parser.add_argument("--ambient", type=ranged_float(-40.0, 100.0, "C"),
+    parser.add_argument("--ambient", type=ranged_float(*AMBIENT_RANGE_C, "C"),
                         help="an M303 capture: the room temperature in C (default: the idle heater's reading, else "
                              "25 C)")
     sample = parser.add_mutually_exclusive_group()

@@ -30,8 +30,10 @@ from firmware_port.marlin.pid import (
 )
 from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.thermistor import B3950_TABLE, TABLE_ERROR_BOUND_C, TEMP_ONE, Divider
+from tools.cli.args import ranged_int, section_page, seed_int
 from tools.entry import EXIT_USAGE, OneLineParser, run_main
 
+CALLS_MAX = 100_000  # --sequences, --steps: each law runs sequences x steps calls
 # Gain sets to measure: Marlin's defaults and M303 results from ../shared/hardware_logs.
 PID_CASES = {
     "Marlin hotend default 22.20/1.08/114.00": PidGains(22.2, 1.08, 114.0),
@@ -149,25 +151,42 @@ def avr_markdown(footprints: list[Footprint], header: str, command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_avr_doc(path: Path, body: str) -> None:
+def read_doc(path: Path) -> str:
+    """--doc's page, checked before any work: a UTF-8 text file we can write, with the table's markers."""
+    try:
+        return section_page(path, AVR_DOC_BEGIN, AVR_DOC_END)
+    except ValueError as exc:
+        raise ValueError(f"--doc {path}: {exc}") from None
+
+
+def write_avr_doc(path: Path, text: str, body: str) -> None:
+    """The page's text (``read_doc``) with its AVR table replaced by ``body``, written back."""
     from tools.validation.doc_compare import replace_section
 
-    new = replace_section(path.read_text(), body, AVR_DOC_BEGIN, AVR_DOC_END)
-    if new is None:
-        raise ValueError(f"{path} lacks the '{AVR_DOC_BEGIN} ... -->' / '{AVR_DOC_END}' markers")
-    path.write_text(new)
+    path.write_text(str(replace_section(text, body, AVR_DOC_BEGIN, AVR_DOC_END)), encoding="utf-8")
 
 
 def build_parser() -> OneLineParser:
     parser = OneLineParser(prog="twin-firmware-report", description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=1, help="seed of the random input sequences (default: %(default)s)")
-    parser.add_argument("--sequences", type=int, default=40, help="sequences per case (default: %(default)s)")
-    parser.add_argument("--steps", type=int, default=300, help="samples per sequence (default: %(default)s)")
+    parser.add_argument("--seed", type=seed_int, default=1,
+                        help="seed of the random input sequences (default: %(default)s)")
+    parser.add_argument("--sequences", type=ranged_int(1, CALLS_MAX), default=40,
+                        help="sequences per case (default: %(default)s)")
+    parser.add_argument("--steps", type=ranged_int(1, CALLS_MAX), default=300,
+                        help="samples per sequence (default: %(default)s)")
     parser.add_argument("--doc", type=Path, help="rewrite the AVR table in this page (docs/firmware.md)")
     return parser
 
 
 def run(args: argparse.Namespace, command: str) -> int:
+    page = None
+    if args.doc is not None:  # before any work: the build the table needs, and a page to write it in
+        try:
+            find_toolchain()
+        except ToolchainMissing as exc:
+            print(f"twin-firmware-report: --doc needs the AVR build: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        page = read_doc(args.doc)
     rng = random.Random(args.seed)
     lines = table_report()
     lines += pid_report(rng, args.sequences, args.steps)
@@ -177,12 +196,9 @@ def run(args: argparse.Namespace, command: str) -> int:
         footprints = measure_all(args.seed, args.sequences, args.steps)
         header = avr_header(args.seed, args.sequences, args.steps)
         lines += avr_report(footprints, header)
-        if args.doc is not None:
-            write_avr_doc(args.doc, avr_markdown(footprints, header, command))
+        if args.doc is not None and page is not None:
+            write_avr_doc(args.doc, page, avr_markdown(footprints, header, command))
     except ToolchainMissing as exc:
-        if args.doc is not None:
-            print(f"twin-firmware-report: --doc needs the AVR build: {exc}", file=sys.stderr)
-            return EXIT_USAGE
         lines.append(f"AVR build: not measured: {exc}")
     print("\n".join(lines))
     return 0
@@ -191,8 +207,6 @@ def run(args: argparse.Namespace, command: str) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.sequences < 1 or args.steps < 1:
-        parser.error("--sequences and --steps must be at least 1")
     command = " ".join(["twin-firmware-report", *(sys.argv[1:] if argv is None else argv)])
     return run_main(parser.prog, lambda: run(args, command))
 

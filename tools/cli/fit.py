@@ -4,13 +4,15 @@ ready-to-paste settings.
 LOG is any log tools/logs/ reads: Klipper Stats CSV or klippy.log, a Klipper heattest, a plain
 t,temp,duty CSV (one segment fitted: --segment, default the first with at least half the longest
 time at full power); Marlin M303 console text, with or without its 2 s status trace (the printed
-relay cycles, each a measured point of the loop, fitted with the trace where there is one); Klipper
-PID_CALIBRATE results (one entry's Tu and swing). tools/ident/log_fit.py does the fitting. The
+relay cycles, each a measured point of the loop, fitted with the trace where there is one) and with or
+without its M303 command (the heater and the relay's target are then found in the data and said:
+tools/logs/m303.py, tools/ident/relay_trace.py); Klipper PID_CALIBRATE results (one entry's Tu and swing). tools/ident/log_fit.py does the fitting. The
 output gives each parameter with its standard error and whether the log identifies it, a
 plausible range with its source for those it does not, the residuals, a FOPDT equivalent, and
 Marlin (M306 for two_node, M301/M304) and Klipper settings: the PID gains twin-tune's tuner suggests
 (tools/tuning/problems.py suggest: the rules and the twin's M303 on the fitted plant's ensemble, or
-where each trips, a short DE seeded with them; never one that trips on a plant the log allows).
+where each trips, a short DE seeded with them; never one that trips on a plant the log allows), at the
+relay's target for relay data, else the tuner's default target.
 --loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
 
 Exit status: 0 fitted; 2 the log or the options cannot be used (one line on stderr); 3 the fit is
@@ -41,6 +43,7 @@ from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, HeattestLog, Log, LogError, M303Log, PlainLog, StatsLog
 from tools.tuning.evaluate import Candidate
 from tools.tuning.problems import build_problem, fitted_source, suggest
+from twin.limits import AMBIENT_RANGE_C
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 EXIT_DEGENERATE = 3
@@ -66,11 +69,12 @@ EXAMPLES = """examples:
   twin-fit m303_capture.txt --ambient 24                an M303 console capture (printed cycles, status trace)
   twin-fit m303_results.txt                             the M303 result lines alone: fopdt from the cycles
   twin-fit m303_capture.txt --fit-cycles 2              the first two printed cycles only
-  twin-fit m303_bed.txt --heater heater_bed             a capture without its M303 E-1 line
+  twin-fit pasted_m303.txt                              bias/Ku/Tu lines without their M303 line: the heater
+                                                        and the target found in the data
+  twin-fit m303_bed.txt --heater heater_bed             where the data would say otherwise
   twin-fit pid_results.txt --segment 3                  a PID_CALIBRATE result: Tu and swing, gain held
   twin-fit heattest.csv --model three_node --loss auto  with a radiation-like loss too, if AIC prefers it
 """
-AMBIENT_RANGE_C = (-40.0, 100.0)  # a room, a heated enclosure: a wider value is a typo
 POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
 TARGET_RANGE_C = (1.0, 500.0)  # a relay target: above freezing, below any hotend's limit
 
@@ -84,7 +88,8 @@ def build_parser() -> OneLineParser:
                              "default for relay results alone) or sopdt (first/second order plus dead time)")
     parser.add_argument("--heater", choices=HEATER_NAMES,
                         help="extruder or heater_bed (default: extruder, or the log's only heater; for an M303 "
-                             "capture without its M303 line, which heater it tuned)")
+                             "capture, the heater its M303 command or its lines say, else the one its relay's "
+                             "target says: above Marlin's highest bed target, 140 C, a hotend)")
     parser.add_argument("--session", type=int, help="only this session of a Klipper log (0-based, as listed)")
     parser.add_argument("--segment", type=int, help="the segment to fit (as listed; default: the first with at "
                         "least half the longest time at full power); for PID_CALIBRATE results, the entry (default 0)")
@@ -92,8 +97,9 @@ def build_parser() -> OneLineParser:
                         help="an M303 capture: fit the first K printed cycles only (and the trace up to them)")
     parser.add_argument("--target", type=ranged_float(*TARGET_RANGE_C, "C"),
                         help="relay data: the relay's target in C where the capture does not state it (default: an "
-                             "M303 capture's command, else its switches or the middle of its cycles; PID_CALIBRATE "
-                             "results: 200 C for a hotend, 60 C for a bed, assumed)")
+                             "M303 capture's command, else the whole degree within every printed cycle's min..max "
+                             "nearest its status trace's switches or that range's middle; PID_CALIBRATE results: "
+                             "200 C for a hotend, 60 C for a bed, assumed); the suggested gains are tuned there")
     parser.add_argument("--ambient", type=ranged_float(*AMBIENT_RANGE_C, "C"),
                         help="ambient temperature in C (default: fitted, at most the segment's lowest reading; for "
                              "relay data, whose readings all sit near the target, the idle bed's reading or "
@@ -281,7 +287,7 @@ def _relay_line(ku: float, tu_s: float, fitted: Fopdt) -> str:
 
 def _options(args: argparse.Namespace, on_evaluation) -> LogFitOptions:
     return LogFitOptions(args.model, args.heater, args.session, args.segment, args.ambient, args.power_w, args.loss,
-                         args.fit_cycles, args.target, on_evaluation)
+                         args.fit_cycles, args.target, on_evaluation=on_evaluation)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -293,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
     if reason := fitted.degenerate:
         print(f"twin-fit: {args.log}: degenerate fit, no gains: {reason}", file=sys.stderr)
         return EXIT_DEGENERATE
-    suggestion = suggest(build_problem(fitted_source(fitted, Path(args.log).name)))
+    suggestion = suggest(build_problem(fitted_source(fitted, Path(args.log).name), fitted.target_c))
     settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s, suggestion) + _log_notes(log, fitted)
     print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
     return 0

@@ -22,11 +22,12 @@ from protocol.pty_server import PtyServer
 from protocol.server import Server
 from protocol.tcp_server import SECRET_LINE_MAX, TAKEOVER_AFTER_S, TcpServer
 from protocol.transcript import Transcript
-from tools.cli.args import ranged_float
+from tools.cli.args import output_file, ranged_float, ranged_int, seed_int
 from tools.entry import OneLineParser, run_main
 from twin.plants import PRESETS as PLANT_PRESETS
 
 DEFAULT_TCP_HOST = "127.0.0.1"
+BAUD_MAX = 2**31 - 1  # termios's speed_t; any rate up to it is accepted (and ignored)
 
 
 def _speed(text: str):
@@ -129,16 +130,18 @@ def build_parser() -> OneLineParser:
                         help="a --settings file that does not load (CRC or version mismatch) stops twin-serial "
                              "at start and is left as it is (default: the defaults load, as Marlin's do, and the "
                              "next M500 replaces it)")
-    parser.add_argument("--log", metavar="FILE", help="transcript of both directions with virtual and wall times")
+    parser.add_argument("--log", metavar="FILE", type=output_file,
+                        help="transcript of both directions with virtual and wall times")
     parser.add_argument("--no-ok-after-resend", dest="ok_after_resend", action="store_false",
                         help="no 'ok' after 'Resend:' (a buggy firmware, to test a host's handling; "
                              "default: 'ok' follows, as GCodeQueue::flush_and_request_resend() sends in Marlin 2.1)")
-    parser.add_argument("--corrupt-rx", type=float, default=0.0, metavar="P",
+    parser.add_argument("--corrupt-rx", type=ranged_float(0.0, 1.0, ""), default=0.0, metavar="P",
                         help="probability per received line of one flipped bit (default: %(default)s, a clean wire)")
-    parser.add_argument("--seed", type=int, default=0, metavar="N",
+    parser.add_argument("--seed", type=seed_int, default=0, metavar="N",
                         help="seed of --corrupt-rx's draws: a host sending the same lines gets the same "
                              "flips (default 0)")
-    parser.add_argument("--baud", type=int, metavar="N", help="accepted and ignored: any baud rate works")
+    parser.add_argument("--baud", type=ranged_int(1, BAUD_MAX), metavar="N",
+                        help="accepted and ignored: any baud rate works")
     return parser
 
 

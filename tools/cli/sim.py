@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import math
 import os
 import re
 import sys
@@ -20,8 +19,11 @@ from tqdm import tqdm
 from firmware_port.firmwares import FIRMWARES
 from firmware_port.marlin.mpc import MpcConstants, MpcController
 from protocol.mpc_commands import hotend_mpc, mpc_constants_from_text
+from tools.cli.args import check_output, ranged_float, ranged_int, seed_int
 from twin.build import build_twin
-from twin.engine import ENGINES
+from twin.clock import TICK_S
+from twin.engine import ENGINES, TRACE_ROW_BYTES
+from twin.limits import AMBIENT_RANGE_C, DURATION_MAX_S, INITIAL_RANGE_C, NOISE_MAX_LSB, TARGET_RANGE_C
 from twin.plants import DEFAULT_BED, DEFAULT_HOTEND
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
@@ -29,7 +31,8 @@ from twin.scenario import ScenarioError, scenario_for, with_overrides
 from tools.entry import OneLineParser, run_main
 
 PROGRESS_STEP_S = 10.0  # virtual seconds between progress bar updates
-NOISE_MAX_LSB = 100.0  # ADC noise beyond this is no sensor, it is a broken wire
+ENGINE_NOTES = {"reference": "the tick-by-tick reference engine",
+                "avr": "the controllers' C compiled for the ATmega328P, run in simavr"}  # said in the output
 EXIT_HALTED = 1
 EXIT_STATUS = """exit status:
   0  the run completed and no protection fault tripped
@@ -46,7 +49,7 @@ def build_parser() -> OneLineParser:
             "firmwares: " + "; ".join(f"{k}: {v[2]}" for k, v in FIRMWARES.items()) + ".",
             "plants: " + ", ".join(PLANT_PRESETS) + ". scenarios: " + ", ".join(SCENARIO_PRESETS) + ".",
             "outputs: OUT/<scenario>_<firmware>[_<what differs from the defaults>].csv and .png: a non-default "
-            "plant, --set, --no-bed or gains go into the name, so runs of other plants or gains do not overwrite "
+            "engine, plant, --set, --no-bed or gains go into the name, so runs of other plants or gains do not overwrite "
             "each other. --out is created; --csv, --plot and --klipper-log must name a file in an existing folder.",
         )), EXIT_STATUS]),
     )
@@ -55,12 +58,14 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--bed-plant", choices=list(PLANT_PRESETS), help=f"bed plant preset (default: the scenario's, else {DEFAULT_BED})")
     parser.add_argument("--no-bed", action="store_true", help="a board with a hotend only")
     parser.add_argument("--scenario", default="heat_hold", help="preset name or TOML file (default heat_hold)")
-    parser.add_argument("--target", type=int, help="hotend target in C (replaces the scenario's first setpoint)")
-    parser.add_argument("--bed-target", type=int, help="bed target in C")
-    parser.add_argument("--duration", type=float, help="virtual seconds to run (default: the scenario's)")
-    parser.add_argument("--ambient", type=float, help="ambient temperature in C")
-    parser.add_argument("--initial", type=float, help="hotend starting temperature in C (default ambient)")
-    parser.add_argument("--bed-initial", type=float, help="bed starting temperature in C (default ambient)")
+    target, initial = ranged_int(*TARGET_RANGE_C), ranged_float(*INITIAL_RANGE_C, "C")
+    parser.add_argument("--target", type=target, help="hotend target in C (replaces the scenario's first setpoint)")
+    parser.add_argument("--bed-target", type=target, help="bed target in C")
+    parser.add_argument("--duration", type=ranged_float(TICK_S, DURATION_MAX_S, "s"),
+                        help="virtual seconds to run (default: the scenario's)")
+    parser.add_argument("--ambient", type=ranged_float(*AMBIENT_RANGE_C, "C"), help="ambient temperature in C")
+    parser.add_argument("--initial", type=initial, help="hotend starting temperature in C (default ambient)")
+    parser.add_argument("--bed-initial", type=initial, help="bed starting temperature in C (default ambient)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="hotend plant parameter, e.g. --set power_w=50 (repeatable)")
     parser.add_argument("--bed-set", action="append", default=[], metavar="KEY=VALUE", help="bed plant parameter")
@@ -69,13 +74,15 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--mpc-from", metavar="FILE|LINE",
                         help="MPC's model for --firmware mpc: an M306 line (as twin-fit, M306 or M503 print it) "
                              "or a file holding one; letters it leaves out keep Configuration.h's values")
-    parser.add_argument("--seed", type=int, help="seed of every random source (default: the scenario's, else 0)")
-    parser.add_argument("--noise", type=float, default=0.0, help="ADC noise, standard deviation in LSB (default: %(default)s)")
+    parser.add_argument("--seed", type=seed_int, help="seed of every random source (default: the scenario's, else 0)")
+    parser.add_argument("--noise", type=ranged_float(0.0, NOISE_MAX_LSB, "LSB"), default=0.0,
+                        help="ADC noise, standard deviation in LSB (default: %(default)s)")
     parser.add_argument("--engine", choices=ENGINES, default="fast", help="fast (default), the tick-by-tick reference, or avr: fast with the "
-                        "controllers' C compiled for the ATmega328P and run in simavr")
-    parser.add_argument("--record-every", type=float, default=0.0, metavar="SECONDS",
+                        "controllers' C compiled for the ATmega328P and run in simavr (a non-default engine is said "
+                        "in the output and its file names)")
+    parser.add_argument("--record-every", type=ranged_float(0.0, DURATION_MAX_S, "s"), default=0.0, metavar="SECONDS",
                         help="at most one trace row per SECONDS (default: %(default)s, every firmware reading, 0.164 s; "
-                             "a row costs about 380 bytes: bound long runs with this)")
+                             f"a row costs up to {TRACE_ROW_BYTES} bytes: bound long runs with this)")
     parser.add_argument("--out", default="twin-out",
                         help="directory for the default trace and plot, created if missing (default twin-out)")
     parser.add_argument("--csv", help="trace CSV path (default OUT/<run name>.csv, see outputs below)")
@@ -118,7 +125,8 @@ def parse_gains(text: str | None, option: str) -> dict[str, float] | None:
 
 
 def read_mpc_constants(source: str) -> MpcConstants:
-    """--mpc-from: the constants of the first M306 line of a file, or of the argument itself."""
+    """--mpc-from: the constants of the first M306 line of a file, or of the argument itself; every letter
+    it gives must be a finite number, every constant positive (H may be 0)."""
     text = source
     if os.path.isfile(source):
         try:
@@ -127,7 +135,7 @@ def read_mpc_constants(source: str) -> MpcConstants:
         except OSError as exc:
             raise ValueError(f"--mpc-from {source!r}: {exc.strerror or exc}") from None
     try:
-        return mpc_constants_from_text(text)
+        return mpc_constants_from_text(text, strict=True)
     except ValueError as exc:
         raise ValueError(f"--mpc-from {source!r}: {exc}") from None
 
@@ -144,7 +152,7 @@ def hotend_controllers(args: argparse.Namespace) -> list:
 def run_name(scenario_name: str, args: argparse.Namespace) -> str:
     """<scenario>_<firmware>, then what differs from the defaults (plants, --set, --no-bed, gains),
     so that a run of another plant or other gains does not overwrite this one's files."""
-    parts = [scenario_name, args.firmware]
+    parts = [scenario_name, args.firmware] + ([args.engine] if args.engine != "fast" else [])
     parts += [args.plant] if args.plant else []
     parts += [f"bed-{args.bed_plant}"] if args.bed_plant else []
     parts += ["nobed"] if args.no_bed else []
@@ -155,8 +163,8 @@ def run_name(scenario_name: str, args: argparse.Namespace) -> str:
 
 
 def check_outputs(out_dir: str, paths: list[tuple[str, str | None]], plot_path: str | None) -> None:
-    """Before any work: the --out folder is made; every other output names a file in an existing,
-    writable folder (as twin-compare asks of --plot); the plot is a PNG."""
+    """Before any work: the --out folder is made; every other output names a file we can write in an
+    existing folder (as twin-compare asks of --plot, tools/cli/args.py check_output); the plot is a PNG."""
     if plot_path is not None and not plot_path.lower().endswith(".png"):
         raise ValueError(f"--plot {plot_path!r}: the plot is written as PNG, give a .png path")
     try:
@@ -164,13 +172,11 @@ def check_outputs(out_dir: str, paths: list[tuple[str, str | None]], plot_path: 
     except OSError as exc:
         raise ValueError(f"cannot create the output folder {out_dir!r}: {exc.strerror or exc}") from None
     for option, path in paths:
-        if path is None:
-            continue
-        folder = os.path.dirname(os.path.abspath(path))
-        if not os.path.isdir(folder):
-            raise ValueError(f"{option} {path!r}: the folder {folder!r} does not exist")
-        if not os.access(folder, os.W_OK) or os.path.isdir(path):
-            raise ValueError(f"{option}: cannot write {path!r}")
+        if path is not None:
+            try:
+                check_output(path)
+            except ValueError as exc:
+                raise ValueError(f"{option} {path!r}: {exc}") from None
 
 
 def clamp_notes(twin, scenario) -> list[str]:
@@ -214,10 +220,8 @@ def run(args: argparse.Namespace) -> int:
         scenario, duration_s=args.duration, ambient_c=args.ambient, initial_c=initial or None,
         targets=targets or None, seed=args.seed, plant=plant, gains=gains or None,
     )
-    if not (math.isfinite(args.record_every) and 0.0 <= args.record_every <= scenario.duration_s):
-        raise ValueError(f"--record-every {args.record_every}: must be 0..duration_s ({scenario.duration_s:g}) seconds")
-    if not (math.isfinite(args.noise) and 0.0 <= args.noise <= NOISE_MAX_LSB):
-        raise ValueError(f"--noise {args.noise}: must be a number of LSB in 0..{NOISE_MAX_LSB:g}")
+    if args.record_every > scenario.duration_s:
+        raise ValueError(f"--record-every {args.record_every:g}: must be 0..duration_s ({scenario.duration_s:g}) seconds")
     stem = run_name(scenario.name, args)
     plot_path = None if args.no_plot else (args.plot or os.path.join(args.out, stem + ".png"))
     csv_path = args.csv or os.path.join(args.out, stem + ".csv")
@@ -227,8 +231,14 @@ def run(args: argparse.Namespace) -> int:
     twin = build_twin(scenario, args.firmware, controllers=controllers, with_bed=not args.no_bed, engine=args.engine,
                       noise_lsb=args.noise)
     twin.record_every_s = args.record_every
+    try:
+        twin.check_horizon(scenario.duration_s)
+    except ValueError as exc:
+        raise ValueError(f"--duration {scenario.duration_s:g}: {exc}") from None
     twin.run_until(0.0)  # the scenario's 0 s events: targets and gains in force
-    print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, seed {scenario.seed or 0}")
+    engine = f", engine {args.engine} ({ENGINE_NOTES[args.engine]})" if args.engine in ENGINE_NOTES else ""
+    print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, "
+          f"seed {scenario.seed or 0}{engine}")
     print(gains_line(twin))
     if (mpc := hotend_mpc(twin.board)) is not None:
         print(f"mpc: {mpc.constants.m306()}")
@@ -250,7 +260,8 @@ def run(args: argparse.Namespace) -> int:
     if plot_path is not None:
         try:
             os.makedirs(os.path.dirname(plot_path) or ".", exist_ok=True)
-            result.plot(plot_path, f"{scenario.name}: {result.label}")
+            engine_note = f" (engine {args.engine})" if args.engine != "fast" else ""
+            result.plot(plot_path, f"{scenario.name}: {result.label}{engine_note}")
             print(f"plot: {plot_path}")
         except ImportError as exc:
             print(f"plot skipped: {exc}")

@@ -1,28 +1,32 @@
-"""twin-tune: tune a heater controller on the firmware in the loop; print its settings ready to paste.
+"""twin-tune: tune a heater controller on the firmware in the loop; new gains only where they beat yours.
 
-The plant is a preset (``--plant``) or fitted to a log as twin-fit does (``--from-log``); the
-controller is a firmware build with parameters (``--controller``, default Marlin's fixed-point
-PID) or your own ``module:attribute`` naming a firmware_port.params.ParamSpace. Every candidate
-(the tuning rules for a PID, an optimiser's search) runs the same scenario in the loop
-(tools/tuning/evaluate.py: heat-up, then disturbances) on every plant of an ensemble (the nominal
-plant and the corners of its spread, each with ADC noise: tools/tuning/ensemble.py), scored by the
-objective (tools/tuning/objectives.py) and reduced to a robust statistic. The best is then proven
-on the reference engine over many noise seeds and the extreme plants, beside the firmware's own
-autotune (tools/tuning/proof.py); only a candidate that never trips is printed ready to paste.
-Every candidate follows beside the references (the controller's defaults and, for a PID, Marlin
-M303 C8 or Klipper PID_CALIBRATE on the same twin), and a plot of the responses is written.
+The plant is a preset (``--plant``) or a log (``--from-log``: every plant the log allows, fitted,
+profiled and replayed against the log: tools/tuning/allowed.py); the controller is a firmware build
+with parameters (``--controller``, default Marlin's fixed-point PID) or your own ``module:attribute``
+naming a firmware_port.params.ParamSpace. The gains to beat are yours: the printer's own, from the log
+or ``--current-gains``, else the firmware's own autotune on the twin. Every candidate (the tuning rules
+for a PID, an optimiser's search) runs the same scenario in the loop (tools/tuning/evaluate.py:
+heat-up, then disturbances) on every plant of the ensemble with ADC noise, scored by the objective
+(tools/tuning/objectives.py, charged where it is worse than yours) and reduced to a robust statistic.
+The best candidates and yours are then proven on every plant over many noise seeds on the batch, a
+sample cross-checked on the reference engine (tools/tuning/proof.py); the answer is new gains only
+where one beats yours on every plant (tools/tuning/verdict.py), else "keep your gains".
+Every candidate follows beside the references, and a plot of the responses is written.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from tools.cli.args import finite_float, plot_path
+from tools.cli.args import check_output, finite_float, output_file, plot_path
+from tools.cli.progress import PROGRESS_MODES, Steps
+from twin.limits import NOISE_MAX_LSB, SEED_MAX
 from tools.entry import OneLineParser, run_main
 from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
@@ -30,13 +34,16 @@ from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STA
 from tools.tuning.evaluate import LOOPS, Candidate, Problem
 from tools.tuning.problems import BED_TARGET_C, HOTEND_TARGET_C, Source, build_problem, log_source, preset_source
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, heater_terms
-from tools.tuning.proof import PROOF_SEEDS, ProofRow
+from tools.tuning.proof import CROSS_CHECK_S, PROOF_SEEDS, ProofRow
+from tools.tuning.reference import PrinterGains, parse_gains
 from tools.tuning.proof import table as proof_table
-from tools.tuning.tuner import DEFAULT_BUDGET, Proven, TuneResult, methods, proven, tune
+from tools.tuning.tuner import DEFAULT_BUDGET, YOURS, Proven, TuneResult, methods, proven, tune
 from twin.metrics import step_metrics
 from twin.plants import SPECS
 
 BOTH = "both"  # --loop both: tune and prove on Marlin's loop, then on Klipper's
+BUDGET_MAX = 1_000_000  # optimiser evaluations: a thousand times the default, days of CPU
+PROOF_MAX = 10_000  # noise seeds in the proof
 MODELS = ("two_node", "three_node", "fopdt", "sopdt")
 EPILOG = """examples:
   twin-tune --plant hotend_cartridge --target 210            # rules, then DE, against M303 C8
@@ -46,37 +53,50 @@ EPILOG = """examples:
   twin-tune --controller pid,mpc --plant hotend_cartridge --budget 100   # PID against Marlin's MPC
   twin-tune --from-log klippy.log --heater extruder --loop klipper
 
+  twin-tune --from-log m303.txt --current-gains "M301 P22.2 I1.08 D114" --json answer.json
+
 exit status:
-  0  tuned, and a candidate passed the proof
-  1  tuned, but no candidate passed the proof (the report says why)
+  0  an answer: new gains that beat yours on every plant, or keep your gains (they never trip)
+  1  no safe answer: nothing beats your gains and they trip on some plant (the report says where),
+     or nothing passed the proof where there are no gains to keep
   2  bad input (an option, a log, a controller), said in one line; nothing is tuned
 """
+AUTO = "auto"  # --loop auto: the loop the log's printer runs (Marlin for a preset)
 
 
 # -- the plant ---------------------------------------------------------------------------------
-def source(args: argparse.Namespace) -> Source:
-    """The plant: a preset, or the log fitted exactly as twin-fit fits it (tools/ident/log_fit.py)."""
+def source(args: argparse.Namespace, steps: Steps) -> Source:
+    """The plant: a preset, or every plant the log allows (tools/tuning/allowed.py)."""
     if not args.from_log:
         return preset_source(args.plant, args.spread)
-    options = LogFitOptions(model=args.model, heater=args.heater, segment=args.segment)
-    return log_source(args.from_log, options)
+    options = LogFitOptions(model=args.model, heater=args.heater, segment=args.segment, target_c=args.target)
+    return log_source(args.from_log, options, on_step=steps)
 
 
 def make_problem(args: argparse.Namespace, plant: Source, loop: str, controller_name: str) -> tuple[Problem, bool]:
     """The problem the arguments describe on ``plant`` (with ``loop`` and ``controller_name``), and whether its
     heater is a bed."""
-    problem = build_problem(plant, args.target, controller_name, loop, args.noise, args.statistic,
-                            spread=args.spread > 0)
+    problem = build_problem(plant, args.target, controller_name, None if loop == AUTO else loop, args.noise,
+                            args.statistic, spread=args.spread > 0)
     return problem, plant.is_bed
 
 
 def plant_lines(plant: Source) -> list[str]:
-    """A fitted plant's parameters, exactly as twin-fit prints them."""
+    """A log's plants: the best fit's parameters, exactly as twin-fit prints them, then every plant the log
+    allows and the fits it does not."""
     if plant.fitted is None:
         return []
     result = plant.fitted.result
-    return [f"plant: {result.model} fitted to {plant.name.split(' (')[0]} as twin-fit fits it:",
-            *result.parameter_lines()]
+    lines = [f"plant: {result.model} fitted to {plant.name.split(' (')[0]} as twin-fit fits it:",
+             *result.parameter_lines()]
+    return lines + (plant.allowed.lines() if plant.allowed is not None else [])
+
+
+def yours(args: argparse.Namespace, plant: Source) -> PrinterGains | None:
+    """The printer's gains: --current-gains, else what the log states."""
+    if args.current_gains:
+        return PrinterGains(parse_gains(args.current_gains), "--current-gains")
+    return plant.printer
 
 
 # -- output -------------------------------------------------------------------------------------
@@ -100,25 +120,27 @@ def describe(problem: Problem, candidate: Candidate) -> str:
     return str(candidate.gains) if problem.controller.pid else problem.controller.describe(candidate.params)
 
 
-def settings_lines(problem: Problem, best: Candidate, is_bed: bool) -> list[str]:
-    """Ready to paste, for the loop that proved it: Marlin's M301/M304 and Configuration.h, or Klipper's
-    section; for other controllers their parameters."""
+def settings_lines(problem: Problem, best: Candidate, is_bed: bool, proven: bool = True) -> list[str]:
+    """Ready to paste, for the loop that proved it (or marked unproven): Marlin's M301/M304 and
+    Configuration.h, or Klipper's section; for other controllers their parameters."""
     if not problem.controller.pid:
-        return [f"{problem.controller.name} parameters (the firmware's units), from the {problem.loop} loop:",
+        return [f"{problem.controller.name} parameters (the firmware's units), from the {problem.loop} loop"
+                f"{'' if proven else ', UNPROVEN'}:",
                 *(f"  {p.name} = {v:.6g} {p.unit}".rstrip() for p, v in zip(problem.controller.params, best.params))]
     gains, heater = best.gains, "heater_bed" if is_bed else "extruder"
     if problem.loop == "klipper":
-        return ["Klipper printer.cfg (proven on the Klipper loop):",
+        return [f"Klipper printer.cfg ({'proven on' if proven else 'UNPROVEN, from'} the Klipper loop):",
                 *("  " + line for line in gains.klipper_section(heater).splitlines())]
-    where = "proven on the Marlin loop" if problem.loop == "marlin" else "from the papers' idealised loop, unproven"
+    where = "proven on the Marlin loop" if proven and problem.loop == "marlin" else \
+        "UNPROVEN, from the Marlin loop" if problem.loop == "marlin" else "from the papers' idealised loop, unproven"
     return [f"Marlin ({where}; send, then M500 to keep it):", f"  {gains.marlin_command(bed=is_bed)}", "  M500",
             "Marlin Configuration.h:", *("  " + line for line in gains.marlin_defines(bed=is_bed).splitlines())]
 
 
 def report_proof(problem: Problem, proof: Proven, seeds: int) -> None:
-    corners = len(problem.members()) - 1
-    print(f"proof on the {'reference engine' if problem.loop == 'marlin' else problem.loop + ' twin'}: "
-          f"{seeds} noise seeds on the nominal plant and {corners} corner plants, one run each:")
+    members = len(problem.members())
+    print(f"proof on the batch: {seeds} noise seeds on each of the {members} plants, the candidates beside "
+          f"{proof.yours.method}; cross-check: {proof.cross_check}:")
 
     def named(row: ProofRow) -> str:
         return problem.controller.describe(row.params) if not problem.controller.pid else \
@@ -127,33 +149,42 @@ def report_proof(problem: Problem, proof: Proven, seeds: int) -> None:
     print("\n".join("  " + line for line in proof_table(proof.rows, named)))
 
 
-def report(result: TuneResult, proof: Proven | None, seeds: int, is_bed: bool) -> int:
-    """Print the tune; the exit status: 1 when no candidate passed the proof."""
+def reference_name(result: TuneResult) -> str:
+    """What the reference to beat is, for the verdict's line."""
+    if result.yours.method == YOURS:
+        return "your gains"
+    return f"{result.yours.method}'s gains"
+
+
+def report(result: TuneResult, proof: Proven | None, seeds: int, is_bed: bool, printer: PrinterGains | None) -> int:
+    """Print the tune; the exit status (module EPILOG)."""
     problem, best = result.problem, result.best
     print(f"twin-tune: {problem.name} at {problem.scenario.target_c:g} C, controller {problem.controller.name}, "
           f"objective {result.objective}, loop {problem.loop}")
     if problem.ensemble is not None:
         print(f"ensemble: {problem.ensemble.describe()}")
-    versus = "; ".join(f"{'beats' if result.beats(r) else 'does not beat'} {r.method}: {describe(problem, r)}  "
-                       f"cost {r.cost:.4g}" for r in result.references if r is not best)
-    if best in result.references:
-        versus = f"no search beat this reference; {versus}" if versus else "no search beat this reference"
-    print(f"best: {best.method}  {describe(problem, best)}  cost {best.cost:.4g}  ({versus})")
-    by_rule = [c for c in result.candidates if c.history is None]
-    if by_rule and by_rule[0] is not best and problem.controller.pid:
-        print(f"best rule: {by_rule[0].method}  {describe(problem, by_rule[0])}  cost {by_rule[0].cost:.4g}")
-    answer: Candidate | None = best
+    if printer is not None:
+        print(f"your gains: {printer.gains} ({printer.source})")
+    print(f"to beat: {result.yours.method}  {describe(problem, result.yours)}  cost {result.yours.cost:.4g}")
+    print(f"best of the search: {best.method}  {describe(problem, best)}  cost {best.cost:.4g}")
+    status, answer = 0, None
     if proof is not None:
         report_proof(problem, proof, seeds)
         answer = proof.answer
+        if proof.verdict.keep:
+            safe = all(r.passed for r in proof.rows if r.method == proof.yours.method)
+            status = 0 if safe else 1
+            caveat = "" if safe else ", and they trip on some plant: no safe answer was found"
+            print(f"answer: keep {reference_name(result)}: {proof.verdict.why}{caveat}")
+        else:
+            assert answer is not None
+            print(f"answer: new gains ({answer.method}): {proof.verdict.why}")
+            print("\n".join(settings_lines(problem, answer, is_bed)))
     elif problem.loop != "ideal":
-        print("not proven (--proof 0)")
-    if answer is None:
-        print("no candidate passed the proof: every one tried trips in some run; nothing to paste")
+        print("not proven (--proof 0): nothing below has been proven; the best of the search, unproven:")
+        print("\n".join(settings_lines(problem, best, is_bed, proven=False)))
     else:
-        if answer is not best:
-            print(f"answer: {answer.method} (better candidates tripped in the proof)")
-        print("\n".join(settings_lines(problem, answer, is_bed)))
+        print("\n".join(settings_lines(problem, best, is_bed, proven=False)))
     print(f"candidates on the {problem.loop} loop (best first), then the references; cost = {_statistic(problem)}:")
     shown = result.candidates + result.references
     width = max(len(c.method) for c in shown)
@@ -162,7 +193,7 @@ def report(result: TuneResult, proof: Proven | None, seeds: int, is_bed: bool) -
     for c, text in zip(shown, texts):
         mark = "*" if c is answer else " "
         print(f" {mark}{c.method:{width}}  {text:{text_width}}  cost {c.cost:10.4g}  {metrics_line(c)}")
-    return 0 if answer is not None else 1
+    return status
 
 
 def _statistic(problem: Problem) -> str:
@@ -224,10 +255,15 @@ def build_parser() -> OneLineParser:
                         help=f"a firmware build with parameters ({', '.join(controller_names())}) or a "
                              "module:attribute naming your ParamSpace; several, comma-separated, are tuned on the "
                              "same plant and compared, e.g. pid,mpc (default: pid)")
-    parser.add_argument("--loop", default="marlin", choices=LOOPS + (BOTH,),
+    parser.add_argument("--loop", default=AUTO, choices=(AUTO,) + LOOPS + (BOTH,),
                         help="the loop the candidates run in: Marlin's board, Klipper's host PID, the papers' "
                              "idealised continuous loop, or both firmware loops, each with its own answer "
-                             "(default: marlin)")
+                             "(default: auto, the log's firmware: klipper for a klippy.log, a Klipper heattest or "
+                             "a PID_CALIBRATE result, else marlin)")
+    parser.add_argument("--current-gains", metavar="GAINS",
+                        help="your printer's gains, the answer to beat: P,I,D, 'M301 P.. I.. D..' or "
+                             "'pid_Kp=.. pid_Ki=.. pid_Kd=..' (default: what the log states, else the firmware's "
+                             "own autotune on the twin)")
     parser.add_argument("--ideal", action="store_const", dest="loop", const="ideal", help="same as --loop ideal")
     parser.add_argument("--method", default="auto", metavar="METHOD",
                         help=f"one of: {', '.join(methods())}. 'all': every rule and optimiser; 'auto' (default): "
@@ -246,8 +282,16 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--statistic", default=DEFAULT_STATISTIC, choices=STATISTICS,
                         help=f"how the members' costs reduce to one (default: {DEFAULT_STATISTIC})")
     parser.add_argument("--proof", type=int, default=PROOF_SEEDS, metavar="SEEDS",
-                        help=f"prove the answer on the reference engine over SEEDS noise seeds and the corner plants "
-                             f"(default: {PROOF_SEEDS}; 0: skip)")
+                        help=f"prove the best candidates and yours on every plant over SEEDS noise seeds each "
+                             f"(default: {PROOF_SEEDS}; 0: skip, and nothing is called proven)")
+    parser.add_argument("--cross-check", type=finite_float, default=CROSS_CHECK_S, metavar="SECONDS",
+                        help=f"re-run the first SECONDS of one proof run on the reference engine and stop if its "
+                             f"readings differ from the batch's (default: {CROSS_CHECK_S:g}; 0: skip)")
+    parser.add_argument("--json", metavar="FILE", type=output_file,
+                        help="also write the answer as JSON (verdict, why, gains, commands, plants, proof rows)")
+    parser.add_argument("--progress", default="bar", choices=PROGRESS_MODES,
+                        help="progress on stderr: tqdm bars on a terminal (bar, the default) or one line per "
+                             "step of work, 'progress: <step> <done>/<total>' (lines: for a program reading it)")
     parser.add_argument("--model", metavar="MODEL",
                         help=f"--from-log: the model to fit, one of {', '.join(MODELS)} (default: as twin-fit, "
                              "two_node for a trace, three_node for an M303 capture)")
@@ -265,29 +309,43 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def check_args(args: argparse.Namespace) -> None:
     if args.objective not in OBJECTIVES:
         raise ValueError(f"--objective {args.objective!r}: choose one of: {', '.join(OBJECTIVES)}")
-    if args.budget < 1:
-        raise ValueError(f"--budget {args.budget}: must be at least 1")
-    if args.noise is not None and args.noise < 0:
-        raise ValueError(f"--noise {args.noise:g}: must be >= 0 LSB")
+    if not 1 <= args.budget <= BUDGET_MAX:
+        raise ValueError(f"--budget {args.budget}: must be within 1 .. {BUDGET_MAX}")
+    if args.noise is not None and not 0 <= args.noise <= NOISE_MAX_LSB:
+        raise ValueError(f"--noise {args.noise:g}: must be within 0 .. {NOISE_MAX_LSB:g} LSB")
     if not 0 <= args.spread < 1:
         raise ValueError(f"--spread {args.spread:g}: must be within 0 .. 1 (a fraction)")
-    if args.proof < 0:
-        raise ValueError(f"--proof {args.proof}: must be >= 0 seeds")
+    if not 0 <= args.proof <= PROOF_MAX:
+        raise ValueError(f"--proof {args.proof}: must be within 0 .. {PROOF_MAX} seeds")
+    if not 0 <= args.seed <= SEED_MAX:
+        raise ValueError(f"--seed {args.seed}: must be a whole number >= 0 (below 2**63)")
     if args.method not in methods():
         raise ValueError(f"--method {args.method!r}: choose one of: {', '.join(methods())}")
     if args.model is not None and args.model not in MODELS:
         raise ValueError(f"--model {args.model!r}: choose one of: {', '.join(MODELS)}")
-    if args.plot not in (None, "none"):
-        try:
-            plot_path(args.plot)
-        except argparse.ArgumentTypeError as exc:
-            raise ValueError(f"--plot {args.plot}: {exc}") from None
+    path = plot_file(args)
+    try:
+        if path is not None and args.plot is None and not path.parent.exists():
+            check_output(path.parent)  # the default folder, made at the end: it can be
+        elif path is not None:
+            plot_path(str(path))
+    except (argparse.ArgumentTypeError, ValueError) as exc:
+        raise ValueError(f"--plot {path}: {exc}") from None
+
+
+def plot_file(args: argparse.Namespace) -> Path | None:
+    """Where the plot goes (a comparison adds each problem's name to it), or None for --plot none."""
+    if args.plot == "none":
+        return None
+    return Path(args.plot or f"twin-out/twin-tune-{args.plant or Path(args.from_log).stem}.png")
 
 
 def run(args: argparse.Namespace) -> int:
     check_args(args)
+    steps = Steps(args.progress)
     loops = ("marlin", "klipper") if args.loop == BOTH else (args.loop,)
-    plant = source(args)
+    plant = source(args, steps)
+    printer = yours(args, plant)
     problems = [make_problem(args, plant, loop, name) for name in args.controller.split(",") for loop in loops]
     print("\n".join(plant_lines(plant)))
     client = None
@@ -295,26 +353,29 @@ def run(args: argparse.Namespace) -> int:
         from distributed import Client
 
         client = Client(args.dask)
-    outcomes = [tune_one(args, problem, is_bed, client) for problem, is_bed in problems]
+    outcomes = [tune_one(args, problem, is_bed, client, printer, steps) for problem, is_bed in problems]
     if len(outcomes) > 1:
         print("\n".join(comparison(outcomes)))
+    if args.json:
+        write_json(Path(args.json), outcomes[0], plant, printer, plot_file(args))
     return max(status for status, _, _ in outcomes)
 
 
-def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client
-             ) -> tuple[int, TuneResult, Proven | None]:
-    """Tune, prove, report and plot one problem: (the exit status, 1 when nothing passed the proof; the
-    tune; its proof)."""
+def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client, printer: PrinterGains | None,
+             steps: Steps) -> tuple[int, TuneResult, Proven | None]:
+    """Tune, prove, report and plot one problem: (the exit status, EPILOG; the tune; its proof)."""
     started = time.perf_counter()
-    result = tune(problem, args.objective, args.method, args.budget, args.seed, client, progress=True)
+    mine = None if printer is None or not problem.controller.pid else \
+        np.array([printer.gains.kp, printer.gains.ki, printer.gains.kd])
+    result = tune(problem, args.objective, args.method, args.budget, args.seed, client, yours=mine, on_step=steps)
     for note in result.notes:
         print(f"twin-tune: {note}", file=sys.stderr)
-    proof = proven(result, args.proof) if args.proof and problem.loop != "ideal" else None
-    status = report(result, proof, args.proof, is_bed)
-    if args.plot != "none":
+    proof = proven(result, args.proof, cross_check_s=args.cross_check, on_step=steps) \
+        if args.proof and problem.loop != "ideal" else None
+    status = report(result, proof, args.proof, is_bed, printer)
+    if (path := plot_file(args)) is not None:
         several = args.loop == BOTH or "," in args.controller
         suffix = f"-{problem.controller.name}-{problem.loop}" if several else ""
-        path = Path(args.plot or f"twin-out/twin-tune-{args.plant or Path(args.from_log).stem}.png")
         path = path.with_name(f"{path.stem}{suffix}{path.suffix}")
         write_plot(path, result, f"{problem.name}: {problem.controller.name}, {args.objective} on the "
                                  f"{problem.loop} loop")
@@ -328,15 +389,49 @@ def comparison(outcomes: list[tuple[int, TuneResult, Proven | None]]) -> list[st
     cost on the same ensemble and statistic, and its proof."""
     lines = ["comparison on the same plant, scenario and ensemble (cost: the same statistic):"]
     for _, result, proof in outcomes:
-        answer = result.best if proof is None else proof.answer
-        row = None if proof is None or answer is None else next(r for r in proof.rows if r.method == answer.method)
-        proved = "unproven" if proof is None else "nothing passed" if row is None else \
-            f"{row.trips} trips of {row.runs}, overshoot {row.overshoot_c[0]:.2f} / {row.overshoot_c[1]:.2f} C, " \
-            f"hold |e| {row.hold_error_c[0]:.2f} / {row.hold_error_c[1]:.2f} C (mean / worst)"
+        answer = result.best if proof is None else proof.answer or proof.yours
+        rows = [] if proof is None else [r for r in proof.rows if r.method == answer.method]
+        proved = "unproven" if proof is None else \
+            f"{sum(r.trips for r in rows)} trips of {sum(r.runs for r in rows)}, overshoot worst " \
+            f"{max(r.overshoot_c[1] for r in rows):.2f} C, hold |e| worst {max(r.hold_error_c[1] for r in rows):.2f} C"
         name = f"{result.problem.controller.name} ({result.problem.loop})"
-        cost = "-" if answer is None else f"{answer.method} cost {answer.cost:.4g}"
-        lines.append(f"  {name:<22} {cost:<26} {proved}")
+        kept = "" if proof is None or not proof.verdict.keep else " (kept)"
+        lines.append(f"  {name:<22} {answer.method + kept + ' cost ' + format(answer.cost, '.4g'):<32} {proved}")
     return lines
+
+
+def write_json(path: Path, outcome: tuple[int, TuneResult, Proven | None], plant: Source,
+               printer: PrinterGains | None, plot: Path | None) -> None:
+    """The answer for a program (the OctoPrint plugin): the verdict, why, the gains, the commands to send,
+    the plants and the proof's rows."""
+    _, result, proof = outcome
+    problem = result.problem
+    heater = "heater_bed" if plant.is_bed else "extruder"
+    answer = None if proof is None else proof.answer
+    verdict = "unproven" if proof is None else proof.verdict.kind
+
+    def gains(c: Candidate) -> dict[str, float]:
+        return {"kp": float(c.params[0]), "ki": float(c.params[1]), "kd": float(c.params[2])}
+
+    pid = problem.controller.pid
+    document = {
+        "verdict": verdict, "why": "" if proof is None else proof.verdict.why, "heater": heater,
+        "target_c": problem.scenario.target_c, "loop": problem.loop,
+        "current": None if printer is None else {**gains(result.yours), "source": printer.source},
+        "answer": gains(answer) if answer is not None and pid else None,
+        "commands": [answer.gains.marlin_command(bed=plant.is_bed), "M500"]
+        if answer is not None and pid and problem.loop == "marlin" else [],
+        "members": [{"label": p.label, "delta": p.delta, "replay": p.replay.text() if p.replay else ""}
+                    for p in plant.allowed.members] if plant.allowed is not None else
+        [{"label": m.label, "delta": 0.0, "replay": ""} for m in problem.ensemble.members] if problem.ensemble else [],
+        "proof": [] if proof is None else [
+            {"member": r.member, "candidate": "yours" if r.method == proof.yours.method else
+             "answer" if answer is not None and r.method == answer.method else r.method,
+             "runs": r.runs, "trips": r.trips, "overshoot_c": list(r.overshoot_c), "hold_error_c": list(r.hold_error_c),
+             "chatter": list(r.chatter)} for r in proof.rows],
+        "plot": None if plot is None else str(plot),
+    }
+    path.write_text(json.dumps(document, indent=1) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:

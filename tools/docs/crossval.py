@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +25,7 @@ from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
 from tools.tuning.problems import build_problem, log_source
 from tools.tuning.tuner import tune
 from tools.validation.doc_compare import write_section
+from tools.cli.args import doc_page
 from tools.entry import OneLineParser, run_cli
 
 BEGIN, END = "<!-- crossval: begin", "<!-- crossval: end -->"
@@ -96,7 +96,7 @@ def markdown(groups: dict[str, list[Cell]], budget: int) -> str:
 
 def build_parser() -> OneLineParser:
     parser = OneLineParser(prog="python -m tools.docs.crossval", description=__doc__.splitlines()[0])
-    parser.add_argument("--doc", type=Path, help="rewrite the section of this file (docs/tuning.md)")
+    parser.add_argument("--doc", type=doc_page(BEGIN, END), help="rewrite the section of this file (docs/tuning.md)")
     parser.add_argument("--budget", type=int, default=BUDGET, help="DE evaluations per tune (default: %(default)s)")
     return parser
 

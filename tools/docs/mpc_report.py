@@ -25,7 +25,6 @@ import subprocess
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -36,6 +35,7 @@ from protocol.mpc_commands import mpc_constants_from_text
 from protocol.printer import VirtualPrinter
 from tools.logs import hardware_logs_dir
 from tools.validation.doc_compare import write_section
+from tools.cli.args import doc_page
 from tools.entry import OneLineParser, run_cli
 from twin.build import build_twin
 from twin.plants import SPECS, Lumped
@@ -213,7 +213,7 @@ def markdown() -> str:
 
 def build_parser() -> OneLineParser:
     parser = OneLineParser(prog="python -m tools.docs.mpc_report", description=__doc__.splitlines()[0])
-    parser.add_argument("--doc", type=Path, help="rewrite the generated MPC section of this file (docs/firmware.md)")
+    parser.add_argument("--doc", type=doc_page(BEGIN, END), help="rewrite the generated MPC section of this file (docs/firmware.md)")
     return parser
 
 

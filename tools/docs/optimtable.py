@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tools.docs.rules_table import cost_verdict
+from tools.cli.args import doc_page
 from tools.entry import OneLineParser, run_cli
 from tools.ident.log_fit import LogFitOptions
 from tools.logs import hardware_logs_dir
@@ -122,7 +123,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--seed", type=int, default=SEED, help="every optimiser's seed (default: %(default)s)")
     parser.add_argument("--plants", default=",".join(PLANTS),
                         help="comma-separated plant labels, of " + ", ".join(PLANTS) + " (default: all)")
-    parser.add_argument("--doc", type=Path, help="rewrite the optimiser section of this file (docs/tuning.md)")
+    parser.add_argument("--doc", type=doc_page(BEGIN, END), help="rewrite the optimiser section of this file (docs/tuning.md)")
     return parser
 
 

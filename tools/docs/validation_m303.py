@@ -56,7 +56,8 @@ PROTOCOL = (
     "swing 13 %); where the capture has a 2 s status trace, its lines up to the K-th cycle's are fitted "
     "with them. three_node, sopdt and fopdt are fitted and the lowest AIC kept. Ambient: the idle heater's "
     "reading, else 25 C; power 40 W (hotend) or 220 W (bed), assumed; target: the M303 command's S, else "
-    "the trace's switches, else the whole degree nearest the middle of the printed cycles.",
+    "the whole degree within every printed cycle's min..max nearest the trace's switches, else nearest that "
+    "range's middle.",
     "4. Prediction: the twin's own M303 (firmware_port/marlin/autotune.py; Marlin 1.1 for a bed tuned by the "
     "Classic PID rule, else 2.1) on the fitted plant at the target, from ambient, for max(C of the command, "
     "N + 2, 8) cycles.",

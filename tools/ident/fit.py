@@ -201,7 +201,7 @@ def _fit_loss(model: str, loss: str, t_s, temp_c, duty, ambient_c: float | None,
                                     "sensor_responsiveness_per_s": (0.0, MAX_SENSOR_RESPONSIVENESS_PER_S),
                                     RADIATING_PARAM: RADIATING_BOUNDS_M2}, on_evaluation=on_evaluation)
     params, std = est.values, est.std_errors
-    if model == "sopdt" and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
+    if model == "sopdt" and {"lag1_s", "lag2_s"} <= params.keys() and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
         for d in (params, std):
             d["lag1_s"], d["lag2_s"] = d["lag2_s"], d["lag1_s"]
     return FitResult(model, params, std, held, est.residuals_c, loss)

@@ -10,7 +10,10 @@ What each kind of log gives (tools/ident/segments.py, tools/ident/relay_points.p
 - Marlin M303 console text: its printed cycles (relay points) and its 2 s status trace where it
   has one, fitted together (three_node by default; fopdt from the printed cycles alone: their Tu,
   extremes and bias steps identify its gain, lag and dead time); fit_cycles keeps the first cycles
-  only (and the trace up to the last of them) for a prediction of the rest;
+  only (and the trace up to the last of them) for a prediction of the rest. The heater is the one the
+  capture's lines say (tools/logs/m303.py), else the one its relay's target says (relay_heater); the
+  target is the command's, else found in the data (relay_target_c); ``LogFit.target_c`` carries it,
+  the temperature a tune of the fitted plant defaults to;
 - Klipper PID_CALIBRATE results: one entry's Tu and swing (fopdt with its static gain held, not
   identified: Klipper's relay prints no bias).
 A segment without a heater step, or with a reading that never moves, is refused (NotFittable);
@@ -26,18 +29,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.ident.fit import LUMPED_MODELS, fit_losses, fit_model
+from tools.ident.fit import FITTED, LUMPED_MODELS, RADIATING_PARAM, fit_losses, fit_model
 from tools.ident.plausible import heater_kind, plausible
 from tools.ident.relay_loop import MARLIN_SWITCH_DELAY_S, KLIPPER_SWITCH_DELAY_S
 from tools.ident.relay_points import (
+    UNSAID_HEATER,
     RelayPoint,
     fit_points,
+    heater_evidence,
     klipper_points,
     marlin_points,
-    marlin_target_c,
     relay_heater,
 )
-from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_reading_c
+from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_reading_c, relay_target_c
 from tools.ident.result import FitResult, aic
 from tools.ident.segments import NotFittable, Segment, default_segment, log_segments
 from tools.logs import MARLIN_POWER_MAX, Log, M303Log, PidCalibrateResult
@@ -70,6 +74,8 @@ class LogFitOptions:
     loss: str = "linear"
     fit_cycles: int | None = None  # an M303 capture: fit its first cycles only
     target_c: float | None = None  # relay data: the relay's target, where the capture does not state it
+    fixed: tuple[tuple[str, float], ...] = ()  # parameters held at these values (a profile of the fit)
+    start: tuple[tuple[str, float], ...] = ()  # start values of fitted parameters (a refit from a fit's values)
     on_evaluation: Callable[[], None] | None = None  # called at each residual evaluation (a progress bar)
 
 
@@ -88,6 +94,8 @@ class LogFit:
     resolution_s: float = 0.0  # the shortest dead time the data can show (a trace's sample interval)
     compared: list[str] = field(default_factory=list)  # --loss auto: both losses' RMSE and AIC
     segment: Segment | None = None  # what was fitted of segments[chosen]
+    target_c: float | None = None  # relay data: the relay's target (the temperature a tune defaults to)
+    target_source: str = ""  # where target_c comes from: the M303 command, --target, or the data
 
     @property
     def degenerate(self) -> str | None:
@@ -150,47 +158,54 @@ def _trace_fit(log: Log, options: LogFitOptions) -> LogFit:
     series = (model, seg.t_s, seg.temp_c, seg.duty, ambient_c)
     compared = []
     if options.loss == "auto":
-        choice = fit_losses(*series, power_w=power_w, observed=seg.observed)
+        choice = fit_losses(*series, power_w=power_w, observed=seg.observed, fixed=dict(options.fixed))
         result = choice.fits[choice.kept]
         compared = [f"{name} RMSE {fit.rmse_c:.2f} C, AIC {aic(fit):.0f}" for name, fit in choice.fits.items()]
     else:
         result = fit_model(*series, power_w=power_w, observed=seg.observed, loss=options.loss,
+                           fixed=dict(options.fixed), start=_start(options, model, options.loss),
                            on_evaluation=options.on_evaluation)
     notes = [n for n in (ambient_note, power_note) if n]
     return LogFit(heater, segments, chosen, _finish(result, heater, assumed, None), notes=notes,
                   resolution_s=float(np.median(np.diff(seg.t_s))), compared=compared, segment=seg)
 
 
-def _m303_trace(log: M303Log, options: LogFitOptions) -> tuple[str, list[Segment], int | None]:
-    """The heater, the status-trace segments and the one to fit (--segment, else the most at full power)."""
+def _m303_trace(log: M303Log, options: LogFitOptions) -> tuple[str, str, list[Segment], int | None]:
+    """The heater and how it is known (--heater, the capture's lines, else its relay's target), the
+    status-trace segments and the one to fit (--segment, else the most at full power)."""
     try:
         heater, segments = log_segments(log, options.heater)
     except NotFittable:
-        return options.heater or relay_heater(log), [], None
+        heater, why = (options.heater, "as --heater says") if options.heater else relay_heater(log)
+        return heater, why, [], None
     chosen = default_segment(segments) if options.segment is None else options.segment
     if not 0 <= chosen < len(segments):
         raise ValueError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
-    return heater, segments, chosen
+    why = "as --heater says" if options.heater else heater_evidence(log, heater) or UNSAID_HEATER
+    return heater, why, segments, chosen
 
 
-def _m303_points(log: M303Log, heater: str, trace: Segment | None, target: float | None) -> list[RelayPoint]:
-    """The printed cycles as relay points at the given target, else the trace's (else the command's or the
-    cycles' middle); NotFittable where there are none and no trace either."""
+def _m303_points(log: M303Log, heater: str, trace: Segment | None,
+                 target: float | None) -> tuple[list[RelayPoint], float | None, str]:
+    """The printed cycles as relay points at the relay's target, the target and where it comes from: --target,
+    else the trace's, else the command's or the cycles' (relay_target_c); NotFittable where there are no
+    cycles and no trace either."""
     key = "B" if heater == BED else "T"
     printed = [c for c in log.cycles_of(key) if c.tu_s and c.min_c is not None and c.max_c is not None]
     repetier = log.power_max != MARLIN_POWER_MAX
-    if printed and not repetier:
-        target_c = trace.target_c if trace is not None else math.nan
-        if target is not None:
-            target_c = target
-        if not math.isfinite(target_c):
-            target_c = marlin_target_c(log, key, printed)[0]
-        return marlin_points(log, heater, target_c)
-    if trace is None:
+    relay = bool(printed) and not repetier
+    if not relay and trace is None:
         why = ("Repetier's relay has its own levels and rules: its cycles are not read as relay points" if repetier
                else f"{len(printed)} printed cycles with Tu, min and max")
         raise NotFittable(f"autotune output with {len(log.cycles)} relay cycles and no status trace to fit; {why}")
-    return []
+    if target is not None:
+        found: tuple[float, str] | None = (target, "as --target says")
+    elif trace is not None and math.isfinite(trace.target_c):
+        found = (trace.target_c, trace.target_source)
+    else:
+        found = relay_target_c(log, key, printed[0].line_no) if printed else None
+    target_c, source = found if found is not None else (None, "")
+    return marlin_points(log, heater, target_c) if relay else [], target_c, source
 
 
 def _first_cycles(points: list[RelayPoint], trace: Segment | None,
@@ -208,24 +223,28 @@ def _first_cycles(points: list[RelayPoint], trace: Segment | None,
 
 def _m303_fit(log: M303Log, options: LogFitOptions) -> LogFit:
     """The printed cycles, with the status trace if the capture has one, fitted together."""
-    heater, segments, chosen = _m303_trace(log, options)
+    heater, heater_why, segments, chosen = _m303_trace(log, options)
     trace = None if chosen is None else segments[chosen]
-    points = _m303_points(log, heater, trace, options.target_c)
-    notes = []
+    points, target_c, target_source = _m303_points(log, heater, trace, options.target_c)
+    notes = [f"{heater}: {heater_why}"]
+    if target_c is not None:
+        notes.append(f"relay target {target_c:g} C: {target_source}")
     if options.fit_cycles is not None:
         points, trace, note = _first_cycles(points, trace, options.fit_cycles)
         notes.append(note)
     if not points:
-        return _trace_fit(log, options)
+        fitted = _trace_fit(log, options)
+        return dataclasses.replace(fitted, notes=notes + fitted.notes, target_c=target_c, target_source=target_source)
     model = options.model or ("three_node" if trace is not None else "fopdt")
     ambient_c, ambient_note, assumed = _ambient(log, options)
     assert ambient_c is not None
     power_w, power_note = _power(model, heater, options)
-    result = fit_points(model, points, ambient_c, power_w=power_w, segment=trace, on_evaluation=options.on_evaluation)
+    result = fit_points(model, points, ambient_c, power_w=power_w, segment=trace, fixed=dict(options.fixed),
+                        start=_start(options, model, "linear"), on_evaluation=options.on_evaluation)
     notes += [n for n in (ambient_note, power_note) if n]
     return LogFit(heater, segments, chosen if trace is not None else None,
-                  _finish(result, heater, assumed, points[0].relay.target_c), points, notes, MARLIN_SWITCH_DELAY_S,
-                  segment=trace)
+                  _finish(result, heater, assumed, target_c), points, notes, MARLIN_SWITCH_DELAY_S,
+                  segment=trace, target_c=target_c, target_source=target_source)
 
 
 def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) -> LogFit:
@@ -243,7 +262,8 @@ def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) 
     assert ambient_c is not None
     points = klipper_points([entry], target_c)
     gain_c = _nominal_gain_c(heater)
-    result = fit_points("fopdt", points, ambient_c, fixed={"gain_c": gain_c}, on_evaluation=options.on_evaluation)
+    result = fit_points("fopdt", points, ambient_c, fixed={"gain_c": gain_c, **dict(options.fixed)},
+                        start=_start(options, "fopdt", "linear"), on_evaluation=options.on_evaluation)
     result = dataclasses.replace(result, assumed=("gain_c",))
     notes = [f"entry {chosen}: {entry.source or 'no source'}; Tu {entry.tu_s:.4g} s, swing {entry.peak_to_peak_c:.3g} C "
              f"at a target of {target_c:g} C" + (" (assumed: a result states none; --target sets it)"
@@ -251,7 +271,15 @@ def _pid_results_fit(results: list[PidCalibrateResult], options: LogFitOptions) 
              f"gain_c held at {gain_c:.4g} C: Klipper's relay prints no bias, so the static gain is not identified"]
     notes += [n for n in (ambient_note,) if n]
     return LogFit(heater, [], None, _finish(result, heater, assumed, target_c), points, notes,
-                  KLIPPER_SWITCH_DELAY_S)
+                  KLIPPER_SWITCH_DELAY_S, target_c=options.target_c,
+                  target_source="as --target says" if options.target_c is not None else "")
+
+
+def _start(options: LogFitOptions, model: str, loss: str) -> dict[str, float]:
+    """The start values options give that the model (with that loss) fits, the held ones left out."""
+    fitted = {*FITTED[model], "initial_c", "ambient_c", *((RADIATING_PARAM,) if loss == "radiating" else ())}
+    held = dict(options.fixed)
+    return {name: value for name, value in options.start if name in fitted and name not in held}
 
 
 def _nominal_gain_c(heater: str) -> float:

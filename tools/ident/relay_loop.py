@@ -46,7 +46,10 @@ MARLIN_SWITCH_DELAY_S = float(PID_DT_S)
 # Klipper acts on a report REPORT_TIME apart (half of it late on average) and applies the new pwm
 # pwm_delay (REPORT_TIME by default) after the reading.
 KLIPPER_SWITCH_DELAY_S = REPORT_TIME / 2 + REPORT_TIME
-CYCLES = 14  # simulated cycles; the last one is the limit cycle's (transients decay within a few)
+CYCLES = 14  # simulated cycles at most; the last one is the limit cycle's (transients decay within a few)
+# A cycle whose halves repeat the last one's within this is the limit cycle: the switching instants are
+# found to 1e-10 s (brentq's xtol), so the cycles after it differ by no more than that noise.
+CONVERGED_S = 1e-9
 GRID_POINTS = 64  # per interval at least: the grid that brackets a crossing or an extreme before refining it
 GRID_STEP_S = 0.25  # and at most this far apart (a crossing and its return within one step would be missed)
 MAX_GRID = 8192
@@ -195,8 +198,9 @@ class _Loop:
 
 
 def relay_cycle(spec: Spec, ambient_c: float, relay: Relay) -> RelayCycle:
-    """The limit cycle of the relay on the plant at ambient_c, as the firmware would report it
-    (after CYCLES cycles from the steady state at the on level's reading of the target)."""
+    """The limit cycle of the relay on the plant at ambient_c, as the firmware would report it (after
+    CYCLES cycles from the steady state at the on level's reading of the target, or as soon as a cycle
+    repeats the last within CONVERGED_S)."""
     plant = _Modal(spec, ambient_c)
     for duty, reach in ((relay.on_duty, "above"), (relay.off_duty, "below")):
         steady_c = plant.reading(plant.steady(duty))
@@ -204,12 +208,16 @@ def relay_cycle(spec: Spec, ambient_c: float, relay: Relay) -> RelayCycle:
             raise NoOscillation(f"at duty {duty:.3g} the plant settles at {steady_c:.4g} C: never {reach} the "
                                 f"relay's switching point")
     loop = _Loop(plant, relay, _start_state(plant, relay))
-    on_s = 0.0
+    on_s, halves = 0.0, (math.inf, math.inf)
     for _ in range(CYCLES - 1):  # to the limit cycle: only the switching instants matter on the way
         off_s = loop.first_time(on_s + relay.min_half_s, True, relay.target_c)
         loop.switch(off_s, relay.off_duty)
-        on_s = loop.first_time(off_s + relay.min_half_s, False, relay.on_below_c)
-        loop.switch(on_s, relay.on_duty)
+        next_on_s = loop.first_time(off_s + relay.min_half_s, False, relay.on_below_c)
+        loop.switch(next_on_s, relay.on_duty)
+        last, halves = halves, (off_s - on_s, next_on_s - off_s)
+        on_s = next_on_s
+        if abs(halves[0] - last[0]) + abs(halves[1] - last[1]) <= CONVERGED_S:
+            break  # a cycle as long as the last, half by half: the limit cycle
     off_s = loop.first_time(on_s + relay.min_half_s, True, relay.target_c)
     low_heating = loop.extreme(on_s, off_s, False)
     loop.switch(off_s, relay.off_duty)

@@ -32,16 +32,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_port.marlin.constants import MAX_BED_POWER, PID_MAX, SOFT_PWM_MAX
+from firmware_port.marlin.constants import BED_MAXTEMP_C, BED_OVERSHOOT_C, MAX_BED_POWER, PID_MAX, SOFT_PWM_MAX
 from tools.ident.fit import FITTED, HELD, LUMPED_MODELS, MAX_SENSOR_RESPONSIVENESS_PER_S, start_values
 from tools.ident.fopdt import Fopdt, relay_fopdt
 from tools.ident.lsq import least_squares_fit
 from tools.ident.relay_loop import NoOscillation, Relay, RelayCycle, relay_cycle
-from tools.ident.relay_trace import TARGET_RE
+from tools.ident.relay_trace import relay_target_c
 from tools.ident.response import model_response, model_spec
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable, Segment
-from tools.logs import BED_COMMAND_RE, M303Cycle, M303Log, PidCalibrateResult
+from tools.logs import UNKNOWN_HEATER, M303Cycle, M303Log, PidCalibrateResult
 
 # The cycle-to-cycle scatter of a relay's printed cycles: the Artillery bed's six printed cycles
 # (hardware_logs m303_bed_artillery_genius_pro_S60_configs641.txt: Tu 32.64..36.48 s, standard
@@ -52,6 +52,8 @@ CYCLE_SCATTER_SWING_REL = 0.13
 BIAS_MARGIN = 20  # Marlin: LIMIT(bias, 20, max_pow - 20); a clamped update brackets nothing
 HEATER_KEYS = {"extruder": "T", "heater_bed": "B"}
 MISSING_PENALTY = 1e3  # a residual (in standard deviations) for a cycle the model cannot oscillate at
+BED_MAX_TARGET_C = BED_MAXTEMP_C - BED_OVERSHOOT_C  # Marlin's M303 refuses a bed target above this
+UNSAID_HEATER = "no line says which heater: the extruder, as M303 without E tunes"
 
 
 @dataclass(frozen=True)
@@ -102,25 +104,37 @@ def _asymmetry_s(before: M303Cycle, after: M303Cycle, tu_s: float, max_pow: int)
     return low * tu_s / before.d, high * tu_s / before.d
 
 
-def marlin_target_c(log: M303Log, key: str, cycles: Sequence[M303Cycle]) -> tuple[float, str]:
-    """The relay's target: the S of the last M303 command before the cycles, if it tuned this heater,
-    else the whole degree nearest the middle of the printed cycles (M303 takes whole degrees;
-    min <= target <= max)."""
-    first_line = cycles[0].line_no if cycles else math.inf
-    for line_no, command in reversed(log.commands):
-        if line_no < first_line and command.startswith("M303") \
-                and ("B" if BED_COMMAND_RE.search(command) else "T") == key:
-            if m := TARGET_RE.search(command):
-                return float(m[1]), "from the M303 command"
-    mids = [(c.min_c + c.max_c) / 2.0 for c in cycles if c.min_c is not None and c.max_c is not None]
-    if not mids:
+def heater_evidence(log: M303Log, heater: str) -> str:
+    """How a capture's lines say it tunes this heater (the first run of it, tools/logs/m303.py), else ""."""
+    return next((run.evidence for run in log.runs if run.heater == HEATER_KEYS[heater]), "")
+
+
+def relay_heater(log: M303Log) -> tuple[str, str]:
+    """The heater whose cycles a capture prints, and how that is known: the bed where every cycle its lines
+    attribute is the bed's, the extruder where some are the hotend's; where no line attributes one, the
+    relay's target: M303 refuses a bed target above BED_MAX_TARGET_C, and a hotend is tuned at its printing
+    temperature, above it."""
+    said = {c.heater for c in log.cycles} - {UNKNOWN_HEATER}
+    if said:
+        heater = "heater_bed" if said == {"B"} else "extruder"
+        return heater, heater_evidence(log, heater)
+    found = relay_target_c(log, "T", log.cycles[0].line_no) if log.cycles else None
+    if found is None:
+        return "extruder", UNSAID_HEATER
+    target_c = found[0]
+    heater = "extruder" if target_c > BED_MAX_TARGET_C else "heater_bed"
+    return heater, (f"no line says which heater; the relay's target, {target_c:g} C, is "
+                    f"{'above' if heater == 'extruder' else 'within'} Marlin's highest bed target "
+                    f"{BED_MAX_TARGET_C:g} C (BED_MAXTEMP - BED_OVERSHOOT)")
+
+
+def cycles_target_c(log: M303Log, key: str) -> float:
+    """The relay's target of a heater's ("T" or "B") printed cycles (relay_target_c, the run of the first);
+    NotFittable where none has min and max."""
+    cycles = log.cycles_of(key)
+    if not cycles or (found := relay_target_c(log, key, cycles[0].line_no)) is None:
         raise NotFittable("no printed cycle with min and max to place the relay's target")
-    return float(np.rint(np.mean(mids))), "estimated: the whole degree nearest the middle of the printed cycles"
-
-
-def relay_heater(log: M303Log) -> str:
-    """The heater whose cycles a capture prints: the bed where every cycle is the bed's, else the extruder."""
-    return "heater_bed" if log.cycles and all(c.heater == "B" for c in log.cycles) else "extruder"
+    return found[0]
 
 
 def marlin_points(log: M303Log, heater: str, target_c: float | None = None) -> list[RelayPoint]:
@@ -130,7 +144,7 @@ def marlin_points(log: M303Log, heater: str, target_c: float | None = None) -> l
     max_pow = MAX_BED_POWER if heater == "heater_bed" else PID_MAX
     cycles = [c for c in log.cycles_of(key) if c.bias is not None]
     if target_c is None:
-        target_c, _ = marlin_target_c(log, key, cycles)
+        target_c = cycles_target_c(log, key)
     points = []
     for i, c in enumerate(cycles):
         if not (c.tu_s and c.min_c is not None and c.max_c is not None and c.max_c > c.min_c):
@@ -187,16 +201,19 @@ def fopdt_guess(points: Sequence[RelayPoint], ambient_c: float) -> Fopdt:
 
 def fit_points(model: str, points: Sequence[RelayPoint], ambient_c: float, *, power_w: float | None = None,
                segment: Segment | None = None, fixed: dict[str, float] | None = None,
+               start: dict[str, float] | None = None,
                on_evaluation: Callable[[], None] | None = None) -> FitResult:
     """Fit a model to relay points (and to a status trace, if given: each reading counted with the
-    scatter of a printed extreme); ambient_c held; power_w and ``fixed`` held for lumped models."""
+    scatter of a printed extreme); ambient_c held; power_w and ``fixed`` held for lumped models;
+    ``start`` overrides start values of fitted parameters."""
     if not points:
         raise NotFittable("no printed relay cycle with its period and swing to fit")
     held = {**HELD[model], "ambient_c": float(ambient_c), **(fixed or {})}
     if power_w is not None and model in LUMPED_MODELS:
         held["power_w"] = float(power_w)
     fitted = [name for name in FITTED[model] if name not in held]
-    start = {k: v for k, v in start_values(model, fopdt_guess(points, ambient_c), held).items() if k in fitted}
+    guess = {k: v for k, v in start_values(model, fopdt_guess(points, ambient_c), held).items() if k in fitted}
+    start = {**guess, **{k: v for k, v in (start or {}).items() if k in guess}}
     sigma_trace_c = CYCLE_SCATTER_SWING_REL * float(np.mean([p.swing_c for p in points])) / math.sqrt(2.0)
     seen = None
     if segment is not None:
@@ -216,7 +233,7 @@ def fit_points(model: str, points: Sequence[RelayPoint], ambient_c: float, *, po
                                                           (0.0, MAX_SENSOR_RESPONSIVENESS_PER_S)},
                             known_sigma=True, on_evaluation=on_evaluation)
     params, std = est.values, est.std_errors
-    if model == "sopdt" and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
+    if model == "sopdt" and {"lag1_s", "lag2_s"} <= params.keys() and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
         for d in (params, std):
             d["lag1_s"], d["lag2_s"] = d["lag2_s"], d["lag1_s"]
     if segment is None:

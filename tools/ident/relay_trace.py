@@ -1,6 +1,12 @@
 """An M303 capture's 2 s status trace made fit for identification: the relay's target, its switch
 instants between the status lines, and an ambient temperature.
 
+The relay's target is the M303 command's S where the capture shows the command; else the data say
+it (``relay_target_c``): Marlin resets its min to the target when the heater switches on and its
+max to the target when it switches off, so every printed cycle's min..max holds the target, and M303
+takes whole degrees. Of the whole degrees every cycle holds, the one nearest the status trace's
+switches (``estimate_target_c``), else nearest the middle of that range, is the target.
+
 Marlin's relay (Marlin/src/module/temperature.cpp, PID_autotune) switches the heater off when
 the reading rises above the target and on when it falls below (each half-cycle at least 5 s), on
 its own 164 ms readings; the status lines show the power only every 2 s, so a switch can appear up
@@ -11,6 +17,7 @@ an extra, unobserved, sample (its reading is not compared, only its duty used).
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
@@ -40,6 +47,31 @@ def estimate_target_c(temp_c: np.ndarray, on: np.ndarray) -> float | None:
     if not switches.size:
         return None
     return float(np.rint(np.median((temp_c[switches] + temp_c[switches + 1]) / 2.0)))
+
+
+def relay_target_c(log: M303Log, heater_key: str, first_line: int,
+                   switches: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[float, str] | None:
+    """The relay's target of a heater's ("T" or "B") run at first_line, and where it comes from (module
+    docstring); ``switches`` the run's status trace (readings, heater on) where there is one. None where the
+    capture shows no command, no cycle of the run with min and max, and no switch."""
+    if (command_c := command_target_c(log, heater_key, first_line)) is not None:
+        return command_c, "from the M303 command"
+    switched_c = None if switches is None else estimate_target_c(*switches)
+    run = log.run_at(first_line)
+    extremes = [(c.min_c, c.max_c) for c in log.cycles_of(heater_key)
+                if c.min_c is not None and c.max_c is not None and log.run_at(c.line_no) == run]
+    if not extremes:
+        return None if switched_c is None else (switched_c, "found in the data: the status trace's switches")
+    low_c, high_c = max(low for low, _ in extremes), min(high for _, high in extremes)
+    if math.ceil(low_c) > math.floor(high_c):  # no whole degree within every cycle: runs at other targets?
+        return float(np.rint(np.median([(low + high) / 2.0 for low, high in extremes]))), (
+            "found in the data: the whole degree nearest the middle of the printed cycles (no whole degree lies "
+            "within every cycle's min..max)")
+    near_c, near_what = ((low_c + high_c) / 2.0, "its middle") if switched_c is None else \
+        (switched_c, "the status trace's switches")
+    target_c = float(min(max(np.rint(near_c), math.ceil(low_c)), math.floor(high_c)))
+    return target_c, (f"found in the data: within {low_c:.2f}..{high_c:.2f} C, where every printed cycle's min..max "
+                      f"holds it, the whole degree nearest {near_what}")
 
 
 def switch_instants(t_s: np.ndarray, temp_c: np.ndarray, duty: np.ndarray,

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tools.ident.relay_trace import command_target_c, estimate_target_c, switch_instants
+from tools.ident.relay_trace import relay_target_c, switch_instants
 from tools.logs import HeaterSeries, HeattestLog, Log, M303Log, PlainLog, StatsLog
 
 # Segments of a log
@@ -43,6 +43,7 @@ class Segment(NamedTuple):
     cools_at_full_power: bool = False  # the reading fell while at max_power: the heater did not heat
     observed: np.ndarray | None = None  # False at inserted samples (relay switch instants): not compared
     target_c: float = math.nan  # an M303 relay's target
+    target_source: str = ""  # where target_c comes from (tools/ident/relay_trace.py relay_target_c)
     line_nos: np.ndarray | None = None  # an M303 trace: the status line of each sample (a switch: the next line's)
 
     def before_line(self, line_no: int) -> Segment:
@@ -161,14 +162,12 @@ def _relay_segment(log: M303Log, run: list, heater_key: str) -> Segment:
     t_s = M303_STATUS_PERIOD_S * np.arange(len(run))
     temp_c = np.array([s.temp_c for s in run])
     duty = np.array([s.power for s in run]) / log.power_max
-    target_c = command_target_c(log, heater_key, run[0].line_no)
-    how = "from the M303 command"
-    if target_c is None:
-        target_c, how = estimate_target_c(temp_c, duty > duty.min()), "estimated from the switches"
+    found = relay_target_c(log, heater_key, run[0].line_no, (temp_c, duty > duty.min()))
     seg = _segment(f"lines {run[0].line_no}..{run[-1].line_no}, ", t_s, temp_c, duty, 1.0, "relay levels",
                    f"; {M303_STATUS_PERIOD_S:g} s per status line, which carry no time")
-    if target_c is None:
+    if found is None:
         return seg
+    target_c, how = found
     lines = np.array([s.line_no for s in run])
     switched_t_s, temp_c, duty, observed = switch_instants(t_s, temp_c, duty, target_c)
     line_nos = lines[np.searchsorted(t_s, switched_t_s)]  # an inserted switch: the status line after it
@@ -177,8 +176,8 @@ def _relay_segment(log: M303Log, run: list, heater_key: str) -> Segment:
     # burn-in, simulated but not compared.
     observed[: int(np.argmin(observed))] = False
     note = f"{seg.note}; relay target {target_c:g} C ({how}), switches put at its crossings, compared from the first"
-    return seg._replace(t_s=t_s, temp_c=temp_c, duty=duty, observed=observed, target_c=target_c, note=note,
-                        line_nos=line_nos)
+    return seg._replace(t_s=t_s, temp_c=temp_c, duty=duty, observed=observed, target_c=target_c, target_source=how,
+                        note=note, line_nos=line_nos)
 
 
 def _m303_segments(log: M303Log, heater: str | None) -> tuple[str, list[Segment]]:

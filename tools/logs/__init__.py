@@ -21,7 +21,14 @@ from tools.logs.heattest import parse_heattest
 from tools.logs.klipper_stats import parse_klipper_stats_csv, parse_klippy_log
 from tools.logs.lines import LogError, csv_rows, read_progress
 from tools.logs.location import DEFAULT_LOGS, LOGS_ENV, hardware_logs_dir
-from tools.logs.m303 import BED_COMMAND_RE, MARLIN_POWER_MAX, REPETIER_POWER_MAX, parse_m303, results_only
+from tools.logs.m303 import (
+    BED_COMMAND_RE,
+    MARLIN_POWER_MAX,
+    REPETIER_POWER_MAX,
+    UNKNOWN_HEATER,
+    parse_m303,
+    results_only,
+)
 from tools.logs.pid_calibrate import parse_pid_calibrate_results
 from tools.logs.plain_csv import parse_plain_csv
 from tools.logs.results import (
@@ -31,6 +38,7 @@ from tools.logs.results import (
     Log,
     M303Cycle,
     M303Log,
+    M303Run,
     M303Status,
     PidCalibrateResult,
     PlainLog,
@@ -39,8 +47,8 @@ from tools.logs.results import (
 
 __all__ = [
     "BED_COMMAND_RE", "DEFAULT_LOGS", "LOGS_ENV", "MARLIN_POWER_MAX", "REPETIER_POWER_MAX", "STATS_GAP_S",
-    "HeaterSeries", "HeattestLog", "Log", "LogError", "M303Cycle", "M303Log", "M303Status", "PidCalibrateResult",
-    "PlainLog", "StatsLog", "csv_rows", "hardware_logs_dir", "load_log", "parse_heattest", "parse_klipper_stats_csv",
-    "parse_klippy_log", "parse_m303", "parse_pid_calibrate_results", "parse_plain_csv", "read_progress",
-    "results_only",
+    "UNKNOWN_HEATER", "HeaterSeries", "HeattestLog", "Log", "LogError", "M303Cycle", "M303Log", "M303Run", "M303Status",
+    "PidCalibrateResult", "PlainLog", "StatsLog", "csv_rows", "hardware_logs_dir", "load_log", "parse_heattest",
+    "parse_klipper_stats_csv", "parse_klippy_log", "parse_m303", "parse_pid_calibrate_results", "parse_plain_csv",
+    "read_progress", "results_only",
 ]

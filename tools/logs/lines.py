@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.limits import check_regular_file
+
 # Console text as host programs show it: OctoPrint "Recv: "/"Send: ", Pronterface "READ: "/
 # "SENDING:", Printrun ">>> ", Repetier-Host "< 9:12:56 PM: " (and "> ..." for sent lines).
 HOST_PREFIX_RE = re.compile(r"^(?:Recv:|Send:|READ:|SENDING:|>>>|[<>] \d{1,2}:\d{2}:\d{2}(?: [AP]M)?:)\s*")
@@ -42,10 +44,11 @@ def read_progress(on_bytes: Callable[[int], None]) -> Iterator[None]:
 
 
 class LogError(ValueError):
-    """A log that cannot be read as its format says: ``<file>:<line>: <what is wrong>``."""
+    """A log that cannot be read as its format says: ``<file>:<line>: <what is wrong>`` (``<file>: ...``
+    for the file as a whole, line_no None)."""
 
-    def __init__(self, path: str | Path, line_no: int, what: str):
-        super().__init__(f"{path}:{line_no}: {what}")
+    def __init__(self, path: str | Path, line_no: int | None, what: str):
+        super().__init__(f"{path}: {what}" if line_no is None else f"{path}:{line_no}: {what}")
         self.path = path
         self.line_no = line_no
 
@@ -58,6 +61,10 @@ def iter_lines(path: str | Path, cut_last_line_ok: bool = False) -> Iterator[tup
     writer leaves the newline out (cut_last_line_ok).
     """
     report, unreported = _PROGRESS.get(), 0
+    try:
+        check_regular_file(path)  # a FIFO would block here, a device never end
+    except ValueError as exc:
+        raise LogError(path, None, str(exc)) from None
     with open(path, "rb") as f:
         for no, raw in enumerate(f, 1):
             unreported += len(raw)

@@ -11,7 +11,7 @@ from pathlib import Path
 from firmware_port.marlin.autotune import STR_CLASSIC_PID, STR_NO_OVERSHOOT
 from tools.logs.lines import GAIN_RE, LogError, console_text, data_lines, parse_integer, parse_number, read_lines
 from tools.logs.registry import Reader
-from tools.logs.results import M303Cycle, M303Log, M303Status
+from tools.logs.results import M303Cycle, M303Log, M303Run, M303Status
 
 COMMAND_RE = re.compile(r"^(?:N\d+\s+)?(M30[36]\b[^*;]*)")
 BED_COMMAND_RE = re.compile(r"\b[EP]-1\b")  # M303 E-1 tunes the bed
@@ -34,8 +34,10 @@ FIRMWARE_HINTS = (
     (re.compile(r"MPC Autotune"), "Marlin MPC autotune (M306): no relay cycles"),
 )
 CONSOLE_RE = re.compile(r"^(?:bias:|Ku:|PID Autotune|MPC Autotune|#define\s+DEFAULT_|[TB]:\s*[-\d.])")
-UNKNOWN_HEATER = "?"  # a cycle printed before any M303 command or one-heater report says which heater it tunes
+UNKNOWN_HEATER = "?"  # a cycle of a run no line of the capture attributes (_M303Reader says which lines do)
 INCOMPLETE_STATUS = "status line without the power of each heater it shows (cut or elided)"
+HEATER_WORDS = {"T": "hotend", "B": "bed"}
+NOT_YET = -1  # a run whose first cycle is not read yet
 
 
 def _status_sample(path: str | Path, line_no: int, temps: dict[str, tuple[float, float]], text: str,
@@ -63,9 +65,27 @@ def _idle_reading(temps: dict[str, tuple[float, float]], text: str, heater: str)
     return reading_c if math.isnan(target_c) or target_c == 0 else None
 
 
+def _powered_heater(text: str) -> str | None:
+    """On a status line showing both heaters' power, the one heater powered ("T" or "B"), else None.
+    M303 switches every other heater off when it starts (disable_all_heaters, shared/reference/
+    marlin_heater.md section 3), so during a run the powered one is the tuned one."""
+    powers = dict(POWER_FIELD_RE.findall(text))
+    if not {"@", "B@"} <= powers.keys() or not all(p.isdigit() for p in (powers["@"], powers["B@"])):
+        return None
+    on = [key for key, field in (("T", "@"), ("B", "B@")) if int(powers[field]) > 0]
+    return on[0] if len(on) == 1 else None
+
+
 @dataclass
 class _M303Reader:
-    """What parse_m303 has read so far; ``read`` takes one console line (host prefix removed)."""
+    """What parse_m303 has read so far; ``read`` takes one console line (host prefix removed).
+
+    A capture holds one or more runs, each from an M303 command or "PID Autotune start" on. A run's
+    heater is what its first line that says so says: the command (E-1: the bed), a status report of one
+    heater (T: or B:), a report of both where one alone is powered, a #define DEFAULT_bedK or DEFAULT_K
+    line, or Marlin 2.x's bed rule "No overshoot". Cycles read before it are "?" until then (and stay
+    so where no line says); reports of both heaters wait for it (and are read as the hotend's if none
+    says)."""
 
     path: str | Path
     commands: list[tuple[int, str]] = field(default_factory=list)
@@ -76,24 +96,32 @@ class _M303Reader:
     idle_c: list[float] = field(default_factory=list)
     defines: dict[str, float] = field(default_factory=dict)
     finished: bool = False
-    heater: str = "T"  # the tuned heater as far as known: a status line with both heaters reads this one's
-    heater_known: bool = False  # an M303 command or a one-heater report said which it is
+    runs: list[M303Run] = field(default_factory=list)
+    run_first_cycle: int = NOT_YET  # index in cycles of the current run's first cycle
+    run_has_data: bool = False  # the current run has a cycle or a status line
+    waiting: list[tuple[int, dict[str, tuple[float, float]], str]] = field(default_factory=list)  # both-heater reports
 
     def read(self, no: int, text: str) -> None:
         for pattern, hint in FIRMWARE_HINTS:
             if pattern.search(text) and not any(h.startswith(hint) for h in self.hints):
                 self.hints.append(f"{hint} (line {no})")
         self.finished = self.finished or "PID Autotune finished" in text
+        if not self.runs or ("PID Autotune start" in text and self.run_has_data):
+            self._new_run(no)
         if m := COMMAND_RE.match(text):
             self.commands.append((no, m[1].strip()))
-            self.heater = "B" if BED_COMMAND_RE.search(m[1]) else "T"
-            self.heater_known = True
+            self._new_run(no)
+            self._learn("B" if BED_COMMAND_RE.search(m[1]) else "T", f"the {m[1].split()[0]} command (line {no})")
         elif m := DEFINE_RE.match(text):
             self.defines[m[2].lower()] = parse_number(self.path, no, m[3], f"DEFAULT_{m[1] or ''}K{m[2]}")
+            if m[1] != "chamber":
+                self._learn("B" if m[1] else "T", f"line {no}: #define DEFAULT_{m[1] or ''}K{m[2]}")
         else:
             rest = self._relay_values(no, text)
             if rest in RULES:
                 self._cycle(no, "rule").rule = rest
+                if rest == STR_NO_OVERSHOOT.strip():
+                    self._learn("B", f"line {no}: the '{rest}' rule, Marlin 2.x's for the bed")
             elif GAIN_LINE_RE.match(rest):
                 for k, value in GAIN_RE.findall(rest):
                     attr = "k" + k.lower()
@@ -101,14 +129,50 @@ class _M303Reader:
             elif STATUS_RE.match(rest):
                 self._status_line(no, rest)
 
+    @property
+    def heater(self) -> str:
+        """The current run's heater as far as its lines say: "T", "B" or "?"."""
+        return self.runs[-1].heater
+
+    def _new_run(self, no: int) -> None:
+        """Close the current run (if it holds anything) and start one at line no."""
+        self.close_run()
+        if self.runs and not self.run_has_data and self.heater == UNKNOWN_HEATER:
+            self.runs.pop()  # nothing in it, nothing said about it
+        self.runs.append(M303Run(no, UNKNOWN_HEATER, ""))
+        self.run_first_cycle, self.run_has_data = NOT_YET, False
+
+    def close_run(self) -> None:
+        """Reports of both heaters that no line of the run attributed: read as the hotend's (M303's default E0)."""
+        for waiting in self.waiting:
+            self._sample(*waiting, "T")
+        self.waiting.clear()
+
+    def _learn(self, heater: str, evidence: str) -> None:
+        """A line says which heater the current run tunes: the first such line decides; the run's cycles
+        so far get it, and the reports of both heaters that waited for it are read."""
+        if self.heater != UNKNOWN_HEATER:
+            return
+        self.runs[-1] = self.runs[-1]._replace(heater=heater, evidence=evidence)
+        if self.run_first_cycle != NOT_YET:
+            for cycle in self.cycles[self.run_first_cycle:]:
+                cycle.heater = heater
+        for waiting in self.waiting:
+            self._sample(*waiting, heater)
+        self.waiting.clear()
+
+    def _add_cycle(self, cycle: M303Cycle) -> M303Cycle:
+        if self.run_first_cycle == NOT_YET:
+            self.run_first_cycle = len(self.cycles)
+        self.run_has_data = True
+        self.cycles.append(cycle)
+        return cycle
+
     def _cycle(self, line_no: int, attr: str) -> M303Cycle:
         """The cycle a value belongs to: the last one, or a new one if the last has it already."""
         if not self.cycles or getattr(self.cycles[-1], attr) is not None:
-            self.cycles.append(M303Cycle(line_no, self._cycle_heater()))
+            return self._add_cycle(M303Cycle(line_no, self.heater))
         return self.cycles[-1]
-
-    def _cycle_heater(self) -> str:
-        return self.heater if self.heater_known else UNKNOWN_HEATER
 
     def _relay_values(self, no: int, text: str) -> str:
         """Read the bias/d/min/max and Ku/Tu at the start of a line; the rest of the line."""
@@ -116,9 +180,9 @@ class _M303Reader:
         if "bias:" in rest:
             if not (m := BIAS_RE.search(rest)):
                 raise LogError(path, no, "a bias line without bias, d, min and max")
-            self.cycles.append(M303Cycle(no, self._cycle_heater(), parse_integer(path, no, m[1], "bias"),
-                                         parse_integer(path, no, m[2], "d"), parse_number(path, no, m[3], "min"),
-                                         parse_number(path, no, m[4], "max")))
+            self._add_cycle(M303Cycle(no, self.heater, parse_integer(path, no, m[1], "bias"),
+                                      parse_integer(path, no, m[2], "d"), parse_number(path, no, m[3], "min"),
+                                      parse_number(path, no, m[4], "max")))
             rest = rest[m.end() :].strip()
         if "Ku:" in rest:
             if not (m := KU_RE.search(rest)):
@@ -129,18 +193,32 @@ class _M303Reader:
         return rest
 
     def _status_line(self, no: int, rest: str) -> None:
-        """A heater report: the tuned heater's sample, or the line skipped if it is incomplete."""
+        """A heater report: evidence of the run's heater where it shows one heater, or one powered; its sample
+        (a report of one heater is that heater's; of both, the run's heater's, once a line says which)."""
         if not TEMP_FIELD_RE.match(rest):
             raise LogError(self.path, no, f"a status line without a temperature after {rest[:2]}")
         temps = {key: (parse_number(self.path, no, temp, f"{key} temperature"),
                        parse_number(self.path, no, target, f"{key} target") if target else math.nan)
                  for key, temp, target in TEMP_FIELD_RE.findall(rest)}
+        self.run_has_data = True
         if len(temps) == 1:
-            self.heater = next(iter(temps))
-            self.heater_known = True
-        elif (reading := _idle_reading(temps, rest, self.heater)) is not None:
+            key = next(iter(temps))
+            self._learn(key, f"line {no} reports the {HEATER_WORDS[key]} alone ({key}:)")
+            self._sample(no, temps, rest, key)
+            return
+        if (powered := _powered_heater(rest)) is not None:
+            self._learn(powered, f"line {no} reports both heaters, the {HEATER_WORDS[powered]} alone powered "
+                                 "(M303 switches the others off)")
+        if self.heater == UNKNOWN_HEATER:
+            self.waiting.append((no, temps, rest))
+        else:
+            self._sample(no, temps, rest, self.heater)
+
+    def _sample(self, no: int, temps: dict[str, tuple[float, float]], rest: str, heater: str) -> None:
+        """A report's reading of ``heater`` (skipped if the line is incomplete), and the other's if idle."""
+        if len(temps) > 1 and (reading := _idle_reading(temps, rest, heater)) is not None:
             self.idle_c.append(reading)
-        sample = _status_sample(self.path, no, temps, rest, self.heater)
+        sample = _status_sample(self.path, no, temps, rest, heater)
         if sample is None:
             self.skipped.append((no, INCOMPLETE_STATUS))
         else:
@@ -173,13 +251,14 @@ def parse_m303(path: str | Path) -> M303Log:
     reader = _M303Reader(path)
     for no, raw in lines:
         reader.read(no, console_text(raw))
+    reader.close_run()
     if not (reader.cycles or reader.status or reader.defines):
         raise LogError(path, lines[-1][0], "no autotune output: no bias, Ku/Tu, gain, #define or status line")
     hints = reader.hints
     power_max = REPETIER_POWER_MAX if any(h.startswith(REPETIER_HINT) for h in hints) else MARLIN_POWER_MAX
     rule = next((c.rule for c in reversed(reader.cycles) if c.rule), None)
     return M303Log(Path(path), reader.commands, reader.cycles, reader.status, reader.final_gains(), rule, power_max,
-                   hints, reader.skipped, reader.idle_c)
+                   hints, reader.skipped, reader.idle_c, reader.runs)
 
 
 READER = Reader("M303 console text", lambda head: any(CONSOLE_RE.match(text) for text in head.texts), parse_m303)

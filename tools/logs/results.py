@@ -79,6 +79,15 @@ class M303Cycle:
     rule: str | None = None  # "Classic PID" or "No overshoot"
 
 
+class M303Run(NamedTuple):
+    """One autotune run of a capture (from an M303 command or "PID Autotune start" to the next): the line it
+    starts at, the heater its lines say it tunes ("T", "B", or "?" where none says) and the line that says it."""
+
+    line_no: int
+    heater: str
+    evidence: str  # e.g. "the M303 command (line 5)"; "" where no line says
+
+
 class M303Status(NamedTuple):
     """One heater report line of the tuned heater."""
 
@@ -107,6 +116,11 @@ class M303Log:
     firmware_hints: list[str]
     skipped: list[tuple[int, str]] = field(default_factory=list)
     idle_readings_c: list[float] = field(default_factory=list)  # the untuned heater's, where it has no target nor power
+    runs: list[M303Run] = field(default_factory=list)
+
+    def run_at(self, line_no: int) -> M303Run | None:
+        """The run a line belongs to (None before the first)."""
+        return next((run for run in reversed(self.runs) if run.line_no <= line_no), None)
 
     def cycles_of(self, key: str) -> list[M303Cycle]:
         """The cycles of heater "T" or "B", with those the capture does not attribute ("?")."""

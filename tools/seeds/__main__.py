@@ -19,6 +19,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from tools.cli.args import check_output, read_text_file
 from tools.entry import OneLineParser, run_main
 from tools.docs import seeds_page as page
 from tools.seeds.command import BUDGET_HELP, run_seed
@@ -118,6 +119,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.check and not out.is_file():
         print(f"tools.seeds: --out {out}: no such file to check", file=sys.stderr)
         return 2
+    if not args.check:
+        try:  # before the papers' runs: a page that cannot be written would lose them
+            check_output(out)
+            if out.exists():
+                read_text_file(out)
+        except ValueError as exc:
+            print(f"tools.seeds: --out {out}: {exc}", file=sys.stderr)
+            return 2
     return run_main("tools.seeds", lambda: _page(seeds, out, args.check))
 
 

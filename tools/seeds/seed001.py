@@ -101,7 +101,7 @@ class Response:
     rise_time_s: float | None
     overshoot_pct: float | None
     settling_time_2pct_s: float | None
-    steady_state_error_c: float
+    steady_state_error_c: float | None  # None: it limit-cycles (twin/metrics.py)
     peak_c: float  # the largest rise above the start, degC
     stable: bool  # settled into the 2 % band and stayed, with the firmware running
     note: str  # why not, if not

@@ -41,6 +41,10 @@ DEFAULT_SPREAD = 0.2  # +-20 % on the lag and loss terms where the source states
 DEFAULT_NOISE_LSB = 1.0
 STATISTICS = ("worst", "mean", "mean_std")  # max over members; mean; mean + one standard deviation
 DEFAULT_STATISTIC = "mean_std"
+# A search runs each member on this many noise seeds: a trip that a marginal candidate shows on one draw in
+# three is seen, where one draw per member let the proof's ten find it (4 of 10 on a hotend_cartridge corner).
+DEFAULT_SEARCH_SEEDS = 3
+SEED_STRIDE = 1000  # a member's further seeds: its own plus multiples of this (members' seeds are 1, 2, ...)
 
 # field -> (group, +1 if a larger value means "more" of the group, else -1)
 GROUPS: dict[str, tuple[str, int]] = {
@@ -90,6 +94,7 @@ class Member:
     noise_lsb: float
     seed: int
     built: Spec | None = None
+    ambient_c: float | None = None  # the room this plant was fitted in (None: the problem's)
 
     def spec(self, nominal: Spec) -> Spec:
         if self.built is not None:
@@ -104,20 +109,35 @@ class Ensemble:
     members: tuple[Member, ...]
     statistic: str = DEFAULT_STATISTIC
     spread: tuple[Uncertain, ...] = ()
+    seeds: int = 1  # noise seeds each member runs on in a search (the member's seed and on)
 
     def __post_init__(self) -> None:
         if not self.members:
             raise ValueError("an ensemble needs at least one member")
         if self.statistic not in STATISTICS:
             raise ValueError(f"unknown statistic {self.statistic!r}; choose one of: {', '.join(STATISTICS)}")
+        if self.seeds < 1:
+            raise ValueError(f"seeds={self.seeds!r}: at least one noise seed per member")
 
     @property
     def size(self) -> int:
         return len(self.members)
 
+    @property
+    def lanes(self) -> int:
+        """Runs per candidate in a search: every member on each of its seeds."""
+        return self.size * self.seeds
+
+    def runs(self) -> list[tuple[Member, int]]:
+        """(member, seed) of each run of a search, member-major."""
+        return [(m, m.seed + SEED_STRIDE * k) for m in self.members for k in range(self.seeds)]
+
     def reduce(self, costs: np.ndarray) -> np.ndarray:
-        """Costs (members, N) -> the robust statistic (N,)."""
-        costs = np.asarray(costs, float).reshape(self.size, -1)
+        """Costs (runs, N) of a search, member-major -> the robust statistic (N,)."""
+        return self.statistic_of(np.asarray(costs, float).reshape(self.lanes, -1))
+
+    def statistic_of(self, costs: np.ndarray) -> np.ndarray:
+        """The statistic over axis 0 of costs (rows, N)."""
         if self.statistic == "worst":
             return costs.max(axis=0)
         if self.statistic == "mean":
@@ -127,13 +147,13 @@ class Ensemble:
     @property
     def corners(self) -> tuple[Member, ...]:
         """The members at the box's corners (every member but the nominal one, when spread)."""
-        return tuple(m for m in self.members if m.changes)
+        return self.members[1:]
 
     def describe(self) -> str:
         noise = sorted({m.noise_lsb for m in self.members})
         spread = "; ".join(f"{u.name} {u.low:.4g}..{u.high:.4g} ({u.source})" for u in self.spread) or "none"
         return (f"{self.size} members ({len(self.corners)} corner plants), ADC noise {', '.join(f'{n:g}' for n in noise)}"
-                f" LSB, statistic {self.statistic}; spread: {spread}")
+                f" LSB on {self.seeds} seeds each, statistic {self.statistic}; spread: {spread}")
 
 
 NOMINAL = Ensemble((Member("nominal", (), 0.0, 0),), "mean")
@@ -156,10 +176,19 @@ def preset_spread(spec: Spec, fraction: float = DEFAULT_SPREAD,
     return tuple(out)
 
 
+def plant_ensemble(plants: Sequence[tuple[str, Spec, float]], noise_lsb: float = DEFAULT_NOISE_LSB,
+                   statistic: str = DEFAULT_STATISTIC, first_seed: int = 1,
+                   seeds: int = DEFAULT_SEARCH_SEEDS) -> Ensemble:
+    """An ensemble of given plants: (label, spec, ambient_c) each, the first the nominal one, each with its
+    own noise seeds (tools/tuning/allowed.py gives a log's)."""
+    return Ensemble(tuple(Member(label, (), noise_lsb, first_seed + k, spec, ambient_c)
+                          for k, (label, spec, ambient_c) in enumerate(plants)), statistic, seeds=seeds)
+
+
 def corner_ensemble(spread: Sequence[Uncertain], noise_lsb: float = DEFAULT_NOISE_LSB,
                     statistic: str = DEFAULT_STATISTIC, first_seed: int = 1,
-                    build: Callable[..., Spec] | None = None) -> Ensemble:
-    """The nominal plant and every corner of the spread's groups, each with its own noise seed;
+                    build: Callable[..., Spec] | None = None, seeds: int = DEFAULT_SEARCH_SEEDS) -> Ensemble:
+    """The nominal plant and every corner of the spread's groups, each with its own noise seeds;
     ``build(**changes)`` makes a corner's spec where the source does (a fit's ``spec_with``)."""
     groups = sorted({GROUPS[u.name][0] for u in spread})
     members = [Member("nominal", (), noise_lsb, first_seed)]
@@ -169,4 +198,4 @@ def corner_ensemble(spread: Sequence[Uncertain], noise_lsb: float = DEFAULT_NOIS
                         for u in spread)
         label = " ".join(f"{g}{'+' if e > 0 else '-'}" for g, e in end_of.items())
         members.append(Member(label, changes, noise_lsb, first_seed + k, None if build is None else build(**dict(changes))))
-    return Ensemble(tuple(members), statistic, tuple(spread))
+    return Ensemble(tuple(members), statistic, tuple(spread), seeds)

@@ -31,7 +31,8 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Callable, Iterator, Mapping
+import warnings
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -39,6 +40,7 @@ import scipy.linalg
 import scipy.signal
 
 from firmware_port.klipper import CommandError
+from firmware_port.lane_law import law_for
 from twin import batch_kernel
 from firmware_port.marlin.board import HOTEND_CHANNEL
 from firmware_port.marlin.mpc_autotune import MpcAutotune
@@ -46,17 +48,18 @@ from firmware_port.firmwares import param_space
 from firmware_port.marlin.pid import pid_space
 from firmware_port.params import ParamSpace
 from tools.ident.fopdt import CONTROL_DELAY_S
-from tools.tuning.ensemble import Ensemble
+from tools.tuning.ensemble import Ensemble, Member
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of
 from tools.tuning.objectives import Run, needs_trace, score_spec
 from tools.tuning.optim import METHODS
 from tools.tuning.rules import RULES, tune
+from tools.validation.compare import HeaterInfo, make_setup
 from twin.batch import BatchTwin
 from twin.build import apply_event
 from twin.engine import Twin
 from twin.klipper_batch import KlipperBatch, gains_setups
-from twin.klipper_twin import KlipperTwin, extruder_setup, tick_near
+from twin.klipper_twin import HeaterSetup, KlipperTwin, extruder_setup, tick_near
 from twin.linear import SENSOR, Lti
 from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
 from twin.scenario import Event
@@ -94,6 +97,12 @@ class TuneScenario:
     def disturbances_s(self) -> tuple[float, ...]:
         return tuple(event.at_s for event in self.events)
 
+    def at_ambient(self, ambient_c: float) -> TuneScenario:
+        """The same scenario in another room: the heat-up from ambient_c, an ambient step by as much."""
+        shift = ambient_c - self.ambient_c
+        events = tuple(replace(e, value=_value(e) + shift) if e.kind == "ambient" else e for e in self.events)
+        return replace(self, ambient_c=ambient_c, events=events)
+
 
 @dataclass(frozen=True)
 class Problem:
@@ -108,6 +117,7 @@ class Problem:
     noise_lsb: float = 0.0  # the ADC's noise (an ensemble's members set their own)
     seed: int = 0  # the noise's seed
     engine: str = "fast"  # the scalar twins' engine (twin/engine.py ENGINES): "reference" for a proof
+    klipper: HeaterInfo | None = None  # the Klipper loop's heater settings (a log's); None: Klipper's example
 
     def __post_init__(self) -> None:
         if self.loop not in LOOPS:
@@ -125,11 +135,20 @@ class Problem:
         """One problem per ensemble member (its plant, noise and seed); [self] without an ensemble."""
         if self.ensemble is None:
             return [self]
-        return [replace(self, spec=m.spec(self.spec), noise_lsb=m.noise_lsb, seed=m.seed, ensemble=None)
-                for m in self.ensemble.members]
+        return [self._member(m, m.seed) for m in self.ensemble.members]
+
+    def runs(self) -> list[Problem]:
+        """One problem per run of a search: every member on each of its seeds; [self] without an ensemble."""
+        if self.ensemble is None:
+            return [self]
+        return [self._member(m, seed) for m, seed in self.ensemble.runs()]
+
+    def _member(self, m: Member, seed: int) -> Problem:
+        return replace(self, spec=m.spec(self.spec), noise_lsb=m.noise_lsb, seed=seed, ensemble=None,
+                       scenario=self.scenario if m.ambient_c is None else self.scenario.at_ambient(m.ambient_c))
 
     def reduce(self, costs: np.ndarray) -> np.ndarray:
-        """Costs of every member's lanes (members x N, member-major) -> one cost per candidate (N,)."""
+        """Costs of every run's lanes (runs x N, member-major) -> one cost per candidate (N,)."""
         return np.ravel(costs) if self.ensemble is None else self.ensemble.reduce(costs)
 
     @property
@@ -143,7 +162,12 @@ class Problem:
             return False
         if not batch_kernel.compiled() and (self.loop == "klipper" or not self.spec.linear or self.spec.delay_ticks):
             return False
-        return self.loop == "klipper" or BatchTwin.accepts(self.controller.make(self.controller.defaults))
+        if self.loop == "klipper":
+            return True
+        controller = self.controller.make(self.controller.defaults)
+        if law_for(controller) is None:
+            _no_lane_law(type(controller))
+        return BatchTwin.accepts(controller)
 
     def plant_gains(self, params: np.ndarray) -> np.ndarray | None:
         """A PID family's gains (N, 3) on the 0..255 scale -> the plant's input units per degC (W/C for a
@@ -153,38 +177,61 @@ class Problem:
         return np.asarray(params, float) / COUNTS_PER_DUTY * self.input_full_scale
 
 
+@functools.cache
+def _no_lane_law(family: type) -> None:
+    """Say once per family that its candidates run one scalar twin each (``Problem.batched``)."""
+    warnings.warn(f"controller {family.__name__} declares no lane law (firmware_port/lane_law.py): each candidate "
+                  "runs on a scalar twin of its own, hundreds of times slower than on the batch", stacklevel=3)
+
+
 # -- the plant and its scenario ---------------------------------------------------------------------
 class LoadedPlant(Plant):
-    """A transfer-function plant with a load at its input: d = [ambient, load (fraction of full scale)]."""
+    """A plant with a load at its input: d = [ambient, load (fraction of full scale)]. A transfer function
+    has no fan or flow terms, so a load is its disturbance; in an ensemble that mixes transfer functions
+    with lumped heaters the lumped ones take the same load (heat drawn where the heater's enters)."""
 
-    def __init__(self, preset: str, spec: TransferFunction, ambient_c: float):
-        super().__init__(preset, _LoadedSpec(**dataclasses.asdict(spec)), ambient_c)
+    def __init__(self, preset: str, spec: Spec, ambient_c: float):
+        loaded = _LOADED[type(spec)](**{f.name: getattr(spec, f.name) for f in dataclasses.fields(spec)})
+        super().__init__(preset, loaded, ambient_c)
         self.load = 0.0
         self.d = np.array([ambient_c, 0.0])
 
     def set_inputs(self, fan: float, flow_mm_s: float, ambient_c: float) -> None:
-        """As Plant's (a transfer function has no fan or flow terms), keeping the load."""
+        """As Plant's, keeping the load."""
         self.fan, self.flow_mm_s = float(fan), float(flow_mm_s)
         self.d = np.array([ambient_c, self.load])
+        self.relinearise()
 
     def set_load(self, load: float) -> None:
         self.load = float(load)
         self.d = np.array([self.ambient_c, self.load])
 
 
-@dataclass(frozen=True)
-class _LoadedSpec(TransferFunction):
-    """A TransferFunction whose model takes the load as a second disturbance (added to u)."""
+class _Load:
+    """A spec's model with the load as a second disturbance, added to u."""
 
-    def lti(self, key: None = None) -> Lti:
-        base = super().lti()
+    def lti(self, key=None) -> Lti:
+        base = super().lti(key)  # type: ignore[misc]
         e = np.column_stack((base.e[:, 0], base.b))
         return Lti(base.a, base.b, e, base.c, np.column_stack((base.f[:, 0], np.zeros(2))))
 
 
+@dataclass(frozen=True)
+class _LoadedTransferFunction(_Load, TransferFunction):
+    pass
+
+
+@dataclass(frozen=True)
+class _LoadedLumped(_Load, Lumped):
+    pass
+
+
+_LOADED: dict[type, type] = {TransferFunction: _LoadedTransferFunction, Lumped: _LoadedLumped}
+
+
 def make_problem_plant(problem: Problem) -> Plant:
-    """A fresh plant at the scenario's ambient, every node there."""
-    if isinstance(problem.spec, TransferFunction):  # no fan or flow: its disturbance is a load at the input
+    """A fresh plant at the scenario's ambient, every node there; a LoadedPlant where the scenario has loads."""
+    if any(event.kind == "load" for event in problem.scenario.events):
         return LoadedPlant(problem.name, problem.spec, problem.scenario.ambient_c)
     return Plant(problem.name, problem.spec, problem.scenario.ambient_c)
 
@@ -211,13 +258,15 @@ def full_power_time_s(spec: Spec, ambient_c: float, target_c: float) -> float:
     return float(t[np.argmax(rise >= need)]) + spec.delay_s
 
 
-def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C) -> TuneScenario:
-    """Heat-up for 3x the full-power time, then one phase per disturbance (see the module docstring)."""
+def default_scenario(spec: Spec, target_c: float, ambient_c: float = AMBIENT_C, world_inputs: bool = True
+                     ) -> TuneScenario:
+    """Heat-up for 3x the full-power time, then one phase per disturbance (see the module docstring); a load
+    step where the spec (or, ``world_inputs`` False, another plant of its ensemble) has no fan or flow."""
     heat_s = max(MIN_PHASE_S, HEATUP_FACTOR * full_power_time_s(spec, ambient_c, target_c))
     heat_s = math.ceil(heat_s / PHASE_ROUND_S) * PHASE_ROUND_S
     phase_s = math.ceil(max(MIN_PHASE_S, heat_s / 2) / PHASE_ROUND_S) * PHASE_ROUND_S
     events: tuple[Event, ...]
-    if not spec.world_inputs:
+    if not (spec.world_inputs and world_inputs):
         events = (Event(heat_s, "load", None, -LOAD_FRACTION),)
     else:
         events = (Event(heat_s, "fan", None, FAN_KICK), Event(heat_s + phase_s, "flow", "hotend", FLOW_MM_S),
@@ -280,10 +329,28 @@ class Traces:
     streamed: ScoreTotals | None = None
 
 
-def _run_batch(problem: Problem, params: np.ndarray, record: bool = True) -> Traces:
-    """The candidates as lanes of one batch on the problem's loop; streaming the heater objective's
-    inputs unless ``record`` (Marlin's first reading, 15 samples, is left out of them as run_chunk
-    leaves it out of the trace)."""
+def klipper_setup(problem: Problem, plant, gains: Sequence[float] | np.ndarray | None = None) -> HeaterSetup:
+    """The Klipper loop's heater on a plant: the log's own settings (sensor, max_power, smooth_time, pwm
+    cycle, the resend rule of its version) where the problem has them, else Klipper's example extruder;
+    max_temp raised to KLIPPER_MAX_TEMP_C so that only a real runaway trips; the gains given, else the
+    settings' own."""
+    info = problem.klipper
+    if info is None:
+        setup = extruder_setup(plant, max_temp_c=KLIPPER_MAX_TEMP_C)
+    else:
+        setup = make_setup(replace(info, max_temp_c=max(info.max_temp_c, KLIPPER_MAX_TEMP_C)), "extruder", plant)
+    if gains is not None:
+        kp, ki, kd = (float(g) for g in gains)
+        setup = replace(setup, config=replace(setup.config, pid_kp=kp, pid_ki=ki, pid_kd=kd))
+    return replace(setup, noise_lsb=problem.noise_lsb)
+
+
+def _run_batch(problem: Problem, params: np.ndarray, record: bool = True, seeds: Sequence[int] | None = None
+               ) -> Traces:
+    """The candidates as lanes of one batch on the problem's loop (each lane on its seed of ``seeds``, else
+    all on the problem's); streaming the heater objective's inputs unless ``record`` (Marlin's first
+    reading, 15 samples, is left out of them as run_chunk leaves it out of the trace)."""
+    seed: int | Sequence[int] = problem.seed if seeds is None else list(seeds)
     scenario = problem.scenario
     marlin = problem.loop == "marlin"
     heatup_end_s = scenario.disturbances_s[0] if scenario.disturbances_s else scenario.duration_s + 1.0
@@ -291,11 +358,10 @@ def _run_batch(problem: Problem, params: np.ndarray, record: bool = True) -> Tra
     batch: BatchTwin | KlipperBatch
     if marlin:
         batch = BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params],
-                          noise_lsb=problem.noise_lsb, seed=problem.seed, record=record, score=score)
+                          noise_lsb=problem.noise_lsb, seed=seed, record=record, score=score)
         batch.set_target(int(round(scenario.target_c)))
     else:
-        setup = extruder_setup(make_problem_plant(problem), max_temp_c=KLIPPER_MAX_TEMP_C)
-        batch = KlipperBatch(gains_setups(replace(setup, noise_lsb=problem.noise_lsb), params), seed=problem.seed,
+        batch = KlipperBatch(gains_setups(klipper_setup(problem, make_problem_plant(problem)), params), seed=seed,
                              record=record, score=score)
         batch.set_target(scenario.target_c)
     for event in scenario.events:
@@ -330,10 +396,7 @@ def _run_scalar_marlin(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, n
 
 
 def _run_scalar_klipper(problem: Problem, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    plant = make_problem_plant(problem)
-    kp, ki, kd = (float(v) for v in row)
-    setup = extruder_setup(plant, pid_kp=kp, pid_ki=ki, pid_kd=kd, max_temp_c=KLIPPER_MAX_TEMP_C)
-    twin = KlipperTwin([replace(setup, noise_lsb=problem.noise_lsb)], seed=problem.seed)
+    twin = KlipperTwin([klipper_setup(problem, make_problem_plant(problem), row)], seed=problem.seed)
     for event in problem.scenario.events:
         twin.schedule(event.at_s, functools.partial(_klipper_event, event=event))
     twin.set_target("extruder", problem.scenario.target_c)
@@ -348,10 +411,12 @@ def _klipper_event(twin: KlipperTwin, event: Event) -> None:
     _apply_to_plant(channel.plant, event)
 
 
-def run_scalars(problem: Problem, params: np.ndarray) -> Traces:
-    """One twin per candidate, resampled onto the first run's clock (their readings share it)."""
+def run_scalars(problem: Problem, params: np.ndarray, seeds: Sequence[int] | None = None) -> Traces:
+    """One twin per candidate (on its seed of ``seeds``, else the problem's), resampled onto the first
+    run's clock (their readings share it)."""
     run_one = _run_scalar_klipper if problem.loop == "klipper" else _run_scalar_marlin
-    results = [run_one(problem, row) for row in params]
+    seeds = [problem.seed] * len(params) if seeds is None else seeds
+    results = [run_one(replace(problem, seed=int(seed)), row) for row, seed in zip(params, seeds)]
     t_s = results[0][0]
     temp = np.column_stack([np.interp(t_s, r[0], r[1]) for r in results])
     duty = np.column_stack([np.interp(t_s, r[0], r[2]) for r in results])
@@ -408,17 +473,19 @@ def _run_ideal(problem: Problem, gains: np.ndarray) -> Traces:
     return Traces(np.array(t_rows), np.array(temps), np.array(duties), np.zeros(len(gains), bool))
 
 
-def run_chunk(problem: Problem, params: np.ndarray, record: bool = True) -> Traces:
-    """One chunk of candidates on the problem's loop (a picklable task for dask); a batch streams the
-    heater objective's inputs instead of keeping a trace unless ``record``."""
+def run_chunk(problem: Problem, params: np.ndarray, record: bool = True, seeds: Sequence[int] | None = None
+              ) -> Traces:
+    """One chunk of candidates on the problem's loop (a picklable task for dask), each on its seed of
+    ``seeds`` (else all on the problem's); a batch streams the heater objective's inputs instead of
+    keeping a trace unless ``record``."""
     if problem.loop == "ideal":
         return _run_ideal(problem, params)
     if problem.batched:
-        traces = _run_batch(problem, params, record)
+        traces = _run_batch(problem, params, record, seeds)
         if traces.streamed is not None:
             return traces
     else:
-        traces = run_scalars(problem, params)
+        traces = run_scalars(problem, params, seeds)
     if problem.loop == "marlin":  # Marlin's first reading after reset sums 15 oversamples, not 16: it reads high
         traces = Traces(traces.t_s[1:], traces.temp_c[1:], traces.duty[1:], traces.tripped)
     return traces
@@ -447,7 +514,7 @@ def simulate(problem: Problem, params, client=None, record: bool = True) -> Run:
     if params.ndim != 2 or params.shape[1] != space.dims:
         raise ValueError(f"parameters must be an (N, {space.dims}) array of {', '.join(space.names)}, "
                          f"got shape {params.shape}")
-    tasks = [(member, chunk) for member in problem.members() for chunk in _chunks(params)]
+    tasks = [(member, chunk) for member in problem.runs() for chunk in _chunks(params)]
     if client is None:
         parts = [run_chunk(member, chunk, record) for member, chunk in tasks]
     else:
@@ -457,7 +524,7 @@ def simulate(problem: Problem, params, client=None, record: bool = True) -> Run:
     gains = problem.plant_gains(params)
     return Run(traces.t_s, traces.temp_c, traces.duty, problem.scenario.target_c,
                problem.scenario.ambient_c, problem.scenario.disturbances_s, traces.tripped,
-               None if gains is None else np.tile(gains, (len(problem.members()), 1)), problem.input_full_scale,
+               None if gains is None else np.tile(gains, (len(problem.runs()), 1)), problem.input_full_scale,
                traces.streamed)
 
 
@@ -472,6 +539,25 @@ class Evaluator:
                  on_batch: Callable[[np.ndarray], None] | None = None):
         self.problem, self.cost, self.client, self.on_batch = problem, cost, client, on_batch
         self.evaluations = 0
+        self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # (params, costs) of each batch
+
+    def best(self, count: int, apart_rel: float) -> np.ndarray:
+        """The ``count`` cheapest parameter rows evaluated, each apart from those before it by more than
+        ``apart_rel`` (relative) in some parameter: the runners-up a proof may fall back on."""
+        if not self._seen:
+            return np.zeros((0, self.problem.controller.dims))
+        params = np.vstack([p for p, _ in self._seen])
+        costs = np.concatenate([c for _, c in self._seen])
+        chosen: list[np.ndarray] = []
+        for i in np.argsort(costs, kind="stable"):
+            row = params[i]
+            if costs[i] >= OUT_OF_RANGE_COST:
+                break
+            if all(np.any(np.abs(row - other) > apart_rel * np.maximum(np.abs(other), 1e-12)) for other in chosen):
+                chosen.append(row)
+                if len(chosen) == count:
+                    break
+        return np.array(chosen).reshape(-1, self.problem.controller.dims)
 
     def __call__(self, params) -> np.ndarray:
         params = np.atleast_2d(np.asarray(params, float))
@@ -481,6 +567,7 @@ class Evaluator:
             costs[valid] = self.problem.reduce(self.cost(simulate(self.problem, params[valid], self.client,
                                                                   needs_trace(self.cost))))
         self.evaluations += len(params)
+        self._seen.append((params, costs))
         if self.on_batch is not None:
             self.on_batch(costs)
         return costs
@@ -504,7 +591,7 @@ def marlin_autotune(problem: Problem, cycles: int = M303_CYCLES) -> Gains:
 
 def klipper_autotune(problem: Problem) -> Gains:
     """PID_CALIBRATE HEATER=extruder TARGET=<target> on a Klipper twin of the problem's plant."""
-    twin = KlipperTwin([extruder_setup(make_problem_plant(problem), max_temp_c=KLIPPER_MAX_TEMP_C)])
+    twin = KlipperTwin([klipper_setup(replace(problem, noise_lsb=0.0), make_problem_plant(problem))])
     try:
         result = twin.pid_calibrate("extruder", problem.scenario.target_c)
     except CommandError as exc:

@@ -295,9 +295,29 @@ def _streamed_terms(totals: ScoreTotals, tripped: np.ndarray) -> HeaterTerms:
     return HeaterTerms(reach_s, np.maximum(totals.max_beyond_c, 0.0), hold_error, chatter, tripped.copy())
 
 
+@dataclass(frozen=True)
+class Against:
+    """The heater objective plus a charge for each member on which a run is worse than a reference beyond
+    bounds: beyond_s_per_c x (hold error above hold_bound_c + overshoot above overshoot_bound_c), the bounds
+    one per member (lanes member-major, members x N)."""
+
+    hold_bound_c: np.ndarray
+    overshoot_bound_c: np.ndarray
+    beyond_s_per_c: float
+
+    def __call__(self, run: Run) -> np.ndarray:
+        terms = heater_terms(run)
+        per_member = run.n // len(self.hold_bound_c)
+        hold = np.repeat(self.hold_bound_c, per_member)
+        overshoot = np.repeat(self.overshoot_bound_c, per_member)
+        beyond = np.maximum(terms.hold_error_c - hold, 0.0) + np.maximum(terms.overshoot_c - overshoot, 0.0)
+        return terms.cost_s + self.beyond_s_per_c * beyond
+
+
 def needs_trace(cost: Callable[[Run], np.ndarray]) -> bool:
-    """Whether an objective needs the run's trace (all but ``heater_cost``, which a batch can stream)."""
-    return cost is not heater_cost
+    """Whether an objective needs the run's trace (all but the heater objective, plain or ``Against`` a
+    reference, which a batch can stream)."""
+    return cost is not heater_cost and not isinstance(cost, Against)
 
 
 def heater_cost(run: Run) -> np.ndarray:

@@ -1,39 +1,45 @@
-"""The proof of a tune: the chosen controller and the firmware's own autotune re-run on the most
-faithful engine, with sensor noise over many seeds and on the ensemble's extreme plants.
+"""The proof of a tune: candidates and the printer's own gains on every member of the ensemble, over many
+noise seeds, on the compiled batch; the reference engine cross-checks a sample.
 
-Each candidate runs the problem's scenario as one scalar twin per case on the tick-by-tick
-reference engine (twin/engine.py: every ISR and main-loop pass as the MCU runs them; the Klipper
-loop runs its own twin): the nominal plant with noise seeds 1..``seeds``, then each corner plant
-of the ensemble (tools/tuning/ensemble.py) with its own seed. The table gives, over those runs,
-the mean and worst heat-up overshoot, settling time (2 % band), mean |error| while holding and
-mean |duty change| per reading while holding, and the trips. A candidate passes when no run
-trips. Cases run in parallel worker processes (forked; serially where fork is not available).
+Each candidate runs the problem's scenario on each member of the ensemble (tools/tuning/ensemble.py)
+with ADC noise on seeds 1..``seeds`` (the member's own noise, or ``NOISE_LSB`` where it has none): the
+candidates and seeds of one member are lanes of one batch (tools/tuning/evaluate.py ``run_chunk``: the
+firmware's lanes equal its scalar twin reading for reading, tests/twin/test_batch_paths.py; a controller
+without a lane law runs one scalar twin per lane). A row per member and candidate gives, over its seeds,
+the mean and worst heat-up overshoot, settling time (2 % band), mean |error| while holding, mean |duty
+change| per reading while holding, the hold's limit cycle where there is one, the heater objective, and
+the trips.
+
+The cross-check (``cross_check``): the first candidate on the first member with seed 1 re-run for its
+first ``CROSS_CHECK_S`` seconds on the tick-by-tick reference engine (every ISR and main-loop pass as
+the MCU runs them; the Klipper loop: one KlipperTwin), its readings against the batch lane's: equal, or
+the proof stops with the difference (a bug, not a tuning result).
 """
 
 from __future__ import annotations
 
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
-import os
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from tools.tuning.evaluate import Candidate, Problem, Traces, run_chunk
-from tools.tuning.objectives import heater_terms
+from tools.tuning.objectives import HeaterTerms, heater_terms
 from tools.tuning.objectives import Run as ObjectiveRun
 from twin.metrics import step_metrics
 
 PROOF_SEEDS = 10
-NOISE_LSB = 1.0  # without an ensemble: the noise the proof adds (an ensemble's members state theirs)
-_TASKS: list[tuple[Problem, np.ndarray]] = []  # what forked workers run, by index
+NOISE_LSB = 1.0  # a member without noise of its own is proven with this much (an M303 capture's readings scatter so)
+CROSS_CHECK_S = 60.0  # the reference engine re-runs this much of one proof run
+KLIPPER_CROSS_CHECK_C = 1e-9  # the Klipper loop's lanes equal KlipperTwin to float rounding
 
 
 @dataclass(frozen=True)
 class ProofRow:
-    """One candidate's proof: statistics over its runs (mean, worst) and its trips."""
+    """One candidate on one member: statistics over its seeds (mean, worst) and its trips."""
 
+    member: str
     method: str
     params: np.ndarray
     runs: int
@@ -42,82 +48,106 @@ class ProofRow:
     settling_s: tuple[float, float]  # inf where a run never settles
     hold_error_c: tuple[float, float]
     chatter: tuple[float, float]
+    cost_s: tuple[float, float]  # the heater objective
 
     @property
     def passed(self) -> bool:
         return self.trips == 0
 
 
-def cases(problem: Problem, seeds: int = PROOF_SEEDS) -> list[Problem]:
-    """The proof's runs of one candidate: the nominal plant on seeds 1..seeds, then each corner plant."""
-    nominal = problem.members()[0]
-    noise = nominal.noise_lsb or NOISE_LSB
-    runs = [replace(nominal, noise_lsb=noise, seed=seed, engine="reference") for seed in range(1, seeds + 1)]
-    corners = problem.members()[1:]
-    return runs + [replace(c, noise_lsb=c.noise_lsb or noise, engine="reference") for c in corners]
+def _member_noise(member: Problem) -> Problem:
+    return member if member.noise_lsb else replace(member, noise_lsb=NOISE_LSB)
 
 
-def _run_task(index: int) -> Traces:
-    problem, row = _TASKS[index]
-    return run_chunk(problem, row[None, :])
+def member_runs(member: Problem, params: np.ndarray, seeds: int) -> tuple[ObjectiveRun, Traces]:
+    """The candidates (N, d) on one member over seeds 1..seeds: lanes candidate-major, (N x seeds)."""
+    member = _member_noise(member)
+    table = np.repeat(np.atleast_2d(params), seeds, axis=0)
+    lane_seeds = np.tile(np.arange(1, seeds + 1), len(params)).tolist()
+    traces = run_chunk(member, table, record=True, seeds=lane_seeds)
+    run = ObjectiveRun(traces.t_s, traces.temp_c, traces.duty, member.scenario.target_c, member.scenario.ambient_c,
+                       member.scenario.disturbances_s, traces.tripped, None)
+    return run, traces
 
 
-def _run_all(tasks: list[tuple[Problem, np.ndarray]], workers: int | None) -> list[Traces]:
-    global _TASKS
-    _TASKS = tasks
-    workers = workers or os.cpu_count() or 1
-    try:
-        context = multiprocessing.get_context("fork")
-    except ValueError:  # no fork on this platform
-        workers = 1
-    if workers <= 1 or len(tasks) <= 1:
-        return [_run_task(i) for i in range(len(tasks))]
-    try:
-        with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=context) as pool:
-            return list(pool.map(_run_task, range(len(tasks))))
-    except BrokenProcessPool:  # a forked worker died (a thread pool the parent had started does not fork): here
-        return [_run_task(i) for i in range(len(tasks))]
+def _stats(values: np.ndarray) -> tuple[float, float]:
+    return float(np.mean(values)), float(np.max(values))
 
 
-def _row(problem: Problem, candidate: Candidate, traces: list[Traces]) -> ProofRow:
-    rows = min(t.t_s.size for t in traces)
-    run = ObjectiveRun(traces[0].t_s[:rows], np.column_stack([t.temp_c[:rows, 0] for t in traces]),
-                       np.column_stack([t.duty[:rows, 0] for t in traces]), problem.scenario.target_c,
-                       problem.scenario.ambient_c, problem.scenario.disturbances_s,
-                       np.concatenate([t.tripped for t in traces]), None)
-    terms = heater_terms(run)
+def _settling(run: ObjectiveRun) -> np.ndarray:
     heat = run.t_s < run.heatup_end_s
-    settling = np.array([np.inf if (s := step_metrics(run.t_s[heat], run.temp_c[heat, k], run.target_c,
-                                                      np.clip(run.duty[heat, k], 0, 1)).settling_time_2pct_s) is None
-                         else s for k in range(run.n)])
+    out = []
+    for k in range(run.n):
+        s = step_metrics(run.t_s[heat], run.temp_c[heat, k], run.target_c,
+                         np.clip(run.duty[heat, k], 0, 1)).settling_time_2pct_s
+        out.append(np.inf if s is None else s)
+    return np.array(out)
 
-    def stats(values: np.ndarray) -> tuple[float, float]:
-        return float(np.mean(values)), float(np.max(values))
 
-    return ProofRow(candidate.method, candidate.params, run.n, int(terms.tripped.sum()), stats(terms.overshoot_c),
-                    stats(settling), stats(terms.hold_error_c), stats(terms.chatter))
+def rows_of(label: str, candidates: list[Candidate], run: ObjectiveRun, seeds: int) -> list[ProofRow]:
+    """A ProofRow per candidate from a member's run (lanes candidate-major, ``seeds`` each)."""
+    terms = heater_terms(run)
+    settling = _settling(run)
+    rows = []
+    for i, c in enumerate(candidates):
+        lanes = slice(i * seeds, (i + 1) * seeds)
+        part = HeaterTerms(*(getattr(terms, f.name)[lanes] for f in dataclasses.fields(terms)))
+        rows.append(ProofRow(label, c.method, c.params, seeds, int(part.tripped.sum()), _stats(part.overshoot_c),
+                             _stats(settling[lanes]), _stats(part.hold_error_c), _stats(part.chatter),
+                             _stats(part.cost_s)))
+    return rows
 
 
 def prove(problem: Problem, candidates: list[Candidate], seeds: int = PROOF_SEEDS,
-          workers: int | None = None) -> list[ProofRow]:
-    """Each candidate over the proof's cases (see the module docstring), in order."""
-    runs = cases(problem, seeds)
-    tasks = [(case, c.params) for c in candidates for case in runs]
-    traces = _run_all(tasks, workers)
-    n = len(runs)
-    return [_row(problem, c, traces[k * n:(k + 1) * n]) for k, c in enumerate(candidates)]
+          on_member: Callable[[], None] | None = None) -> list[ProofRow]:
+    """Each candidate on each member over the seeds (module docstring): rows member-major, in the
+    candidates' order within a member. ``on_member`` is called as each member finishes (a progress bar)."""
+    params = np.array([c.params for c in candidates], float)
+    labels = [m.label for m in problem.ensemble.members] if problem.ensemble else ["nominal"]
+    rows = []
+    for label, member in zip(labels, problem.members()):
+        run, _ = member_runs(member, params, seeds)
+        rows += rows_of(label, candidates, run, seeds)
+        if on_member is not None:
+            on_member()
+    return rows
 
 
-def table(rows: list[ProofRow], describe) -> list[str]:
-    """The proof as text lines: one row per candidate, ``describe(row)`` naming its parameters."""
-    head = (f"{'candidate':<12} {'trips':>7}  {'overshoot C':>13}  {'settling s':>13}  {'hold |e| C':>11}  "
-            f"{'|du|/reading':>13}  (mean / worst)")
+def cross_check(problem: Problem, candidate: Candidate, seconds: float = CROSS_CHECK_S) -> str:
+    """The candidate on the first member, seed 1, for ``seconds``: the batch's readings against the reference
+    engine's (module docstring); what was compared, or RuntimeError naming the first difference."""
+    member = replace(_member_noise(problem.members()[0]), seed=1)
+    short = replace(member, scenario=replace(member.scenario, duration_s=seconds,
+                                             events=tuple(e for e in member.scenario.events if e.at_s < seconds)))
+    row = np.atleast_2d(candidate.params)
+    batch = run_chunk(short, row)
+    reference = run_chunk(replace(short, engine="reference"), row)
+    rows = min(len(batch.t_s), len(reference.t_s))
+    got, want = batch.temp_c[:rows, 0], reference.temp_c[:rows, 0]
+    tolerance = KLIPPER_CROSS_CHECK_C if problem.loop == "klipper" else 0.0
+    differ = np.flatnonzero(np.abs(got - want) > tolerance)
+    engine = "KlipperTwin" if problem.loop == "klipper" else "the reference engine"
+    if differ.size:
+        k = int(differ[0])
+        raise RuntimeError(f"cross-check: at {batch.t_s[k]:.3f} s the batch read {got[k]!r} C, {engine} "
+                           f"{want[k]!r} C ({candidate.method} on {problem.name}, seed 1)")
+    if rows == 0 or not batch.tripped[0] == reference.tripped[0]:
+        raise RuntimeError(f"cross-check: the batch and {engine} disagree on a trip ({candidate.method})")
+    return (f"{candidate.method} on the nominal plant, seed 1, {seconds:g} s: {rows} readings of the batch equal "
+            f"{engine}'s" + (" (to float rounding)" if tolerance else " (bit for bit)"))
+
+
+def table(rows: list[ProofRow], describe: Callable[[ProofRow], str]) -> list[str]:
+    """The proof as text lines: one row per member and candidate, ``describe(row)`` naming its parameters."""
+    width = max([len(r.member) for r in rows] + [6])
+    head = (f"{'member':<{width}} {'candidate':<12} {'trips':>8}  {'overshoot C':>13}  {'settling s':>13}  "
+            f"{'hold |e| C':>11}  {'|du|/reading':>13}  (mean / worst)")
     lines = [head]
     for r in rows:
         def pair(p: tuple[float, float], digits: int = 2) -> str:
             return f"{p[0]:.{digits}f} / {p[1]:.{digits}f}"
 
-        lines.append(f"{r.method:<12} {r.trips:>3} of {r.runs:<2} {pair(r.overshoot_c):>13}  "
+        lines.append(f"{r.member:<{width}} {r.method:<12} {r.trips:>3} of {r.runs:<3} {pair(r.overshoot_c):>13}  "
                      f"{pair(r.settling_s, 1):>13}  {pair(r.hold_error_c):>11}  {pair(r.chatter, 3):>13}  "
                      f"{describe(r)}")
     return lines

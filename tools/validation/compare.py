@@ -263,7 +263,7 @@ class Window:
     lead_temp_c: np.ndarray = field(default_factory=lambda: np.empty(0))
 
 
-def _heatup_windows(log: StatsLog, heater: str) -> tuple[list, list[Window]]:
+def heatup_windows(log: StatsLog, heater: str) -> tuple[list, list[Window]]:
     """The fit segments of a heater and, for those that are heat-ups (a run at max_power of
     MIN_HEATUP_S or more to a target well above the start), the replay windows."""
     try:
@@ -367,7 +367,7 @@ class ClosedLoopResult:
 
 def fit_heater(log: StatsLog, heater: str, model: str = "two_node") -> tuple[FitResult, Segment, list[Window]]:
     """two_node on the heat-up segment with the most time at max_power; the replay windows."""
-    segments, windows = _heatup_windows(log, heater)
+    segments, windows = heatup_windows(log, heater)
     if not windows:
         raise Unusable(f"{heater}: no heat-up (a run at max_power of {MIN_HEATUP_S:g} s or more to a new "
                        "target at least 10 C above the start)")
@@ -419,7 +419,7 @@ def _session(label: str) -> int:
     return int(label.split(",")[0].split()[1])
 
 
-def _overlaps(window: Window, seg: Segment) -> bool:
+def overlaps(window: Window, seg: Segment) -> bool:
     return window.session == _session(seg.label) and window.t_s[0] <= seg.t_s[-1] and seg.t_s[0] <= window.t_s[-1]
 
 
@@ -446,7 +446,7 @@ def closed_loop_check(path: str | Path, heater: str) -> ClosedLoopResult:
     log = _load_stats(path)
     info = heater_info(log, heater)
     fit, seg, windows = fit_heater(log, heater)
-    others = [w for w in windows if not _overlaps(w, seg)]
+    others = [w for w in windows if not overlaps(w, seg)]
     return score_replay(path.name, heater, fit, seg.label, info, (others or windows)[0], not others)
 
 
@@ -481,9 +481,9 @@ def miss_evidence(path: str | Path, result: ClosedLoopResult) -> MissEvidence:
     if result.same_segment:
         return MissEvidence(result)
     log = _load_stats(path)
-    segments, windows = _heatup_windows(log, result.heater)
+    segments, windows = heatup_windows(log, result.heater)
     window = next(w for w in windows if w.label == result.replay_label)
-    seg = next(s for s in segments if s.full_power_s >= MIN_HEATUP_S and _overlaps(window, s))
+    seg = next(s for s in segments if s.full_power_s >= MIN_HEATUP_S and overlaps(window, s))
     try:
         own_fit = fit_model(result.fit.model, seg.t_s, seg.temp_c, seg.duty)
     except ValueError as error:

@@ -47,7 +47,7 @@ from firmware_port.marlin.constants import OVERSAMPLENR
 from tools.ident.fit import reading_noise_c
 from tools.ident.log_fit import LogFit, LogFitOptions, fit_log
 from tools.ident.relay_loop import MARLIN_MIN_HALF_S
-from tools.ident.relay_points import marlin_target_c, relay_heater
+from tools.ident.relay_points import cycles_target_c, relay_heater
 from tools.ident.relay_trace import ambient_hint_c
 from tools.ident.response import zoh_response
 from tools.ident.result import aic
@@ -183,11 +183,11 @@ def twin_noise_lsb(noise_c: float, temp_c: float) -> float:
 
 def run_twin_m303(name: str, spec: Spec, heater: str, ambient_c: float, target_c: float, ncycles: int,
                   version: str = "2.1", noise_lsb: float = 0.0,
-                  on_progress: Callable[[float], None] | None = None) -> M303Log:
-    """The twin's M303 (Marlin ``version``) on the plant from ambient, its ADC conversions scattered
-    by noise_lsb (seeded): its console output, read back as a capture. on_progress gets the virtual
-    seconds run so far, every RUN_STEP_S."""
-    plant = Plant(name, spec, ambient_c, ambient_c)
+                  on_progress: Callable[[float], None] | None = None, start_c: float | None = None) -> M303Log:
+    """The twin's M303 (Marlin ``version``) on the plant from ambient (or every node at start_c), its ADC
+    conversions scattered by noise_lsb (seeded): its console output, read back as a capture. on_progress
+    gets the virtual seconds run so far, every RUN_STEP_S."""
+    plant = Plant(name, spec, ambient_c, ambient_c if start_c is None else start_c)
     other = make_plant("bed" if heater == "extruder" else "hotend", ambient_c=ambient_c)
     plants = [plant, other] if heater == "extruder" else [other, plant]
     twin = Twin(plants, noise_lsb=noise_lsb, seed=NOISE_SEED)
@@ -315,15 +315,11 @@ def m303_check(path: str | Path, heater: str | None = None, ambient_c: float | N
     else:
         assert plant is not None
         name, spec, description = outside_plant(plant, on_evaluation)
-        heater = heater or relay_heater(log)
-        target_c, ambient = _capture_target_c(log, heater), ambient_hint_c(log) if ambient_c is None else ambient_c
+        heater = heater or relay_heater(log)[0]
+        target_c, ambient = cycles_target_c(log, CYCLE_RE_KEY[heater]), ambient_hint_c(log) if ambient_c is None else ambient_c
     assert target_c is not None
-    printed = [c for c in log.cycles_of(CYCLE_RE_KEY[heater]) if c.tu_s and c.min_c is not None and c.max_c is not None]
-    if not printed:
-        raise NoRelay("no printed cycle with Tu, min and max to compare")
-    command_cycles = [int(c.split("C")[1].split()[0]) for _, c in log.commands if " C" in c]
-    ncycles = max(command_cycles[-1] if command_cycles else DEFAULT_CYCLES, len(printed) + 2, MIN_TWIN_CYCLES)
-    version = "1.1" if heater == "heater_bed" and log.rule == CLASSIC_PID else "2.1"
+    printed = printed_cycles(log, heater)
+    ncycles, version = twin_settings(log, heater, printed)
     noise_lsb, noise_note = _twin_noise(fitted, target_c)
     twin_log = run_twin_m303(name, spec, heater, ambient, target_c, ncycles, version, noise_lsb, on_progress)
     twin = relay_stats(twin_log.cycles)
@@ -335,9 +331,37 @@ def m303_check(path: str | Path, heater: str | None = None, ambient_c: float | N
                           version, ncycles, twin, rows, trace_rows, trace, log)
 
 
-def _capture_target_c(log: M303Log, heater: str) -> float:
-    key = CYCLE_RE_KEY[heater]
-    return marlin_target_c(log, key, log.cycles_of(key))[0]
+def printed_cycles(log: M303Log, heater: str) -> list[M303Cycle]:
+    """The heater's printed cycles with Tu, min and max; NoRelay where there are none."""
+    printed = [c for c in log.cycles_of(CYCLE_RE_KEY[heater]) if c.tu_s and c.min_c is not None and c.max_c is not None]
+    if not printed:
+        raise NoRelay("no printed cycle with Tu, min and max to compare")
+    return printed
+
+
+def twin_settings(log: M303Log, heater: str, printed: list[M303Cycle]) -> tuple[int, str]:
+    """The twin's M303 for a capture: its cycles (the command's C, else Marlin's default, and at least two
+    more than printed and MIN_TWIN_CYCLES) and Marlin version (1.1 for a bed tuned by the Classic rule)."""
+    command_cycles = [int(c.split("C")[1].split()[0]) for _, c in log.commands if " C" in c]
+    ncycles = max(command_cycles[-1] if command_cycles else DEFAULT_CYCLES, len(printed) + 2, MIN_TWIN_CYCLES)
+    return ncycles, "1.1" if heater == "heater_bed" and log.rule == CLASSIC_PID else "2.1"
+
+
+def replay_fit(log: M303Log, fitted: LogFit, on_progress: Callable[[float], None] | None = None) -> CycleRow:
+    """The twin's M303 on a plant fitted to the capture, against all the printed cycles (in-sample), under
+    the goals of what the fit saw: how a plant the capture allows must replay it. The twin starts where
+    the capture does: at its status trace's first reading, or, for result lines alone (which do not
+    show the start; some runs start pre-warmed), with the plant at the relay's target."""
+    heater, result = fitted.heater, fitted.result
+    assert result.anchor_c is not None  # a fit to relay points knows its relay's target
+    printed = printed_cycles(log, heater)
+    ncycles, version = twin_settings(log, heater, printed)
+    noise_lsb, _ = _twin_noise(fitted, result.anchor_c)
+    start_c = float(fitted.segment.temp_c[0]) if fitted.segment is not None else result.anchor_c
+    twin_log = run_twin_m303(result.model, result.spec(), heater, result.ambient_c, result.anchor_c, ncycles,
+                             version, noise_lsb, on_progress, start_c)
+    goals = GOALS["trace" if "trace" in result.evidence else "results"]
+    return CycleRow(IN, 1, len(printed), relay_stats(printed), relay_stats(twin_log.cycles), goals)
 
 
 # --- rows as table cells -----------------------------------------------------------------------

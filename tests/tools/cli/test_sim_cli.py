@@ -8,7 +8,10 @@ from tools.cli.sim import main
 
 
 def run(capsys, *argv):
-    code = main(list(argv))
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:  # a flag argparse refuses
+        code = exc.code
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -21,6 +24,8 @@ def test_defaults_print_metrics_and_write_trace_and_plot(capsys, tmp_path):
     assert re.search(r"^target_c\s+210\.00$", out, re.M)
     rise = float(re.search(r"^rise_time_s\s+(\S+)$", out, re.M).group(1))
     assert 30 < rise < 150
+    assert len(re.findall(r"^limit_cycle_amplitude_c\s+-$", out, re.M)) == 2  # hotend and bed hold
+    assert "limit cycle" not in out
     csv = (tmp_path / "heat_hold_pid.csv").read_text()
     assert csv.startswith("t_s,hotend_target_c,hotend_measured_c,")
     assert len(csv.splitlines()) > 3600  # one row per 0.164 s reading
@@ -30,12 +35,39 @@ def test_defaults_print_metrics_and_write_trace_and_plot(capsys, tmp_path):
 
 @pytest.mark.parametrize("firmware", ["pid", "pid_float", "bangbang", "fuzzy_pi"])
 def test_each_firmware_reaches_the_target(capsys, tmp_path, firmware):
+    """Each holds the target; bang-bang (no hysteresis, full power or off) by a limit cycle, reported as one."""
     code, out, err = run(capsys, "--firmware", firmware, "--duration", "200", "--no-bed", "--no-plot",
                          "--out", str(tmp_path))
     assert code == 0, err
     assert re.search(r"^reached\s+yes$", out, re.M)
-    steady = float(re.search(r"^steady_state_error_c\s+(\S+)$", out, re.M).group(1))
-    assert abs(steady) < 3.0
+    steady = re.search(r"^steady_state_error_c\s+(\S+)$", out, re.M).group(1)
+    amplitude = re.search(r"^limit_cycle_amplitude_c\s+(\S+)$", out, re.M).group(1)
+    if firmware == "bangbang":
+        assert steady == "-" and 1.0 < float(amplitude) < 10.0
+    else:
+        assert abs(float(steady)) < 3.0 and amplitude == "-"
+
+
+def test_a_limit_cycle_is_reported_with_its_amplitude_and_period(capsys, tmp_path):
+    """The Marlin default gains on the 60 W cartridge at 240 C cycle +-10 C every ~80 s once at the target:
+    said so, and no steady-state error (it never settles), where it used to read 'steady_state_error 5.03'."""
+    code, out, err = run(capsys, "--plant", "hotend_cartridge", "--target", "240", "--duration", "300", "--no-bed",
+                         "--no-plot", "--out", str(tmp_path))
+    assert code == 0, err
+    assert re.search(r"^reached\s+yes$", out, re.M) and re.search(r"^steady_state_error_c\s+-$", out, re.M)
+    amplitude = float(re.search(r"^limit_cycle_amplitude_c\s+(\S+)$", out, re.M).group(1))
+    period = float(re.search(r"^limit_cycle_period_s\s+(\S+)$", out, re.M).group(1))
+    assert 8.0 < amplitude < 13.0 and 65.0 < period < 95.0
+    line = re.search(r"^hotend step 1: limit cycle in the hold, \+-(\S+) C every (\S+) s: it never settles", out, re.M)
+    assert line and float(line[1]) == amplitude and float(line[2]) == pytest.approx(period, abs=0.06)
+
+
+def test_a_noisy_stable_hold_is_no_limit_cycle(capsys, tmp_path):
+    """The default hotend with 3 LSB of ADC noise holds 210 C: no limit cycle, a steady-state error."""
+    code, out, err = run(capsys, "--noise", "3", "--no-bed", "--no-plot", "--out", str(tmp_path))
+    assert code == 0, err
+    assert re.search(r"^limit_cycle_amplitude_c\s+-$", out, re.M) and "limit cycle" not in out
+    assert abs(float(re.search(r"^steady_state_error_c\s+(\S+)$", out, re.M).group(1))) < 0.5
 
 
 def test_protection_trip_is_reported_and_exits_1(capsys, tmp_path):
@@ -118,9 +150,9 @@ def test_scenario_pid_timeline_changes_gains_like_m301(capsys, tmp_path):
     (["--gains", "1,2"], "--gains '1,2': expected three numbers KP,KI,KD"),
     (["--gains", "2000,1,1"], "gains.hotend.kp: must be in 0..1000"),
     (["--gains", "1,2,3", "--firmware", "bangbang"], "firmware 'bangbang' has no PID on that heater"),
-    (["--duration", "1e300"], "duration_s: must be at most 4.29497e+06 s"),
+    (["--duration", "1e300"], "argument --duration: 1e+300 s is outside 0.001024..4.29497e+06 s"),
     (["--set", "power_w=1e308"], "plant parameter power_w=1e+308: beyond"),
-    (["--noise", "nan"], "--noise nan: must be a number of LSB"),
+    (["--noise", "nan"], "argument --noise: expected a finite number, not 'nan'"),
     (["--plot", "x.svg"], "the plot is written as PNG"),
 ])
 def test_impossible_values_get_one_line_naming_the_field(capsys, tmp_path, argv, message):
@@ -160,7 +192,7 @@ def test_record_every_bounds_the_trace_and_keeps_the_run(capsys, tmp_path):
 
 def test_record_every_is_checked(capsys, tmp_path):
     code, _, err = run(capsys, "--record-every", "nan", "--out", str(tmp_path))
-    assert code == 2 and "--record-every nan" in err
+    assert code == 2 and "argument --record-every: expected a finite number, not 'nan'" in err
 
 
 def test_output_names_say_the_plant_and_gains_so_runs_do_not_overwrite_each_other(capsys, tmp_path):
@@ -218,3 +250,15 @@ def test_progress_goes_to_a_terminal_only(tmp_path):
         os.close(master)
         assert proc.wait(timeout=300) == 0
     assert b"60/60 s virtual" in shown
+
+
+@pytest.mark.parametrize(("engine", "said"), [("reference", "the tick-by-tick reference engine"),
+                                              ("avr", "the controllers' C compiled for the ATmega328P")])
+def test_a_non_default_engine_is_said_and_in_the_file_names(capsys, tmp_path, engine, said, request):
+    """--engine avr ran on simavr without saying so, and wrote over the fast engine's files."""
+    if engine == "avr":
+        request.getfixturevalue("avr_toolchain")
+    code, out, err = run(capsys, "--engine", engine, "--duration", "2", "--no-bed", "--out", str(tmp_path))
+    assert code == 0, err
+    assert out.startswith(f"twin-sim: heat_hold, firmware pid, 2 s virtual, seed 0, engine {engine} ({said}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"heat_hold_pid_{engine}_nobed.{kind}" for kind in ("csv", "png")]

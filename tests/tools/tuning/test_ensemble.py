@@ -1,5 +1,6 @@
 """Plant ensembles and the proof: a preset's stated spread, the corner plants, the robust statistics,
-member-major lanes equal to single-member runs, and a proof that counts trips on the reference engine."""
+member-major lanes equal to single-member runs on each seed, and a proof on the batch that counts the
+very trips of scalar twins and whose cross-check on the reference engine catches a difference."""
 
 from dataclasses import replace
 
@@ -9,7 +10,8 @@ import pytest
 from tools.tuning.ensemble import DEFAULT_SPREAD, NOMINAL, Ensemble, Member, Uncertain, corner_ensemble, preset_spread
 from tools.tuning.evaluate import Evaluator, TuneScenario, preset_problem, run_scalars, simulate
 from tools.tuning.objectives import heater_cost
-from tools.tuning.proof import cases, prove
+from tools.tuning import proof
+from tools.tuning.proof import cross_check, prove
 from tools.tuning.tuner import runs
 from twin.plants import SPECS
 
@@ -36,6 +38,8 @@ def test_corners_move_each_group_to_its_ends():
     ensemble = corner_ensemble(preset_spread(spec), noise_lsb=1.0)
     assert [m.label for m in ensemble.members] == ["nominal", "lag+ loss+", "lag+ loss-", "lag- loss+", "lag- loss-"]
     assert len({m.seed for m in ensemble.members}) == ensemble.size and {m.noise_lsb for m in ensemble.members} == {1.0}
+    seeds = [seed for _, seed in ensemble.runs()]  # every member on its own seeds, none shared
+    assert len(seeds) == ensemble.lanes == ensemble.size * ensemble.seeds and len(set(seeds)) == len(seeds)
     more_lag = ensemble.members[1].spec(spec)
     assert more_lag.sensor_responsiveness_per_s < spec.sensor_responsiveness_per_s  # less responsive: more lag
     assert more_lag.cartridge_heat_capacity_j_k > spec.cartridge_heat_capacity_j_k
@@ -58,38 +62,60 @@ def test_statistics():
 
 
 def test_member_lanes_are_the_members_own_runs():
-    """simulate runs every member, member-major; each member's lanes equal that member run alone."""
-    ensemble = corner_ensemble(preset_spread(CARTRIDGE.spec), noise_lsb=0.0)
+    """simulate runs every member on each of its seeds, member-major; each run's lanes equal that member
+    run alone on that seed."""
+    ensemble = corner_ensemble(preset_spread(CARTRIDGE.spec), noise_lsb=1.0, seeds=2)
     problem = replace(CARTRIDGE, ensemble=ensemble)
     run = simulate(problem, GAINS)
-    assert run.n == ensemble.size * len(GAINS)
-    for k, member in enumerate(problem.members()):
+    assert run.n == ensemble.lanes * len(GAINS)
+    for k, member in enumerate(problem.runs()):
         alone = simulate(member, GAINS)
         np.testing.assert_array_equal(run.temp_c[:, 2 * k:2 * k + 2], alone.temp_c)
-    costs = heater_cost(run).reshape(ensemble.size, -1)
+    assert [p.seed for p in problem.runs()] == [seed for _, seed in ensemble.runs()]
+    costs = heater_cost(run).reshape(ensemble.lanes, -1)
     np.testing.assert_array_equal(Evaluator(problem, heater_cost)(GAINS), ensemble.reduce(costs))
     (first, _) = runs(problem, heater_cost, GAINS, ["a", "b"])
-    assert first.member_costs.tolist() == costs[:, 0].tolist() and first.run.n == ensemble.size
+    assert first.member_costs.tolist() == costs[:, 0].tolist() and first.run.n == ensemble.lanes
     assert NOMINAL.size == 1 and CARTRIDGE.members() == [CARTRIDGE]
 
 
-@pytest.mark.slow
-def test_the_proof_counts_trips_on_the_reference_engine():
+def test_the_proof_on_the_batch_counts_the_trips_of_scalar_twins():
     """250 s of heat-up with 1 LSB of noise: zero gains stall short of the target (outside the PID's band
     the law is bang-bang) and trip Marlin's protection on most plants, M303-like gains on some; the proof
-    (tick-by-tick reference engine) counts the very trips of scalar fast-engine twins on the same cases
-    (the engines give the firmware the same samples)."""
+    (every member on seeds 1..2, candidates and seeds as lanes of one batch per member) counts the very
+    trips of one scalar fast-engine twin per case."""
     short = replace(CARTRIDGE, scenario=TuneScenario(210.0, 250.0, 25.0, ()),
                     ensemble=corner_ensemble(preset_spread(CARTRIDGE.spec), noise_lsb=1.0))
-    assert [(c.engine, c.seed, c.noise_lsb) for c in cases(short, seeds=2)] == \
-        [("reference", 1, 1.0), ("reference", 2, 1.0)] + [("reference", k, 1.0) for k in (2, 3, 4, 5)]
     table = np.array([[0.0, 0.0, 0.0], [12.0, 0.37, 100.0], [14.51, 0.4861, 268.1]])  # the last: a robust tune's
     candidates = runs(short, heater_cost, table, ["zero", "m303", "tuned"])
-    rows = prove(short, candidates, seeds=1, workers=2)
-    assert [r.method for r in rows] == ["zero", "m303", "tuned"] and {r.runs for r in rows} == {5}
-    fast = [run_scalars(replace(case, engine="fast"), table).tripped for case in cases(short, seeds=1)]
-    assert [r.trips for r in rows] == np.sum(fast, axis=0).tolist()
-    assert rows[0].trips >= 3 and not rows[0].passed and rows[1].trips >= 1 and rows[2].passed
+    rows = prove(short, candidates, seeds=2)
+    members = [m.label for m in short.ensemble.members]
+    assert [(r.member, r.method) for r in rows] == [(m, c) for m in members for c in ("zero", "m303", "tuned")]
+    assert {r.runs for r in rows} == {2}
+    scalar = {(label, seed): run_scalars(replace(member, seed=seed), table).tripped
+              for label, member in zip(members, short.members()) for seed in (1, 2)}
+    for r, k in zip(rows, [0, 1, 2] * len(members)):
+        assert r.trips == sum(int(scalar[(r.member, seed)][k]) for seed in (1, 2))
+    trips = {c: sum(r.trips for r in rows if r.method == c) for c in ("zero", "m303", "tuned")}
+    assert trips["zero"] >= 6 and trips["m303"] >= 1 and trips["tuned"] == 0
+
+
+def test_the_cross_check_equals_the_reference_engine_and_catches_a_difference(monkeypatch):
+    """The batch's readings equal the tick-by-tick reference engine's over the checked stretch; a reference
+    run that read differently (here: shifted by one LSB of temperature) stops the proof."""
+    candidate = runs(CARTRIDGE, heater_cost, GAINS[:1], ["a"])[0]
+    assert "bit for bit" in cross_check(CARTRIDGE, candidate, 20.0)
+    real = proof.run_chunk
+
+    def skewed(problem, params, record=True, seeds=None):
+        traces = real(problem, params, record, seeds)
+        if problem.engine == "reference":
+            traces.temp_c[5:] += 0.03125
+        return traces
+
+    monkeypatch.setattr(proof, "run_chunk", skewed)
+    with pytest.raises(RuntimeError, match="cross-check"):
+        cross_check(CARTRIDGE, candidate, 20.0)
 
 
 def test_a_corner_every_candidate_trips_on_is_left_out_never_the_nominal():
@@ -99,7 +125,7 @@ def test_a_corner_every_candidate_trips_on_is_left_out_never_the_nominal():
 
     from tools.tuning.tuner import hopeless_members, without_members
 
-    ensemble = corner_ensemble(preset_spread(CARTRIDGE.spec), noise_lsb=1.0)
+    ensemble = corner_ensemble(preset_spread(CARTRIDGE.spec), noise_lsb=1.0, seeds=1)
     problem = replace(CARTRIDGE, ensemble=ensemble)
     scored = [SimpleNamespace(run=SimpleNamespace(tripped=np.array(t, bool)))
               for t in ([1, 1, 0, 0, 1], [1, 1, 1, 0, 0], [1, 1, 0, 0, 1])]

@@ -47,7 +47,7 @@ def test_target_changes_are_set_halfway_between_stats_lines():
 def test_lead_in_skips_the_readings_before_klippers_first_report(hardware_logs):
     """jc1rb's sessions start with temp 0.0 lines (no report yet): a lead-in from there would start
     the plant at 0 C and trip the ADC range check."""
-    _, windows = compare._heatup_windows(load_log(hardware_logs / "klippy_stats_jc1rb_manta_m8p.csv"), "extruder")
+    _, windows = compare.heatup_windows(load_log(hardware_logs / "klippy_stats_jc1rb_manta_m8p.csv"), "extruder")
     for w in windows:
         assert w.lead_t_s.size and np.all(w.lead_temp_c > 0.0)
         assert w.t_s[0] - compare.LEAD_IN_S <= w.lead_t_s[0] < w.t_s[0]

@@ -47,10 +47,10 @@ def test_ambient_from_the_idle_bed_else_the_prior(hardware_logs):
 
 def test_bed_capture_without_its_m303_line_by_heater_flag(hardware_logs):
     """The Prusa bed run's M303 line is not in the capture (only the later hotend's M303 E0 S215): the
-    bed is chosen by --heater heater_bed, its target estimated from the switches, not taken from E0's S215."""
+    bed is chosen by --heater heater_bed, its target found in the data (the switches), not taken from E0's S215."""
     log = load_log(hardware_logs / PRUSA_BED)
     heater, (seg,) = log_segments(log, "heater_bed")
-    assert heater == "heater_bed" and seg.target_c == 60.0 and "estimated" in seg.note
+    assert heater == "heater_bed" and seg.target_c == 60.0 and "found in the data" in seg.note
     assert not seg.observed.all()  # switch instants inserted, and the burn-in before the first one
     with pytest.raises(NotFittable):
         log_segments(log, "extruder")  # the hotend's 10-line heat-up is too short

@@ -1,0 +1,363 @@
+"""The plants a log allows: the ensemble a tune from a log runs on and its proof holds on.
+
+One fit of one structure is one answer to "what plant made this log"; the data usually allow several.
+
+1. Structures: every model that applies to the log (``structures``): fopdt, sopdt, two_node, three_node
+   for a trace or an M303 capture; with a trace that spans RADIATING_SPAN_C or more, two_node and
+   three_node with the radiating loss too (below that span radiation and a linear loss cannot be told
+   apart); fopdt alone for a PID_CALIBRATE result (two numbers, the gain held).
+2. Evidence: Akaike's criterion of each fit against the best (``evidence``). Residuals already divided
+   by their scatter (relay results, and a status trace fitted with them) give sum(r^2) + 2 k. A trace's
+   residuals in C give n_eff ln(SSE / n) + 2 k, where n_eff = n (1 - rho) / (1 + rho) shrinks the sample
+   count by the best fit's lag-1 autocorrelation rho: a log's residuals are correlated (model error, a
+   1 Hz pwm), and counted as n independent samples every small gain in SSE would look decisive. A fit
+   is kept when it is within EVIDENCE_MARGIN (6) of the best: relative likelihood exp(-6/2) = 1/20.
+3. Profiles: each parameter a kept fit leaves open (``FitResult.spread()``: not identified, assumed, or
+   poorly identified) is fixed at each end of its range and the others refitted (``profiles``); an end
+   the evidence excludes is tried once more halfway (geometric mean) to the fitted value. A
+   profile counts the parameter it holds in k, so holding a parameter earns no credit.
+4. Replay: a member is kept only if the twin, replaying what the log recorded, reproduces the log's
+   own numbers (``replay``): an M303 capture's printed cycles by the twin's own M303 at the same
+   target (mean Tu and swing within tools/validation/m303_compare.py GOALS: 10 % / 25 % with a status
+   trace, 15 % / 30 % from the result lines), a PID_CALIBRATE result by the twin's PID_CALIBRATE at
+   its target (Tu and swing, the result lines' goals), a Klipper Stats heater by the twin's closed loop
+   with the printer's own gains and settings through the logged targets of a heat-up (tools/validation
+   /compare.py goals: heat-up time 10 %, overshoot 1.5 C, hold 1 C RMS), an open-loop trace by its
+   RMSE (3 C, the open-loop goal).
+5. Alike members fold: one whose FOPDT equivalent (gain, time constant, dead time) lies within
+   ALIKE_REL of a member kept before it adds no plant the loop behaves differently on.
+
+The fits and the replays run in forked worker processes (tools/forked.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tools.forked import forked_map
+from tools.ident.fit import LUMPED_MODELS, MODELS
+from tools.ident.fopdt import fopdt_equivalent
+from tools.ident.log_fit import LogFit, LogFitOptions, fit_log
+from tools.ident.lsq import LINEAR_PARAMS
+from tools.ident.result import FitResult
+from tools.ident.segments import NotFittable
+from tools.logs import Log, M303Log, StatsLog
+from tools.validation import compare, m303_compare
+from twin.klipper_twin import KlipperTwin, extruder_setup
+from twin.plants import Plant
+
+EVIDENCE_MARGIN = 6.0  # Akaike units: relative likelihood exp(-margin / 2) = 1/20 of the best fit's
+RADIATING_SPAN_C = 100.0  # a trace spanning this much: the radiating loss is fitted too
+ALIKE_REL = 0.02  # members whose FOPDT equivalents agree within this fold into one
+END_REL = 0.01  # a range end this close to the fitted value is the fit itself
+
+
+@dataclass(frozen=True)
+class Replay:
+    """What the twin on a plant predicts for the log's own numbers: (quantity, log, twin, goal) rows."""
+
+    what: str
+    rows: tuple[tuple[str, float, float, str], ...]
+    passed: bool
+    note: str = ""
+
+    def text(self) -> str:
+        cells = "; ".join(f"{name} {log:.4g} / {twin:.4g} ({goal})" for name, log, twin, goal in self.rows)
+        return f"{self.what}: {cells} (log / twin){': ' + self.note if self.note else ''}"
+
+
+@dataclass(frozen=True)
+class AllowedPlant:
+    """One fit considered: its label, the fit, its evidence against the best, its replay, and why it is
+    not a member (None: it is)."""
+
+    label: str
+    fitted: LogFit
+    delta: float
+    replay: Replay | None = None
+    dropped: str | None = None
+
+    @property
+    def result(self) -> FitResult:
+        return self.fitted.result
+
+    @property
+    def ambient_c(self) -> float:
+        return self.result.ambient_c
+
+
+@dataclass(frozen=True)
+class Allowed:
+    """The plants a log allows (members, the best fit first) and the fits it does not, with the reason."""
+
+    log_name: str
+    heater: str
+    members: list[AllowedPlant]
+    dropped: list[AllowedPlant] = field(default_factory=list)
+
+    @property
+    def best(self) -> LogFit:
+        return self.members[0].fitted
+
+    def lines(self) -> list[str]:
+        """What twin-fit and twin-tune print: each member and each dropped fit, with its evidence and replay."""
+        out = [f"the plants {self.log_name} allows ({len(self.members)} of {len(self.members) + len(self.dropped)} "
+               f"fits considered; evidence: Akaike's criterion against the best, kept within {EVIDENCE_MARGIN:g}; "
+               "each member replays the log):"]
+        for plant in self.members:
+            out.append(f"  member {plant.label}: delta {plant.delta:.1f}, "
+                       f"{plant.replay.text() if plant.replay else 'no replay'}")
+        for plant in self.dropped:
+            out.append(f"  dropped {plant.label}: {plant.dropped}")
+        return out
+
+
+# -- 1. structures ------------------------------------------------------------------------------------
+def structures(log: Log, first: LogFit) -> list[tuple[str, str]]:
+    """(model, loss) pairs that apply to the log (module docstring, 1)."""
+    if isinstance(log, list):
+        return [("fopdt", "linear")]
+    pairs = [(model, "linear") for model in MODELS]
+    seg = first.segment
+    if first.result.evidence == "trace" and seg is not None and np.ptp(seg.temp_c) >= RADIATING_SPAN_C:
+        pairs += [(model, "radiating") for model in LUMPED_MODELS]
+    return pairs
+
+
+def _label(model: str, loss: str) -> str:
+    return model + (", radiating" if loss == "radiating" else "")
+
+
+# -- 2. evidence --------------------------------------------------------------------------------------
+def _parameters(result: FitResult, held: int) -> int:
+    return len(result.params) + held
+
+
+def evidence(results: list[FitResult], held: list[int]) -> np.ndarray:
+    """Each fit's criterion minus the best's (module docstring, 2); ``held``: parameters a profile holds."""
+    k = np.array([_parameters(r, h) for r, h in zip(results, held)], float)
+    sse = np.array([float(np.sum(np.square(r.residuals_c))) for r in results])
+    if results[0].evidence != "trace":  # residuals in units of their scatter
+        criterion = sse + 2.0 * k
+    else:
+        best = results[int(np.argmin(sse))].residuals_c
+        n = len(best)
+        rho = float(np.corrcoef(best[:-1], best[1:])[0, 1]) if n > 2 and np.std(best) > 0 else 0.0
+        n_eff = float(np.clip(n * (1.0 - rho) / (1.0 + rho), k.max() + 2.0, n))
+        criterion = n_eff * np.log(np.maximum(sse, 1e-300) / n) + 2.0 * k
+    return criterion - criterion.min()
+
+
+# -- 3. profiles --------------------------------------------------------------------------------------
+def _profile_options(options: LogFitOptions, result: FitResult, name: str, value: float) -> LogFitOptions:
+    """The options that refit ``result``'s structure with ``name`` held at ``value``, from its own values."""
+    start = tuple((k, v) for k, v in result.params.items() if k != name)
+    if name == "ambient_c":
+        return dataclasses.replace(options, ambient_c=value, start=start)
+    return dataclasses.replace(options, fixed=options.fixed + ((name, value),), start=start)
+
+
+def profile_points(result: FitResult) -> list[tuple[str, float, float]]:
+    """(parameter, fitted value, range end) for each end of each parameter the fit leaves open."""
+    out = []
+    for r in result.spread():
+        value = result.values[r.name]
+        for end in (r.low, r.high):
+            if abs(end - value) > END_REL * max(abs(value), 1e-9):
+                out.append((r.name, value, end))
+    return out
+
+
+def halfway(name: str, value: float, end: float) -> float:
+    """The point halfway from a fitted value to a range end: geometric for the parameters fitted as
+    logarithms, arithmetic for the others (tools/ident/lsq.py LINEAR_PARAMS)."""
+    if name in LINEAR_PARAMS or value <= 0 or end <= 0:
+        return (value + end) / 2.0
+    return math.sqrt(value * end)
+
+
+def _end_label(name: str, value: float, end: float, at: float) -> str:
+    where = "low" if end < value else "high"
+    part = "end" if at == end else "halfway to the end"
+    return f"{name} {at:.4g} ({part} {where}, fitted {value:.4g})"
+
+
+# -- 4. replay ----------------------------------------------------------------------------------------
+def replay(log: Log, fitted: LogFit, info: compare.HeaterInfo | None) -> Replay:
+    """The twin on a fitted plant against the log's own numbers (module docstring, 4)."""
+    result = fitted.result
+    if isinstance(log, M303Log) and fitted.points:
+        try:
+            row = m303_compare.replay_fit(log, fitted)
+        except m303_compare.NoRelay as exc:
+            return Replay("the twin's M303", (), False, str(exc))
+        goal_tu, goal_swing = row.goals
+        tu_goal = "on the 10 s relay floor: not scored" if row.floor else f"within {goal_tu:.0%}"
+        return Replay(f"the twin's M303 at {result.anchor_c:g} C against the {row.log.cycles} printed cycles",
+                      (("Tu s", row.log.tu_s, row.twin.tu_s, tu_goal),
+                       ("swing C", row.log.swing_c, row.twin.swing_c, f"within {goal_swing:.0%}")), row.passed)
+    if isinstance(log, list) and fitted.points:
+        return _pid_calibrate_replay(fitted)
+    if isinstance(log, StatsLog) and info is not None:
+        return _closed_loop_replay(log, fitted, info)
+    residuals = fitted.trace_residuals_c()
+    rmse = float(np.sqrt(np.mean(residuals ** 2))) if residuals.size else math.inf
+    goal = compare.GOAL_OPEN_LOOP_RMSE_C
+    return Replay("the plant under the logged duty", (("trace RMSE C", 0.0, rmse, f"at most {goal:g} C"),),
+                  rmse <= goal)
+
+
+def _pid_calibrate_replay(fitted: LogFit) -> Replay:
+    point, result = fitted.points[0], fitted.result
+    target_c = point.relay.target_c
+    ambient_c = result.ambient_c
+    twin = KlipperTwin([extruder_setup(Plant(result.model, result.spec(), ambient_c, ambient_c),
+                                       max_power=point.relay.on_duty, max_temp_c=target_c + 50.0)])
+    goal_tu, goal_swing = m303_compare.GOALS["results"]
+    try:
+        got = twin.pid_calibrate("extruder", target_c)
+    except Exception as exc:  # noqa: BLE001 - a shutdown or a timeout: the plant cannot replay it
+        return Replay("the twin's PID_CALIBRATE", (), False, f"did not finish: {exc}")
+    tu_ok = abs(got.tu_s / point.tu_s - 1.0) <= goal_tu
+    swing_ok = abs(got.peak_to_peak_c / point.swing_c - 1.0) <= goal_swing
+    return Replay(f"the twin's PID_CALIBRATE at {target_c:g} C", (
+        ("Tu s", point.tu_s, got.tu_s, f"within {goal_tu:.0%}"),
+        ("swing C", point.swing_c, got.peak_to_peak_c, f"within {goal_swing:.0%}")), tu_ok and swing_ok)
+
+
+def _closed_loop_replay(log: StatsLog, fitted: LogFit, info: compare.HeaterInfo) -> Replay:
+    try:
+        _, windows = compare.heatup_windows(log, fitted.heater)
+    except compare.Unusable as exc:
+        return Replay("the twin's closed loop", (), False, str(exc))
+    if not windows:
+        return Replay("the twin's closed loop", (), False, "no heat-up to replay")
+    seg = fitted.segment
+    own = [w for w in windows if seg is not None and compare.overlaps(w, seg)]
+    window = (own or windows)[0]
+    r = compare.score_replay("", fitted.heater, fitted.result, "", info, window, bool(own))
+    checks = r.checks
+    return Replay(f"the twin's closed loop with the printer's gains, {window.label}", (
+        ("heat-up s", r.log.heatup_s, r.twin.heatup_s, f"within {compare.GOAL_HEATUP_REL:.0%}"),
+        ("overshoot C", r.log.overshoot_c, r.twin.overshoot_c, f"within {compare.GOAL_OVERSHOOT_C:g} C"),
+        ("hold RMS twin-log C", 0.0, r.hold_rmse_c, f"at most {compare.GOAL_HOLD_RMSE_C:g} C")),
+        all(checks.values()), "" if r.shutdown is None else f"the twin shut down: {r.shutdown.splitlines()[0]}")
+
+
+# -- the ensemble -------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Task:
+    label: str
+    options: LogFitOptions
+    held: int
+
+
+def _fit(log: Log) -> Callable[[_Task], LogFit | str]:
+    def run(task: _Task) -> LogFit | str:
+        try:
+            return fit_log(log, task.options)
+        except (NotFittable, ValueError) as exc:
+            return str(exc)
+    return run
+
+
+def _considered(tasks: list[_Task], fits: list[LogFit | str], deltas_of: Callable[[list[LogFit]], np.ndarray]
+                ) -> list[AllowedPlant]:
+    ok = [(t, f) for t, f in zip(tasks, fits) if isinstance(f, LogFit)]
+    deltas = deltas_of([f for _, f in ok]) if ok else np.zeros(0)
+    out = [AllowedPlant(t.label, f, float(d), dropped=None if d <= EVIDENCE_MARGIN else
+                        f"the evidence excludes it (delta {d:.1f} > {EVIDENCE_MARGIN:g})")
+           for (t, f), d in zip(ok, deltas)]
+    return out
+
+
+def allowed_plants(log: Log, log_name: str, options: LogFitOptions | None = None,
+                   on_step: Callable[[str, int], Callable[[], None]] | None = None) -> Allowed:
+    """The plants the log allows (module docstring). ``on_step(what, count)`` returns a callable that is
+    called once per finished task of that step (a progress bar). NotFittable or ValueError where not one
+    structure fits."""
+    options = options or LogFitOptions()
+    first = fit_log(log, options)  # the default fit: the heater, the segment, what kind of evidence
+    info = heater_settings(log, first.heater)
+    base = dataclasses.replace(options, heater=first.heater, target_c=options.target_c or first.result.anchor_c)
+    tasks = [_Task(_label(m, loss), dataclasses.replace(base, model=m, loss=loss), 0)
+             for m, loss in structures(log, first)]
+    fits = forked_map(_fit(log), tasks, on_done=_step(on_step, "fitting the structures", len(tasks)))
+    failed = [AllowedPlant(t.label, first, math.inf, dropped=f"does not fit: {f}")
+              for t, f in zip(tasks, fits) if isinstance(f, str)]
+    considered = _considered(tasks, fits, lambda ok: evidence([f.result for f in ok], [0] * len(ok)))
+    kept = [p for p in considered if p.dropped is None]
+    if not kept:
+        raise NotFittable(f"{log_name}: no structure fits")
+    best_result = min(kept, key=lambda p: p.delta).result
+
+    # profiles of every kept structure
+    profile_tasks = []
+    for plant in kept:
+        task_options = next(t.options for t in tasks if t.label == plant.label)
+        for name, value, end in profile_points(plant.result):
+            profile_tasks.append((plant.label, task_options, plant.result, name, value, end))
+
+    def run_profiles(ends: list[tuple]) -> list[AllowedPlant]:
+        jobs = [_Task(f"{label}: {_end_label(name, value, end, at)}",
+                      _profile_options(opts, result, name, at), 1) for label, opts, result, name, value, end, at in ends]
+        results = forked_map(_fit(log), jobs, on_done=_step(on_step, "profiling what the log leaves open", len(jobs)))
+        good = [(j, f) for j, f in zip(jobs, results) if isinstance(f, LogFit)]
+        deltas: np.ndarray = evidence([best_result] + [f.result for _, f in good], [0] + [j.held for j, _ in good])[1:] \
+            if good else np.zeros(0)
+        # against the best fit: a profile's criterion minus the best's (which the evidence above keeps at 0 or more)
+        return [AllowedPlant(j.label, f, float(d), dropped=None if d <= EVIDENCE_MARGIN else
+                             f"the evidence excludes it (delta {d:.1f} > {EVIDENCE_MARGIN:g})")
+                for (j, f), d in zip(good, deltas)]
+
+    ends = run_profiles([(*t, t[5]) for t in profile_tasks])
+    retry = [(*t, halfway(t[3], t[4], t[5])) for t, p in zip(profile_tasks, ends) if p.dropped]
+    profiled = ends + run_profiles(retry) if retry else ends
+
+    candidates = kept + [p for p in profiled if p.dropped is None]
+    replays = forked_map(lambda p: replay(log, p.fitted, info), candidates,
+                         on_done=_step(on_step, "replaying the log on each plant", len(candidates)))
+    members: list[AllowedPlant] = []
+    dropped = failed + [p for p in considered if p.dropped] + [p for p in profiled if p.dropped]
+    for plant, r in sorted(zip(candidates, replays), key=lambda pr: pr[0].delta):
+        plant = dataclasses.replace(plant, replay=r)
+        if not r.passed:
+            dropped.append(dataclasses.replace(plant, dropped=f"does not replay the log: {r.text()}"))
+        elif (twin := _alike(plant, members)) is not None:
+            dropped.append(dataclasses.replace(plant, dropped=f"alike {twin.label} (FOPDT equivalents within "
+                                                              f"{ALIKE_REL:.0%})"))
+        else:
+            members.append(plant)
+    return Allowed(log_name, first.heater, members, dropped)
+
+
+def _alike(plant: AllowedPlant, members: list[AllowedPlant]) -> AllowedPlant | None:
+    mine = np.array(fopdt_equivalent(plant.result))
+    for member in members:
+        theirs = np.array(fopdt_equivalent(member.result))
+        if np.all(np.abs(mine - theirs) <= ALIKE_REL * np.abs(theirs)) and abs(plant.ambient_c - member.ambient_c) < 1:
+            return member
+    return None
+
+
+def heater_settings(log: Log, heater: str) -> compare.HeaterInfo | None:
+    """A klippy.log heater's settings (sensor, max_power, gains, ...), None for other logs or a heater without PID."""
+    if not isinstance(log, StatsLog):
+        return None
+    try:
+        return compare.heater_info(log, heater)
+    except compare.Unusable:
+        return None
+
+
+def _step(on_step: Callable[[str, int], Callable[[], None]] | None, what: str, count: int
+          ) -> Callable[[], None] | None:
+    return None if on_step is None else on_step(what, count)
+
+
+__all__ = ["Allowed", "AllowedPlant", "Replay", "allowed_plants", "evidence"]

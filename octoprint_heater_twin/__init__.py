@@ -8,6 +8,7 @@ through OctoPrint's ``octoprint.plugin`` entry point (pyproject.toml); docs/octo
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import flask
@@ -90,8 +91,8 @@ class HeaterTwinPlugin(octoprint.plugin.SettingsPlugin, octoprint.plugin.Templat
     def _request(self, command: str, data: dict) -> str | None:
         if command == "start":
             timeout_s = 60.0 * self._settings.get_float(["autotune_timeout_min"])
-            return self.session.start(str(data["heater"]), _number(data, "target_c", float),
-                                      _number(data, "cycles", int), timeout_s)
+            return self.session.start(str(data["heater"]), _number(data, "target_c"), _integer(data, "cycles"),
+                                      timeout_s)
         if command == "paste":
             return self.session.paste(str(data["text"]), str(data["heater"]))
         return self.session.apply()
@@ -123,12 +124,22 @@ class HeaterTwinPlugin(octoprint.plugin.SettingsPlugin, octoprint.plugin.Templat
             self.session.on_printer_lost((payload or {}).get("error", "error"))
 
 
-def _number(data: dict, field: str, kind: type[int] | type[float]) -> int | float:
+def _number(data: dict, field: str) -> float:
     """A number from the request, or ValueError naming the field."""
     try:
-        return kind(data[field])
+        value = float(data[field])
     except (TypeError, ValueError):
-        raise ValueError(f"{field} {data[field]!r}: not {'an integer' if kind is int else 'a number'}") from None
+        value = math.nan
+    if not math.isfinite(value):
+        raise ValueError(f"{field} {data[field]!r}: not a number")
+    return value
+
+
+def _integer(data: dict, field: str) -> int:
+    value = _number(data, field)
+    if not value.is_integer():
+        raise ValueError(f"{field} {data[field]!r}: not a whole number")
+    return int(value)
 
 
 __plugin_name__ = "Heater tuning (heater-twin)"

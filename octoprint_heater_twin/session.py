@@ -54,7 +54,8 @@ class Session:
         self.reply_open = False  # our M503 has been sent and its lines are being read
         self.m303 = ""
         self.result: str | None = None  # the autotune's end as Marlin says it: FINISHED, or its failure line
-        self.current: Gains | None = None
+        self.current: Gains | None = None  # the printer's gains, the ones to beat
+        self.current_from: str | None = None  # where the plugin read them
         self.progress: tuner.Progress | None = None
         self.messages: list[str] = []
         self.answer: dict | None = None
@@ -96,6 +97,7 @@ class Session:
             self._new_run(heater)
             self.capture = lines
             self.current = last_gains(lines, heater)
+            self.current_from = "M503 in the paste" if self.current else None
             self._tune()
         return None
 
@@ -122,6 +124,7 @@ class Session:
                 self.reply, self.reply_open = [], True
             elif command == self.m303 and self.phase == READING:
                 self.current = last_gains(self.reply, self.heater)
+                self.current_from = "the printer's M503" if self.current else None
                 self.reply_open = False
                 self.phase = AUTOTUNE
                 self.capture = [sent(command)]
@@ -226,7 +229,7 @@ class Session:
             return {
                 "phase": self.phase, "busy": self.phase in BUSY, "doing": BUSY.get(self.phase), "error": self.error,
                 "heater": self.heater, "run": self.run_id, "console": self.capture[-CONSOLE_LINES:],
-                "current": None if self.current is None else self.current._asdict(),
+                "current": None if self.current is None else self.current._asdict(), "current_from": self.current_from,
                 "progress": None if self.progress is None else self.progress.__dict__, "messages": self.messages,
                 "answer": self.answer, "applied": self.applied,
                 "plot": bool(self.answer and self.answer.get("plot")),
@@ -248,7 +251,7 @@ class Session:
     def _new_run(self, heater: str) -> None:
         self.runs += 1
         self.run_id = f"{time.strftime('%Y%m%d-%H%M%S')}-{self.runs}"
-        self.heater, self.error, self.result, self.current = heater, None, None, None
+        self.heater, self.error, self.result, self.current, self.current_from = heater, None, None, None, None
         self.capture, self.reply, self.reply_open, self.messages = [], [], False, []
         self.progress, self.answer, self.applied = None, None, None
 

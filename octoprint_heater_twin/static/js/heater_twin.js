@@ -29,6 +29,7 @@ $(function () {
         self.answer = ko.observable(null);
         self.applied = ko.observable(null);
         self.hasPlot = ko.observable(false);
+        self.currentFrom = ko.observable(null);
 
         self.mayControl = ko.pureComputed(function () {
             return self.loginState.hasPermission(self.access.permissions.CONTROL);
@@ -62,6 +63,20 @@ $(function () {
             return BASEURL + "api/plugin/" + PLUGIN + "?plot=" + self.run();
         });
 
+        // per plant, the answer's row (else the best other candidate's: what did not beat yours) and yours
+        self.proofRows = ko.pureComputed(function () {
+            var a = self.answer();
+            if (!a) return [];
+            var shown = {};
+            return _.filter(a.proof, function (row) {
+                var key = row.member + (row.candidate === "yours" ? "/yours" : "/other");
+                var pick = row.candidate === "yours" || row.candidate === "answer" || !a.answer;
+                if (!pick || shown[key]) return false;
+                shown[key] = true;
+                return true;
+            });
+        });
+
         self.verdictText = function () {
             var a = self.answer();
             if (!a) return "";
@@ -70,11 +85,13 @@ $(function () {
         self.gain = function (value) {
             return String(parseFloat(Number(value).toPrecision(GAIN_DIGITS)));
         };
-        self.meanWorst = function (pair) {
-            return pair ? pair[0].toPrecision(3) + " / " + pair[1].toPrecision(3) : "-";
+        // a proof row's [mean, worst] to ``decimals`` (as twin-tune's own table: 2 for C, 3 for chatter)
+        self.meanWorst = function (pair, decimals) {
+            return pair ? pair[0].toFixed(decimals) + " / " + pair[1].toFixed(decimals) : "-";
         };
         self.memberText = function (member) {
-            var delta = member.delta === null || member.delta === undefined ? "" : "(delta " + member.delta + ") ";
+            // delta: Akaike units behind the best fit (twin-tune's plants the log allows)
+            var delta = member.delta === null || member.delta === undefined ? "" : "(delta " + member.delta.toFixed(1) + ") ";
             return delta + member.replay;
         };
 
@@ -99,6 +116,7 @@ $(function () {
             self.answer(state.answer);
             self.applied(state.applied);
             self.hasPlot(state.plot);
+            self.currentFrom(state.current_from);
         };
 
         self.request = function (command, data) {

@@ -178,10 +178,9 @@ class Session:
         if not is_ok(text) or read is None:
             return
         self._cancel_timer()
-        code = HEATERS[self.heater][0]
-        expected = gains_in(self.answer["commands"][0], self.heater)
+        code, command = HEATERS[self.heater][0], self.answer["commands"][0]
+        expected = gains_in(command, self.heater)
         holds = expected is not None and expected.holds(read)
-        command = self.answer["commands"][0]
         if not holds:
             said = f"The printer reports {code} {read.text()} after Apply, not the gains sent ({command})"
         elif self.problems:

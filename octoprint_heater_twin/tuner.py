@@ -1,0 +1,91 @@
+"""heater-twin's tuner, run as twin-tune in a process of its own (the tune is CPU-heavy: never in
+OctoPrint's), at a lower priority so that the server and a print stay responsive.
+
+Its contract (docs/octoprint.md): ``--progress lines`` prints ``progress: <step> <done>/<total>`` on
+stderr, anything else there is a message, and on failure the last line is the one-line error; exit 0
+is an answer in ``--json``'s file, 1 no answer could be proven, 2 bad input.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from octoprint_heater_twin.console import Gains
+
+PROGRESS_RE = re.compile(r"^progress: (.+) (\d+)/(\d+)$")
+NICENESS = 10  # below OctoPrint's own priority; a tune takes minutes on a Raspberry Pi
+EXIT_ANSWER, EXIT_UNPROVEN, EXIT_BAD_INPUT = 0, 1, 2
+CAPTURE, ANSWER, PLOT, REPORT = "capture.txt", "answer.json", "plot.png", "twin-tune.txt"  # a run's files
+
+
+@dataclass(frozen=True)
+class Progress:
+    step: str
+    done: int
+    total: int
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What a tune gave: the answer (ANSWER.json's content), or the one-line error."""
+
+    answer: dict | None
+    error: str | None
+
+
+def twin_tune() -> Path:
+    """The twin-tune console script of OctoPrint's own environment (the ``octoprint`` extra installs both)."""
+    return Path(sys.executable).with_name("twin-tune")
+
+
+def command(run_dir: Path, heater: str, current: Gains | None) -> list[str]:
+    args = [str(twin_tune()), "--from-log", str(run_dir / CAPTURE), "--heater", heater]
+    if current is not None:
+        args += ["--current-gains", current.flag()]
+    return args + ["--json", str(run_dir / ANSWER), "--progress", "lines", "--plot", str(run_dir / PLOT)]
+
+
+def progress(line: str) -> Progress | None:
+    m = PROGRESS_RE.match(line)
+    return Progress(m[1], int(m[2]), int(m[3])) if m else None
+
+
+def _lower_priority() -> None:
+    os.nice(NICENESS)
+
+
+def run(run_dir: Path, heater: str, current: Gains | None, on_progress: Callable[[Progress], None],
+        on_message: Callable[[str], None]) -> Outcome:
+    """Tune the capture in ``run_dir`` (blocking: call it from a thread); its report goes to REPORT."""
+    args = command(run_dir, heater, current)
+    last = ""
+    try:
+        with open(run_dir / REPORT, "w") as report, subprocess.Popen(
+                args, stdout=report, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,
+                preexec_fn=_lower_priority) as proc:
+            assert proc.stderr is not None
+            for raw in proc.stderr:
+                line = raw.rstrip()
+                if step := progress(line):
+                    on_progress(step)
+                elif line:
+                    last = line
+                    on_message(line)
+    except OSError as exc:
+        return Outcome(None, f"twin-tune could not start: {exc.strerror or exc} ({args[0]})")
+    answer_path = run_dir / ANSWER
+    if proc.returncode == EXIT_ANSWER:
+        try:
+            return Outcome(json.loads(answer_path.read_text()), None)
+        except (OSError, ValueError) as exc:
+            return Outcome(None, f"twin-tune's answer {answer_path} is unreadable: {exc}")
+    if proc.returncode == EXIT_UNPROVEN:
+        return Outcome(None, last or "twin-tune: no answer could be proven")
+    return Outcome(None, last or f"twin-tune stopped with status {proc.returncode}")

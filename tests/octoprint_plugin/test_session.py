@@ -1,0 +1,241 @@
+"""The plugin's session without a server: what it sends, what it reads of Marlin's replies, and the one
+line it says when something goes wrong. The printer is a recorder that the test answers with the lines
+twin-serial prints (docs/serial.md); the tune itself runs in tests/octoprint_plugin/test_tab.py."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from tests.helpers.octoprint_server import require_octoprint
+
+require_octoprint()
+
+from octoprint_heater_twin import session as tab  # noqa: E402  (OctoPrint first: the package imports it)
+from octoprint_heater_twin import tuner  # noqa: E402
+from octoprint_heater_twin.console import Gains, autotune_command, gains_in  # noqa: E402
+
+TIMEOUT_S = 3600.0  # a test's autotune never times out unless it says so
+M503 = ["echo:; Hotend PID:", "echo:  M301 P19.96 I2.06 D48.23", "echo:; Bed PID:",
+        "echo:  M304 P86.92 I10.40 D484.20", "ok"]
+ANSWER = {"verdict": "new gains", "why": "beats yours on every member", "heater": "extruder", "target_c": 210.0,
+          "loop": "marlin", "current": {"kp": 19.96, "ki": 2.06, "kd": 48.23, "source": "M503"},
+          "answer": {"kp": 22.37, "ki": 1.873, "kd": 66.81}, "commands": ["M301 E0 P22.37 I1.873 D66.81", "M500"],
+          "members": [], "proof": [], "plot": None}
+
+
+class Printer:
+    """Records what the session queues; refuses with ``refused`` when set."""
+
+    def __init__(self):
+        self.sent: list[str] = []
+        self.refused: str | None = None
+
+    def refusal(self) -> str | None:
+        return self.refused
+
+    def send(self, commands: list[str]) -> None:
+        self.sent += commands
+
+
+@pytest.fixture
+def printer():
+    return Printer()
+
+
+@pytest.fixture
+def session(tmp_path, printer):
+    published: list[dict] = []
+    made = tab.Session(tmp_path / "runs", printer, published.append)
+    made.published = published  # type: ignore[attr-defined]
+    yield made
+    made._cancel_timer()
+
+
+def until(test, timeout_s: float = 10.0) -> bool:
+    """Whether ``test()`` comes true within ``timeout_s`` (the session's timer and tune run on threads)."""
+    deadline = time.monotonic() + timeout_s
+    while not test() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return test()
+
+
+def reply(session: tab.Session, *lines: str) -> None:
+    for line in lines:
+        session.on_received(line + "\n")
+
+
+def test_the_gains_are_read_from_marlins_lines():
+    assert gains_in("echo:  M301 P19.96 I2.06 D48.23", "extruder") == Gains(19.96, 2.06, 48.23)
+    assert gains_in("echo:  M301 E0 P22.2 I1.08 D114 C100", "extruder") == Gains(22.2, 1.08, 114.0)
+    assert gains_in("echo:  M304 P86.92 I10.40 D484.20", "extruder") is None
+    assert gains_in("M304 P86.92 I10.40 D484.20", "heater_bed") == Gains(86.92, 10.4, 484.2)
+    assert autotune_command("extruder", 210.0, 8) == "M303 E0 S210 C8"
+    assert autotune_command("heater_bed", 60.5, 5) == "M303 E-1 S60.5 C5"
+
+
+def test_gains_hold_when_m503_prints_them_to_its_two_decimals():
+    sent = Gains(22.37, 1.873, 66.81)
+    assert sent.holds(Gains(22.37, 1.87, 66.81))
+    assert not sent.holds(Gains(22.37, 1.88, 66.81))
+    assert not sent.holds(Gains(19.96, 2.06, 48.23))
+
+
+def test_the_tuner_is_called_as_its_contract_says(tmp_path):
+    args = tuner.command(tmp_path, "heater_bed", Gains(86.92, 10.4, 484.2))
+    assert args[0].endswith("twin-tune")
+    assert args[1:] == ["--from-log", str(tmp_path / "capture.txt"), "--heater", "heater_bed",
+                        "--current-gains", "86.92,10.4,484.2", "--json", str(tmp_path / "answer.json"),
+                        "--progress", "lines", "--plot", str(tmp_path / "plot.png")]
+    assert "--current-gains" not in tuner.command(tmp_path, "extruder", None)
+    assert tuner.progress("progress: fitting 3/7") == tuner.Progress("fitting", 3, 7)
+    assert tuner.progress("twin-tune: progress: 3/7 was a message") is None
+
+
+def test_start_reads_the_gains_then_captures_the_autotune(session, printer):
+    assert session.start("extruder", 210.0, 8, TIMEOUT_S) is None
+    assert printer.sent == ["M503", "M303 E0 S210 C8"]
+    session.on_sending("M503")
+    reply(session, *M503)
+    session.on_sending("M303 E0 S210 C8")
+    assert session.phase == tab.AUTOTUNE and session.current == Gains(19.96, 2.06, 48.23)
+    reply(session, "PID Autotune start", " T:24.97 /0.00 B:24.97 /0.00 @:127 B@:0")
+    assert session.capture == ["Send: M303 E0 S210 C8", "Recv: PID Autotune start",
+                               "Recv:  T:24.97 /0.00 B:24.97 /0.00 @:127 B@:0"]
+    assert {"line": "Recv: PID Autotune start"} in session.published
+
+
+@pytest.mark.parametrize("why", ["The printer is busy (Printing): it must be idle, not printing",
+                                 "The printer is not connected (Offline): connect it first"])
+def test_start_refuses_a_printer_that_cannot_take_it_and_sends_nothing(session, printer, why):
+    printer.refused = why
+    assert session.start("extruder", 210.0, 8, TIMEOUT_S) == why
+    assert printer.sent == [] and session.phase == tab.IDLE
+
+
+def test_start_refuses_while_a_run_is_on(session, printer):
+    session.start("extruder", 210.0, 8, TIMEOUT_S)
+    assert session.start("extruder", 210.0, 8, TIMEOUT_S) == "Busy: reading the printer's gains"
+    assert session.paste("PID Autotune start", "extruder") == "Busy: reading the printer's gains"
+    assert printer.sent == ["M503", "M303 E0 S210 C8"]
+
+
+@pytest.mark.parametrize(("args", "error"), [
+    (("nozzle", 210.0, 8), "heater 'nozzle': choose one of extruder, heater_bed"),
+    (("extruder", 0.0, 8), "target 0 C: must be above 0 C"),
+    (("extruder", 210.0, 2), "cycles 2: Marlin's autotune needs at least 3"),
+])
+def test_bad_requests_are_one_line(session, printer, args, error):
+    assert session.start(*args, TIMEOUT_S) == error
+    assert printer.sent == []
+
+
+def _autotune(session: tab.Session) -> None:
+    session.start("extruder", 210.0, 8, TIMEOUT_S)
+    session.on_sending("M503")
+    reply(session, *M503)
+    session.on_sending("M303 E0 S210 C8")
+
+
+@pytest.mark.parametrize("failure", ["PID Autotune failed! Temperature too high", "PID Autotune failed! timeout",
+                                     "PID Autotune failed! Bad heater id"])
+def test_a_failed_autotune_says_the_firmwares_own_words(session, failure):
+    _autotune(session)
+    reply(session, "PID Autotune start", failure, "ok")
+    assert (session.phase, session.error) == (tab.IDLE, failure)
+    assert session.published[-1]["state"]["error"] == failure
+
+
+def test_an_autotune_without_marlins_result_says_so(session):
+    _autotune(session)
+    reply(session, "echo:Unknown command: \"M303 E0 S210 C8\"", "ok")
+    assert session.error == "M303 E0 S210 C8 ended without Marlin's result (no 'PID Autotune finished' line)"
+
+
+def test_a_kill_during_the_autotune_is_the_firmwares_error_line(session):
+    _autotune(session)
+    reply(session, "Error:Thermal Runaway, system stopped! Heater_ID: 0", "Error:Printer halted. kill() called!")
+    session.on_printer_lost("Error:Printer halted. kill() called!")
+    assert session.error == "Error:Thermal Runaway, system stopped! Heater_ID: 0"
+
+
+def test_a_silent_printer_times_out(session):
+    session.start("extruder", 210.0, 8, 0.05)
+    session.on_sending("M503")
+    assert until(lambda: session.phase == tab.IDLE)
+    assert session.error == "The autotune timed out: no result from the printer within 0.000833333 min"
+
+
+def _answered(session: tab.Session, answer: dict) -> None:
+    session.run_id, session.phase, session.answer = "run", tab.ANSWER, answer
+
+
+def test_apply_sends_the_answer_then_reads_it_back(session, printer):
+    _answered(session, ANSWER)
+    assert session.apply() is None
+    assert printer.sent == ["M301 E0 P22.37 I1.873 D66.81", "M500", "M503"]
+    reply(session, "ok", "echo:Settings Stored (144 bytes; crc 41611)", "ok")
+    session.on_sending("M503")
+    reply(session, "echo:; Hotend PID:", "echo:  M301 P22.37 I1.87 D66.81", "echo:; Bed PID:",
+          "echo:  M304 P86.92 I10.40 D484.20", "ok")
+    assert session.phase == tab.APPLIED
+    assert session.applied == {"holds": True, "read": {"kp": 22.37, "ki": 1.87, "kd": 66.81},
+                               "line": "The printer holds the new gains: M301 P22.37 I1.87 D66.81 (M503), stored with M500"}
+
+
+def test_apply_says_when_the_printer_does_not_hold_the_gains(session):
+    _answered(session, ANSWER)
+    session.apply()
+    reply(session, "echo:M301 gains clamped to the twin's range", "ok", "echo:Error writing to EEPROM!",
+          "echo:Settings Stored (144 bytes; crc 41611)", "ok")
+    session.on_sending("M503")
+    reply(session, "echo:  M301 P19.96 I2.06 D48.23", "ok")
+    assert session.applied["holds"] is False
+    assert session.applied["line"] == ("The printer reports M301 P19.96 I2.06 D48.23 after Apply, not the gains "
+                                       "sent (M301 E0 P22.37 I1.873 D66.81)")
+
+
+def test_apply_reports_an_eeprom_that_did_not_store(session):
+    _answered(session, ANSWER)
+    session.apply()
+    reply(session, "ok", "echo:Error writing to EEPROM!", "echo:Settings Stored (144 bytes; crc 41611)", "ok")
+    session.on_sending("M503")
+    reply(session, "echo:  M301 P22.37 I1.87 D66.81", "ok")
+    assert session.applied["holds"] is False
+    assert session.applied["line"] == ("The printer holds M301 P22.37 I1.87 D66.81, but it answered: "
+                                       "echo:Error writing to EEPROM!")
+
+
+def test_keep_your_gains_has_nothing_to_apply(session, printer):
+    _answered(session, {**ANSWER, "verdict": "keep your gains", "answer": None, "commands": []})
+    assert session.apply() == "There are no new gains to apply"
+    assert printer.sent == []
+
+
+def test_apply_refuses_a_busy_printer(session, printer):
+    _answered(session, ANSWER)
+    printer.refused = "The printer is busy (Printing): it must be idle, not printing"
+    assert session.apply() == printer.refused
+    assert printer.sent == [] and session.phase == tab.ANSWER
+
+
+def test_an_empty_paste_is_refused(session):
+    assert session.paste("\n  \n", "extruder") == "The pasted capture is empty: paste the console text of an M303 run"
+
+
+def test_a_paste_takes_the_gains_to_beat_from_m503_in_it(session, monkeypatch):
+    ran = threading.Event()
+
+    def run(run_dir, heater, current, on_progress, on_message):
+        assert (run_dir / tuner.CAPTURE).read_text() == "Recv: echo:  M301 P19.96 I2.06 D48.23\nRecv: bias: 1\n"
+        ran.current = current  # type: ignore[attr-defined]
+        ran.set()
+        return tuner.Outcome(None, "twin-tune: capture.txt line 2: a bias line without bias, d, min and max")
+
+    monkeypatch.setattr(tuner, "run", run)
+    assert session.paste("Recv: echo:  M301 P19.96 I2.06 D48.23\nRecv: bias: 1", "extruder") is None
+    assert ran.wait(10) and ran.current == Gains(19.96, 2.06, 48.23)  # type: ignore[attr-defined]
+    assert until(lambda: session.phase == tab.IDLE)
+    assert session.error == "twin-tune: capture.txt line 2: a bias line without bias, d, min and max"

@@ -44,7 +44,7 @@ from tools.ident.relay_trace import AMBIENT_PRIOR_C
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, Log, LogError, M303Log, StatsLog
-from tools.cli.progress import Steps
+from tools.progress import Steps
 from tools.tuning.allowed import allowed_plants
 from tools.tuning.evaluate import Problem
 from tools.tuning.problems import allowed_source, build_problem, quick_answer

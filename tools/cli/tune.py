@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from tools.cli.args import check_output, finite_float, output_file, plot_path
-from tools.cli.progress import PROGRESS_MODES, Steps
+from tools.progress import PROGRESS_MODES, Steps
 from twin.limits import NOISE_MAX_LSB, SEED_MAX
 from tools.entry import OneLineParser, run_main
 from tools.tuning.controllers import controller_names

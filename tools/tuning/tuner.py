@@ -299,6 +299,6 @@ def _steps(progress: bool) -> Step | None:
     """tqdm bars on a terminal when ``progress``, else none."""
     if not progress:
         return None
-    from tools.cli.progress import Steps
+    from tools.progress import Steps
 
     return Steps("bar")

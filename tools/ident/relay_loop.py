@@ -23,8 +23,9 @@ peaks two apart, the swing a maximum less the minimum before it.
 
 from __future__ import annotations
 
+import cmath
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -126,6 +127,18 @@ class _Modal:
     def readings(self, z: np.ndarray, duty: float, dt_s: np.ndarray) -> np.ndarray:
         return (self.advance(z, duty, dt_s) @ self.c).real + self.offset_c
 
+    def reading_fn(self, z: np.ndarray, duty: float) -> Callable[[float], float]:
+        """The reading dt_s after z at a constant duty, as a plain function of one time: what a root-finder
+        calls many times (numpy's per-call cost would be most of it)."""
+        zs = self.steady(duty)
+        terms = [(complex(c * (zi - zsi)), complex(lam)) for c, zi, zsi, lam in zip(self.c, z, zs, self.lam)]
+        constant = float((self.c @ zs).real) + self.offset_c
+
+        def reading(dt_s: float) -> float:
+            return constant + sum(a * cmath.exp(lam * dt_s) for a, lam in terms).real
+
+        return reading
+
 
 class _Loop:
     """The relay and the plant marching from event to event: relay switches, and the heater level
@@ -166,9 +179,9 @@ class _Loop:
                     i = int(hit[0])
                     if i == 0:
                         return a
-                    return a + scipy.optimize.brentq(
-                        lambda s: sign * (self.plant.readings(z, duty, np.array([s]))[0] - level_c),  # noqa: B023
-                        dt[i - 1], dt[i], xtol=1e-10)
+                    reading = self.plant.reading_fn(z, duty)
+                    return a + scipy.optimize.brentq(lambda s: sign * (reading(s) - level_c),  # noqa: B023
+                                                     dt[i - 1], dt[i], xtol=1e-10)
             from_s, window_s = from_s + window_s, 2.0 * window_s
         raise NoOscillation(f"the reading never gets {'above' if above else 'below'} {level_c:.4g} C")
 
@@ -182,9 +195,10 @@ class _Loop:
             i = int(np.argmax(y))
             best = max(best, float(y[i]))
             if 0 < i < len(dt) - 1:  # inside the piece: refine to the turning point
-                found = scipy.optimize.minimize_scalar(
-                    lambda s: -sign * self.plant.readings(z, duty, np.array([s]))[0],  # noqa: B023
-                    bounds=(dt[i - 1], dt[i + 1]), method="bounded", options={"xatol": 1e-9})
+                reading = self.plant.reading_fn(z, duty)
+                found = scipy.optimize.minimize_scalar(lambda s: -sign * reading(s),  # noqa: B023
+                                                       bounds=(dt[i - 1], dt[i + 1]), method="bounded",
+                                                       options={"xatol": 1e-9})
                 best = max(best, -float(found.fun))
         return sign * best
 

@@ -41,9 +41,11 @@ DEFAULT_SPREAD = 0.2  # +-20 % on the lag and loss terms where the source states
 DEFAULT_NOISE_LSB = 1.0
 STATISTICS = ("worst", "mean", "mean_std")  # max over members; mean; mean + one standard deviation
 DEFAULT_STATISTIC = "mean_std"
-# A search runs each member on this many noise seeds: a trip that a marginal candidate shows on one draw in
-# three is seen, where one draw per member let the proof's ten find it (4 of 10 on a hotend_cartridge corner).
-DEFAULT_SEARCH_SEEDS = 3
+# A search runs every candidate on at least this many noisy runs, spread over the members (a member's
+# seeds: ceil(SEARCH_RUNS / members)): a trip that a marginal candidate shows on one draw in three is seen
+# in the search, where one draw per member of hotend_cartridge's five let the proof's ten find it (4 of 10
+# on a corner). More members need fewer seeds each: the draws differ from member to member as well.
+SEARCH_RUNS = 15
 SEED_STRIDE = 1000  # a member's further seeds: its own plus multiples of this (members' seeds are 1, 2, ...)
 
 # field -> (group, +1 if a larger value means "more" of the group, else -1)
@@ -177,21 +179,26 @@ def preset_spread(spec: Spec, fraction: float = DEFAULT_SPREAD,
     return tuple(out)
 
 
+def search_seeds(members: int) -> int:
+    """Noise seeds per member in a search: SEARCH_RUNS runs per candidate at least (see above)."""
+    return max(1, math.ceil(SEARCH_RUNS / members))
+
+
 def plant_ensemble(plants: Sequence[tuple[str, Spec, float]], noise_lsb: float = DEFAULT_NOISE_LSB,
-                   statistic: str = DEFAULT_STATISTIC, first_seed: int = 1,
-                   seeds: int = DEFAULT_SEARCH_SEEDS) -> Ensemble:
+                   statistic: str = DEFAULT_STATISTIC, first_seed: int = 1, seeds: int | None = None) -> Ensemble:
     """An ensemble of given plants: (label, spec, ambient_c) each, the first the nominal one, each with its
-    own noise seeds (tools/tuning/allowed.py gives a log's)."""
+    own noise seeds (``search_seeds`` unless given; tools/tuning/allowed.py gives a log's plants)."""
     return Ensemble(tuple(Member(label, (), noise_lsb, first_seed + k, spec, ambient_c)
-                          for k, (label, spec, ambient_c) in enumerate(plants)), statistic, seeds=seeds,
-                    kind="plants the log allows")
+                          for k, (label, spec, ambient_c) in enumerate(plants)), statistic,
+                    seeds=seeds or search_seeds(len(plants)), kind="plants the log allows")
 
 
 def corner_ensemble(spread: Sequence[Uncertain], noise_lsb: float = DEFAULT_NOISE_LSB,
                     statistic: str = DEFAULT_STATISTIC, first_seed: int = 1,
-                    build: Callable[..., Spec] | None = None, seeds: int = DEFAULT_SEARCH_SEEDS) -> Ensemble:
-    """The nominal plant and every corner of the spread's groups, each with its own noise seeds;
-    ``build(**changes)`` makes a corner's spec where the source does (a fit's ``spec_with``)."""
+                    build: Callable[..., Spec] | None = None, seeds: int | None = None) -> Ensemble:
+    """The nominal plant and every corner of the spread's groups, each with its own noise seeds
+    (``search_seeds`` unless given); ``build(**changes)`` makes a corner's spec where the source does (a
+    fit's ``spec_with``)."""
     groups = sorted({GROUPS[u.name][0] for u in spread})
     members = [Member("nominal", (), noise_lsb, first_seed)]
     for k, ends in enumerate(itertools.product((+1, -1), repeat=len(groups)) if groups else (), start=1):
@@ -200,4 +207,5 @@ def corner_ensemble(spread: Sequence[Uncertain], noise_lsb: float = DEFAULT_NOIS
                         for u in spread)
         label = " ".join(f"{g}{'+' if e > 0 else '-'}" for g, e in end_of.items())
         members.append(Member(label, changes, noise_lsb, first_seed + k, None if build is None else build(**dict(changes))))
-    return Ensemble(tuple(members), statistic, tuple(spread), seeds, "plants of the spread")
+    return Ensemble(tuple(members), statistic, tuple(spread), seeds or search_seeds(len(members)),
+                    "plants of the spread")

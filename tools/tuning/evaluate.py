@@ -57,7 +57,7 @@ from tools.tuning.rules import RULES, tune
 from tools.validation.compare import HeaterInfo, make_setup
 from twin.batch import BatchTwin
 from twin.engine import Twin
-from twin.klipper_batch import KlipperBatch, gains_setups
+from twin.klipper_batch import KlipperBatch
 from twin.engine_protocol import Stack
 from twin.klipper_twin import HeaterSetup, KlipperTwin, extruder_setup
 from twin.linear import SENSOR, Lti
@@ -336,47 +336,89 @@ def klipper_setup(problem: Problem, plant, gains: Sequence[float] | np.ndarray |
     return replace(setup, noise_lsb=problem.noise_lsb)
 
 
-def _engine(problem: Problem, params: np.ndarray, record: bool, seeds: Sequence[int],
-            batched: bool) -> BatchTwin | KlipperBatch | Stack:
-    """The candidates as the lanes of one engine (twin/engine_protocol.py) on the problem's loop: a batch,
-    streaming the heater objective's inputs unless ``record`` (Marlin's first reading, 15 samples, left out
-    of them as run_chunk leaves it out of the trace), or a Stack of scalar twins, one per candidate."""
+def _batch(problem: Problem, plants: Sequence[Plant], params: np.ndarray, seeds: Sequence[int],
+           noise_lsb: Sequence[float], record: bool) -> BatchTwin | KlipperBatch:
+    """A batch of the problem's loop, lane k running params[k] on plants[k] (lanes given one plant object
+    share it) with seeds[k] and noise_lsb[k]; streaming the heater objective's inputs unless ``record``
+    (Marlin's first reading, 15 samples, left out of them as run_chunk leaves it out of the trace)."""
     scenario = problem.scenario
     marlin = problem.loop == "marlin"
-    if batched:
-        heatup_end_s = scenario.disturbances_s[0] if scenario.disturbances_s else scenario.duration_s + 1.0
-        score = None if record else score_spec(scenario.target_c, scenario.ambient_c, heatup_end_s, int(marlin))
-        if marlin:
-            return BatchTwin(make_problem_plant(problem), [problem.controller.make(row) for row in params],
-                             noise_lsb=problem.noise_lsb, seed=list(seeds), record=record, score=score)
-        return KlipperBatch(gains_setups(klipper_setup(problem, make_problem_plant(problem)), params), seed=list(seeds),
-                            record=record, score=score)
+    heatup_end_s = scenario.disturbances_s[0] if scenario.disturbances_s else scenario.duration_s + 1.0
+    score = None if record else score_spec(scenario.target_c, scenario.ambient_c, heatup_end_s, int(marlin))
     if marlin:
+        return BatchTwin(list(plants), [problem.controller.make(row) for row in params], noise_lsb=list(noise_lsb),
+                         seed=list(seeds), record=record, score=score)
+    setups = [replace(klipper_setup(problem, plant, row), noise_lsb=noise) for plant, row, noise in
+              zip(plants, params, noise_lsb)]
+    return KlipperBatch(setups, seed=list(seeds), record=record, score=score)
+
+
+def _stack(problem: Problem, params: np.ndarray, seeds: Sequence[int]) -> Stack:
+    """One scalar twin per candidate, side by side as the lanes of one engine."""
+    if problem.loop == "marlin":
         return Stack([_marlin_twin(replace(problem, seed=int(seed)), row) for row, seed in zip(params, seeds)])
     return Stack([KlipperTwin([klipper_setup(problem, make_problem_plant(problem), row)], seed=int(seed))
                   for row, seed in zip(params, seeds)])
+
+
+def _drive(engine: BatchTwin | KlipperBatch | Stack, problem: Problem, events_of: Callable[[Plant], tuple[Event, ...]],
+           record: bool) -> Traces:
+    """Run an engine through the problem's scenario: the target, each event on each plant (``events_of``
+    gives a plant its own events: its member's room), the run to the end; its raw traces (Marlin's first
+    reading included), or a batch's streamed totals unless ``record``."""
+    scenario = problem.scenario
+    engine.hotend.target_c = round(scenario.target_c) if problem.loop == "marlin" else scenario.target_c
+    for k, event in enumerate(scenario.events):
+        engine.schedule_plants(event.at_s, functools.partial(_apply_kth, events_of=events_of, k=k))
+    engine.run_until(scenario.duration_s)
+    halted = np.atleast_1d(np.array(engine.halted, bool))
+    if not record and not isinstance(engine, Stack):
+        empty = np.zeros((0, engine.n_lanes))
+        return Traces(np.zeros(0), empty, empty, halted, engine.score_totals())
+    hotend = engine.result().hotend
+    rows = len(hotend.t_s)
+    return Traces(hotend.t_s, hotend.measured_c.reshape(rows, -1), hotend.duty.reshape(rows, -1), halted)
+
+
+def _apply_kth(plant: Plant, events_of: Callable[[Plant], tuple[Event, ...]], k: int) -> None:
+    _apply_to_plant(plant, events_of(plant)[k])
 
 
 def run_lanes(problem: Problem, params: np.ndarray, record: bool = True, seeds: Sequence[int] | None = None,
               batched: bool | None = None) -> Traces:
     """The one runner: the candidates (N, d) as the lanes of one engine (a batch where the loop's lanes run
     them, ``Problem.batched``, else one scalar twin each), each on its seed of ``seeds`` (else the
-    problem's), through the scenario: the target, the events on the plants, the run to its end. The raw
-    traces (Marlin's first reading included), or with a batch and not ``record`` the streamed totals."""
+    problem's), through the scenario (``_drive``)."""
     seeds = [problem.seed] * len(params) if seeds is None else seeds
-    engine = _engine(problem, params, record, seeds, problem.batched if batched is None else batched)
-    scenario = problem.scenario
-    engine.hotend.target_c = round(scenario.target_c) if problem.loop == "marlin" else scenario.target_c
-    for event in scenario.events:
-        engine.schedule_plants(event.at_s, functools.partial(_apply_to_plant, event=event))
-    engine.run_until(scenario.duration_s)
-    halted = np.atleast_1d(np.array(engine.halted, bool))
-    if not record and not isinstance(engine, Stack):
-        empty = np.zeros((0, len(params)))
-        return Traces(np.zeros(0), empty, empty, halted, engine.score_totals())
-    hotend = engine.result().hotend
-    rows = len(hotend.t_s)
-    return Traces(hotend.t_s, hotend.measured_c.reshape(rows, -1), hotend.duty.reshape(rows, -1), halted)
+    if problem.batched if batched is None else batched:
+        plant = make_problem_plant(problem)
+        engine: BatchTwin | KlipperBatch | Stack = _batch(problem, [plant] * len(params), params, seeds,
+                                                          [problem.noise_lsb] * len(params), record)
+    else:
+        engine = _stack(problem, params, seeds)
+    return _drive(engine, problem, lambda plant: problem.scenario.events, record)
+
+
+def run_together(runs: Sequence[Problem], params: np.ndarray, record: bool = True) -> list[Traces]:
+    """Every run's candidates (an ensemble's members on their seeds), the runs side by side as the lanes of
+    one batch (each run its own plant, seed and noise, and its own room's events), one Traces per run, in
+    order: one kernel run, not one per member. The runs must be batched and share the loop, the scenario's
+    timing and the plants' dead time (``simulate`` groups them so)."""
+    first, n = runs[0], len(params)
+    plants = [make_problem_plant(r) for r in runs]
+    events = {id(plant): r.scenario.events for plant, r in zip(plants, runs)}
+    lanes = [(plant, r) for plant, r in zip(plants, runs) for _ in range(n)]
+    engine = _batch(first, [p for p, _ in lanes], np.tile(params, (len(runs), 1)), [r.seed for _, r in lanes],
+                    [r.noise_lsb for _, r in lanes], record)
+    traces = _drive(engine, first, lambda plant: events[id(plant)], record)
+    if first.loop == "marlin" and record:
+        traces = Traces(traces.t_s[1:], traces.temp_c[1:], traces.duty[1:], traces.tripped)
+    return [_lanes_of(traces, slice(k * n, (k + 1) * n)) for k in range(len(runs))]
+
+
+def _lanes_of(traces: Traces, lanes: slice) -> Traces:
+    streamed = None if traces.streamed is None else traces.streamed.lanes(lanes)
+    return Traces(traces.t_s, traces.temp_c[:, lanes], traces.duty[:, lanes], traces.tripped[lanes], streamed)
 
 
 def _marlin_twin(problem: Problem, row: np.ndarray | None) -> Twin:
@@ -482,18 +524,33 @@ def simulate(problem: Problem, params, client=None, record: bool = True) -> Run:
     if params.ndim != 2 or params.shape[1] != space.dims:
         raise ValueError(f"parameters must be an (N, {space.dims}) array of {', '.join(space.names)}, "
                          f"got shape {params.shape}")
-    tasks = [(member, chunk) for member in problem.runs() for chunk in _chunks(params)]
     if client is None:
-        parts = [run_chunk(member, chunk, record) for member, chunk in tasks]
+        parts = _in_process(problem.runs(), params, record)
     else:
-        members, chunks = zip(*tasks)
-        parts = client.gather(client.map(run_chunk, members, chunks, [record] * len(tasks), pure=False))
+        members, chunks = zip(*[(member, chunk) for member in problem.runs() for chunk in _chunks(params)])
+        parts = client.gather(client.map(run_chunk, members, chunks, [record] * len(members), pure=False))
     traces = _join(parts)
     gains = problem.plant_gains(params)
     return Run(traces.t_s, traces.temp_c, traces.duty, problem.scenario.target_c,
                problem.scenario.ambient_c, problem.scenario.disturbances_s, traces.tripped,
                None if gains is None else np.tile(gains, (len(problem.runs()), 1)), problem.input_full_scale,
                traces.streamed)
+
+
+def _in_process(runs: list[Problem], params: np.ndarray, record: bool) -> list[Traces]:
+    """Every run's traces, in order: the batched runs that can share a kernel run (the same dead time) as
+    one batch (``run_together``), the others one run_chunk each."""
+    parts: dict[int, Traces] = {}
+    groups: dict[int, list[int]] = {}
+    for k, r in enumerate(runs):
+        if r.batched and r.loop != "ideal":
+            groups.setdefault(r.spec.delay_ticks, []).append(k)
+        else:
+            parts[k] = run_chunk(r, params, record)
+    for members in groups.values():
+        for k, traces in zip(members, run_together([runs[k] for k in members], params, record)):
+            parts[k] = traces
+    return [parts[k] for k in range(len(runs))]
 
 
 class Evaluator:

@@ -74,4 +74,6 @@ def _m303_gains(log: M303Log, heater: str) -> tuple[tuple[float, float, float], 
                if c.kp is not None and c.ki is not None and c.kd is not None]
     if printed:
         return printed[-1], "the last Kp/Ki/Kd the capture printed"
-    return None if log.final_gains is None else (log.final_gains, "the capture's #define DEFAULT_K lines")
+    if log.final_gains is None or any(c.kp is not None for c in log.cycles):  # the gains are another heater's
+        return None
+    return log.final_gains, "the capture's #define DEFAULT_K lines"

@@ -117,3 +117,36 @@ def test_same_table_tolerates_small_moves_but_not_verdicts():
     assert table.same_table(a, a.replace("10.0", "11")) != []
     assert table.same_table(a, a.replace("beats", "loses")) != []
     assert np.isclose(10.0, 10.1, rtol=table.REL_TOL)
+
+
+def test_the_answer_for_a_program_json_progress_lines_and_your_gains(capsys, tmp_path):
+    """--current-gains sets the gains to beat; --json writes the verdict, the gains and the proof rows a
+    program reads; --progress lines reports each step on stderr, 'progress: <step> <done>/<total>'."""
+    import json
+
+    answer = tmp_path / "answer.json"
+    status = main(["--plant", "hotend", "--target", "200", "--budget", "90", "--proof", "2", "--plot", "none",
+                   "--current-gains", "M301 P22.2 I1.08 D114", "--json", str(answer), "--progress", "lines",
+                   "--cross-check", "10"])
+    captured = capsys.readouterr()
+    document = json.loads(answer.read_text())
+    assert status in (0, 1) and document["verdict"] in ("new gains", "keep your gains")
+    assert document["current"]["kp"] == 22.2 and document["current"]["source"] == "--current-gains"
+    assert "your gains: Kp 22.2 Ki 1.08 Kd 114 (--current-gains)" in captured.out
+    assert re.search(r"^answer: (new gains \(.+\)|keep your gains): ", captured.out, re.M)
+    if document["verdict"] == "new gains":
+        assert document["commands"][0].startswith("M301 E0 P") and document["commands"][1] == "M500"
+    else:
+        assert document["answer"] is None and document["commands"] == []
+    yours = [r for r in document["proof"] if r["candidate"] == "yours"]
+    assert len(yours) == 5 and {r["runs"] for r in yours} == {2}  # a row per member, 2 seeds each
+    steps = re.findall(r"^progress: (.+) (\d+)/(\d+)$", captured.err, re.M)
+    assert {"proving", "searching (de)"} <= {s for s, _, _ in steps}
+    assert ("proving", "5", "5") in steps and "bit for bit" in captured.out  # the cross-check ran
+
+
+def test_proof_zero_never_says_proven(capsys):
+    assert main(["--plant", "hotend", "--budget", "90", "--proof", "0", "--plot", "none"]) == 0
+    out = capsys.readouterr().out
+    assert "not proven (--proof 0)" in out and "UNPROVEN" in out
+    assert "proven on" not in out and "answer:" not in out

@@ -36,7 +36,7 @@ from twin.klipper_twin import extruder_setup
 
 PACKAGES = (firmware_port, twin, protocol, tools)
 # The tuning layer's classes (Evaluator, ideal.Pid, optim.result.Ledger) are its owner's to give a __repr__.
-NOT_YET = ("tools.tuning",)
+NOT_YET: tuple[str, ...] = ()
 OBJECT_REPR = re.compile(r"object at 0x")
 
 

@@ -21,6 +21,9 @@ class Steps:
             raise ValueError(f"--progress {mode!r}: choose one of: {', '.join(PROGRESS_MODES)}")
         self.mode = mode
 
+    def __repr__(self) -> str:
+        return f"Steps({self.mode!r})"
+
     def __call__(self, what: str, total: int) -> Callable[..., None]:
         if self.mode == "lines":
             done = [0]

@@ -566,6 +566,9 @@ class Evaluator:
         self.evaluations = 0
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # (params, costs) of each batch
 
+    def __repr__(self) -> str:
+        return f"Evaluator({self.problem.name!r}, {self.problem.controller.name}, evaluations={self.evaluations})"
+
     def best(self, count: int, apart_rel: float) -> np.ndarray:
         """The ``count`` cheapest parameter rows evaluated, each apart from those before it by more than
         ``apart_rel`` (relative) in some parameter: the runners-up a proof may fall back on."""

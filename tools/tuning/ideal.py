@@ -80,6 +80,10 @@ class Pid:
         self.integral = self.derivative = 0.0
         self.previous_error = 0.0  # the loop at rest before the step: e = 0
 
+    def __repr__(self) -> str:
+        return f"Pid(kp={self.kp:g}, ki={self.ki:g}, kd={self.kd:g}, step_s={self.step_s:g}, " \
+               f"derivative_filter_s={self.filter_s:g}, control_limits={self.limits})"
+
     def __call__(self, error: float) -> float:
         self.integral += self.ki * error * self.step_s
         self.derivative = (self.filter_s * self.derivative + self.kd * (error - self.previous_error)) \

@@ -65,6 +65,10 @@ class Ledger:
         self.history: list[float] = []
         self._start_s = time.perf_counter()
 
+    def __repr__(self) -> str:
+        return (f"Ledger(method={self.method!r}, evaluations={self.evaluations} of {self.budget}, "
+                f"best_cost={self.best_cost:.6g})")
+
     @property
     def remaining(self) -> int:
         return self.budget - self.evaluations

@@ -81,9 +81,10 @@ def as_run(command: str, folder: Path, logs: Path | None) -> str:
     for port in PORTS:
         command = command.replace(port, shlex.quote(str(folder / Path(port).name)))
     for name, capture in USER_FILES.items():
-        if re.search(rf"(?<![\w/.-]){re.escape(name)}(?![\w.])", command):
+        word = re.compile(rf"(?<![\w/.-]){re.escape(name)}(?![\w.])")  # the name alone, not inside a path
+        if word.search(command):
             assert logs is not None, f"{command}: the case must ask for the hardware logs"
-            command = re.sub(rf"(?<![\w/.-]){re.escape(name)}(?![\w.])", shlex.quote(str(logs / capture)), command)
+            command = word.sub(shlex.quote(str(logs / capture)), command)
     return command.replace(".venv/bin/", f"{BIN}/")
 
 

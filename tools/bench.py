@@ -670,20 +670,30 @@ def _cpu_model() -> str:
     return platform.processor() or "model unknown"
 
 
-def _commit() -> str:
+def _git(*args: str) -> str | None:
     try:
-        done = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=ROOT, capture_output=True, text=True,
-                              timeout=30)
+        done = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30)
     except (OSError, subprocess.TimeoutExpired):
-        return "unknown (no git)"
-    return done.stdout.strip() if done.returncode == 0 else "unknown (not a git checkout)"
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
 
 
-def machine() -> str:
+def _commit(doc: Path | None) -> str:
+    """The commit this run's code is at, and whether tracked files differ from it; the page being written
+    does not count (an earlier benchmark's --doc changed it, not the code)."""
+    head = _git("rev-parse", "--short", "HEAD")
+    if head is None:
+        return "unknown (no git checkout)"
+    exclude = [f":(exclude){doc.resolve()}"] if doc is not None else []
+    changed = _git("status", "--porcelain", "--untracked-files=no", "--", str(ROOT), *exclude)
+    return head if changed == "" else f"{head} with uncommitted changes" if changed else f"{head} (changes unknown)"
+
+
+def machine(doc: Path | None = None) -> str:
     """Where and when this run happens: what its wall times hold for."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return (f"machine: {cpus} CPUs ({_cpu_model()}), load average {os.getloadavg()[0]:.2f} over the minute before; "
-            f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC, commit {_commit()}; the numbers below come from this "
+            f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC, commit {_commit(doc)}; the numbers below come from this "
             "one run")
 
 
@@ -735,7 +745,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ValueError(f"--doc {args.doc}: {exc}") from None
     sized = any(name != "seed" for name in _non_default(args, parser))
-    report = [command_line(args, parser), machine(), *([NOT_MEASURED] if sized else []), *measure(args)]
+    report = [command_line(args, parser), machine(args.doc), *([NOT_MEASURED] if sized else []), *measure(args)]
     print("\n".join(report))
     if args.doc is not None:
         write_section(args.doc, "```\n" + "\n".join(report) + "\n```\n", *markers(args.what))

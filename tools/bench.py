@@ -1,4 +1,8 @@
-"""Benchmarks (not tests): ``python -m tools.bench twin|protocol``. Ratios measured in one run.
+"""Benchmarks (not tests): ``python -m tools.bench WHAT``; ratios measured in one run.
+
+WHAT is twin, tune, twin-tune, protocol or scaling. Each prints the command and the machine (CPUs, model,
+load, date, commit) before its lines; ``--doc FILE`` also rewrites FILE's section between
+``<!-- bench WHAT: begin`` and ``<!-- bench WHAT: end -->`` (docs/performance.md), checked before any work.
 
 ``twin``:
 - single twin, hotend + bed, fixed-point PID, full ISR fidelity, 600 s heat-and-hold: real-time
@@ -27,6 +31,13 @@
 - the same DE tune on a dead-time plant (seed001_fopdt), on the radiating fit of hotend_cartridge
   and with 1 LSB of ADC noise: every one on the batch.
 
+``twin-tune``: the command as a user runs it, in its own process (interpreter, imports, fit, tune and proof),
+after one untimed warm-up run that leaves numba's compiled kernels in its cache:
+- ``twin-tune --plant hotend_cartridge --target 210``, the default tune (target: 15 s wall);
+- ``twin-tune --from-log`` on every M303 capture and every klippy.log (its Stats lines) in the hardware
+  logs, on each heater a klippy.log reports (target: 30 s wall each);
+each one's wall and CPU time (its process and the threads it starts), exit status and verdict.
+
 ``scaling``: cost per evaluation against lanes and horizon for each path of the batch (linear,
 noisy, dead time, radiating, the fuzzy PI, the Klipper loop), and against dask workers
 (docs/scaling.md).
@@ -45,13 +56,20 @@ import contextlib
 import dataclasses
 import functools
 import importlib
+import json
 import os
+import platform
+import resource
 import select
+import shlex
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
+from datetime import UTC, datetime
+from pathlib import Path
 from typing import TypeVar, cast
 
 import numpy as np
@@ -64,7 +82,10 @@ from firmware_port.marlin.pid import PidGains
 from protocol.lines import with_checksum
 from protocol.printer import BUFSIZE
 from firmware_port.firmwares import param_space
+from tools.cli.args import section_page
 from tools.entry import OneLineParser, run_cli
+from tools.ident.log_fit import HEATER_NAMES
+from tools.logs import StatsLog, hardware_logs_dir, load_log
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
 from tools.tuning.problems import build_problem, preset_source
@@ -77,6 +98,7 @@ from twin.build import build_twin
 from twin.linear import SENSOR, TICK_S
 from twin.plants import ONION_RADIATING_PARAMS, SPECS, TransferFunction, make_plant, respec
 from twin.scenario import PRESETS, with_overrides
+from tools.validation.doc_compare import write_section
 
 T = TypeVar("T")
 
@@ -420,6 +442,77 @@ def bench_protocol(n_requests: int, n_lines: int) -> list[str]:
     return lines
 
 
+# -- twin-tune: the command as a user runs it -------------------------------------------------------
+TWIN_TUNE_CLI = [sys.executable, "-m", "tools.cli.tune"]
+PRESET_TUNE = ["--plant", TUNE_PRESET, "--target", f"{TUNE_TARGET_C}"]
+PRESET_TARGET_S, LOG_TARGET_S = 15, 30  # wall-time targets of the default tune and of a log's
+CAPTURES = ("m303_*.txt", "klippy_stats_*.csv")  # every M303 capture, every klippy.log's Stats lines
+WARM_UP = [*PRESET_TUNE, "--loop", "both", "--budget", "90", "--proof", "1"]  # both loops' kernels, cheaply
+TWIN_TUNE_TIMEOUT_S = 3600  # one case, however slow: a hung one must not hang the benchmark
+
+
+def _heaters(path: Path) -> list[str | None]:
+    """The heaters to tune in a capture: each one a klippy.log's Stats lines report; for an M303 capture
+    the one it tunes (None: twin-tune finds it, as for a user)."""
+    log = load_log(path)
+    if isinstance(log, StatsLog):
+        return [name for name in HEATER_NAMES if any(name in session for session in log.sessions)]
+    return [None]
+
+
+def twin_tune_cases(captures: str | None) -> list[tuple[list[str], float]]:
+    """twin-tune's arguments and wall target for each case: the default tune, then every capture matching
+    ``captures`` (default: CAPTURES) on each of its heaters."""
+    folder = hardware_logs_dir()
+    paths = sorted({path for pattern in ((captures,) if captures else CAPTURES) for path in folder.glob(pattern)})
+    cases = [(PRESET_TUNE, float(PRESET_TARGET_S))]
+    for path in paths:
+        cases += [(["--from-log", str(path), *(["--heater", heater] if heater else [])], float(LOG_TARGET_S))
+                  for heater in _heaters(path)]
+    return cases
+
+
+def _verdict(answer: Path, stderr: str) -> str:
+    """What twin-tune answered (its --json: the verdict, the new gains, why), else its last line on stderr."""
+    if not answer.exists():
+        return stderr.strip().splitlines()[-1] if stderr.strip() else "no answer and nothing on stderr"
+    document = json.loads(answer.read_text())
+    gains = document["answer"]
+    said = f" Kp {gains['kp']:.4g} Ki {gains['ki']:.4g} Kd {gains['kd']:.4g}" if gains else ""
+    return f"{document['verdict']}{said}: {document['why']}"
+
+
+def _run_twin_tune(args: list[str]) -> tuple[float, float, int, str]:
+    """One twin-tune in its own process: wall s, CPU s (the process and its threads), exit status, verdict."""
+    with tempfile.TemporaryDirectory(prefix="bench-twin-tune") as folder:
+        answer = Path(folder) / "answer.json"
+        argv = [*TWIN_TUNE_CLI, *args, "--plot", "none", "--json", str(answer)]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        try:
+            done, wall_s, _ = _timed_value(lambda: subprocess.run(argv, capture_output=True, text=True,
+                                                                   timeout=TWIN_TUNE_TIMEOUT_S))
+        except subprocess.TimeoutExpired:
+            return TWIN_TUNE_TIMEOUT_S, float("nan"), -1, f"stopped after {TWIN_TUNE_TIMEOUT_S} s"
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu_s = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+        return wall_s, cpu_s, done.returncode, _verdict(answer, done.stderr)
+
+
+def bench_twin_tune(captures: str | None, sizes: list[str]) -> list[str]:
+    """twin-tune's default tune and --from-log on every capture, each as a user runs it."""
+    cases = twin_tune_cases(captures)
+    _run_twin_tune(WARM_UP)
+    lines = [f"twin-tune in its own process ({' '.join(['python', *TWIN_TUNE_CLI[1:]])} ARGS{''.join(' ' + s for s in sizes)}"
+             " --plot none --json FILE), after one untimed warm-up; wall time (target), CPU time (the process "
+             "and its threads), exit status, verdict:"]
+    for args, target_s in cases:
+        wall_s, cpu_s, status, verdict = _run_twin_tune(args + sizes)
+        shown = " ".join(Path(a).name if i and args[i - 1] == "--from-log" else a for i, a in enumerate(args))
+        lines.append(f"  twin-tune {shown}: {wall_s:.1f} s wall (target <= {target_s:g} s), {cpu_s:.1f} s CPU, "
+                     f"exit {status}: {verdict}")
+    return lines
+
+
 # -- scaling: how cost grows with lanes, horizon and dask workers ---------------------------------
 SCALING_LANES = (1, 10, 100, 1000)
 SCALING_HORIZONS_S = (150.0, 300.0, 600.0)
@@ -539,35 +632,123 @@ def bench_scaling(seed: int) -> list[str]:
     return lines + _scaling_dask(seed)
 
 
+# -- the report: the command, the machine, the lines; --doc --------------------------------------------
+ROOT = Path(__file__).resolve().parents[1]
+BENCHES = ("twin", "tune", "twin-tune", "protocol", "scaling")
+# the options each benchmark reads; all but --seed set its size
+OPTIONS = {"twin": ("duration", "lanes", "seed"), "tune": ("duration", "lanes", "seed"),
+           "twin-tune": ("budget", "proof", "captures"), "protocol": ("requests", "lines"), "scaling": ("seed",)}
+SETTINGS_ENV = ("OPENBLAS_NUM_THREADS", THREADS_ENV)  # environment that changes what a run measures
+NOT_MEASURED = ("NOT A MEASUREMENT: smaller than the defaults, a check that the benchmark runs; "
+                "re-run without the size options on a quiet machine")
+
+
+def markers(what: str) -> tuple[str, str]:
+    """The markers of a benchmark's section in a page (--doc)."""
+    return f"<!-- bench {what}: begin", f"<!-- bench {what}: end -->"
+
+
+def _non_default(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict[str, object]:
+    return {name: getattr(args, name) for name in OPTIONS[args.what]
+            if getattr(args, name) != parser.get_default(name)}
+
+
+def command_line(args: argparse.Namespace, parser: argparse.ArgumentParser) -> str:
+    """The command that gives this run, its environment settings included."""
+    env = [f"{name}={os.environ[name]}" for name in SETTINGS_ENV if name in os.environ]
+    flags = [f"--{name} {value:g}" if isinstance(value, float) else f"--{name} {shlex.quote(str(value))}"
+             for name, value in _non_default(args, parser).items()]
+    doc = ["--doc", shlex.quote(str(args.doc))] if args.doc else []
+    return " ".join([*env, "python -m tools.bench", args.what, *flags, *doc])
+
+
+def _cpu_model() -> str:
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or "model unknown"
+
+
+def _git(*args: str) -> str | None:
+    try:
+        done = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
+
+
+def _commit(doc: Path | None) -> str:
+    """The commit this run's code is at, and whether tracked files differ from it; the page being written
+    does not count (an earlier benchmark's --doc changed it, not the code)."""
+    head = _git("rev-parse", "--short", "HEAD")
+    if head is None:
+        return "unknown (no git checkout)"
+    exclude = [f":(exclude){doc.resolve()}"] if doc is not None else []
+    changed = _git("status", "--porcelain", "--untracked-files=no", "--", str(ROOT), *exclude)
+    return head if changed == "" else f"{head} with uncommitted changes" if changed else f"{head} (changes unknown)"
+
+
+def machine(doc: Path | None = None) -> str:
+    """Where and when this run happens: what its wall times hold for."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return (f"machine: {cpus} CPUs ({_cpu_model()}), load average {os.getloadavg()[0]:.2f} over the minute before; "
+            f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC, commit {_commit(doc)}; the numbers below come from this "
+            "one run")
+
+
 def build_parser() -> OneLineParser:
     parser = OneLineParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=["twin", "tune", "protocol", "scaling"], help="what to benchmark")
-    parser.add_argument("--duration", type=float, default=600.0, help="twin: virtual seconds (default: %(default)s)")
+    parser.add_argument("what", choices=BENCHES, help="what to benchmark")
+    parser.add_argument("--duration", type=float, default=600.0,
+                        help="twin, tune: virtual seconds (default: %(default)s)")
     parser.add_argument("--lanes", type=int, default=1000, help="twin, tune: batch lanes (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=1,
-                        help="twin, tune: seed of the random gains and of DE (default: %(default)s)")
+                        help="twin, tune, scaling: seed of the random gains and of DE (default: %(default)s)")
+    parser.add_argument("--budget", type=int, help="twin-tune: its --budget (default: its own)")
+    parser.add_argument("--proof", type=int, help="twin-tune: its --proof (default: its own)")
+    parser.add_argument("--captures", metavar="GLOB",
+                        help=f"twin-tune: the captures in the hardware logs to tune (default: {' and '.join(CAPTURES)})")
     parser.add_argument("--requests", type=int, default=500, help="protocol: M105 round trips (default: %(default)s)")
     parser.add_argument("--lines", type=int, default=5000, help="protocol: G1 lines per stream (default: %(default)s)")
+    parser.add_argument("--doc", type=Path, metavar="FILE",
+                        help="also rewrite FILE's section between '<!-- bench WHAT: begin' and "
+                             "'<!-- bench WHAT: end -->' (docs/performance.md)")
     return parser
 
 
-def run(args: argparse.Namespace) -> int:
+def measure(args: argparse.Namespace) -> list[str]:
+    """The benchmark's lines."""
     if args.what == "twin":
-        lines = bench_single(args.duration) + bench_batch(args.lanes, args.duration, args.seed)
-        lines += bench_open_loop(args.duration)
-    elif args.what == "tune":
+        return bench_single(args.duration) + bench_batch(args.lanes, args.duration, args.seed) + \
+            bench_open_loop(args.duration)
+    if args.what == "tune":
         plant = tune_plant()
-        lines = bench_evaluation_cost(plant, args.lanes, args.duration, args.seed, n_seed000=200)
-        lines += bench_user_law_cost(plant, args.lanes, args.duration, args.seed)
-        lines += bench_de_tune(plant.preset, args.seed)
-        lines += bench_loop_tunes(plant.preset, args.seed)
-        lines += bench_batch_tunes(args.seed)
-    elif args.what == "scaling":
-        lines = [f"python -m tools.bench scaling --seed {args.seed}"] + bench_scaling(args.seed)
-    else:
-        lines = [f"python -m tools.bench protocol --requests {args.requests} --lines {args.lines}"]
-        lines += bench_protocol(args.requests, args.lines)
-    print("\n".join(lines))
+        return (bench_evaluation_cost(plant, args.lanes, args.duration, args.seed, n_seed000=200)
+                + bench_user_law_cost(plant, args.lanes, args.duration, args.seed)
+                + bench_de_tune(plant.preset, args.seed) + bench_loop_tunes(plant.preset, args.seed)
+                + bench_batch_tunes(args.seed))
+    if args.what == "twin-tune":
+        sizes = [word for name in ("budget", "proof") if getattr(args, name) is not None
+                 for word in (f"--{name}", str(getattr(args, name)))]
+        return bench_twin_tune(args.captures, sizes)
+    if args.what == "scaling":
+        return bench_scaling(args.seed)
+    return bench_protocol(args.requests, args.lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    parser = build_parser()
+    if args.doc is not None:
+        try:
+            section_page(args.doc, *markers(args.what))
+        except ValueError as exc:
+            raise ValueError(f"--doc {args.doc}: {exc}") from None
+    sized = any(name != "seed" for name in _non_default(args, parser))
+    report = [command_line(args, parser), machine(args.doc), *([NOT_MEASURED] if sized else []), *measure(args)]
+    print("\n".join(report))
+    if args.doc is not None:
+        write_section(args.doc, "```\n" + "\n".join(report) + "\n```\n", *markers(args.what))
     return 0
 
 

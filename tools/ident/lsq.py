@@ -79,7 +79,8 @@ def least_squares_fit(residuals: Callable[[dict[str, float]], np.ndarray], start
     def evaluate(z: np.ndarray) -> np.ndarray:
         if on_evaluation is not None:
             on_evaluation()
-        return residuals(params(z))
+        with np.errstate(over="ignore", invalid="ignore"):  # exploring far out: non-finite residuals, a rejected step
+            return residuals(params(z))
 
     sol = scipy.optimize.least_squares(evaluate, internal(start.values()),
                                        x_scale=np.where(is_log, LOG_X_SCALE, 1.0), max_nfev=MAX_EVALUATIONS,
@@ -98,6 +99,7 @@ def least_squares_fit(residuals: Callable[[dict[str, float]], np.ndarray], start
         sigma_z[free] = np.sqrt(np.abs(np.diag(cov)))
     except np.linalg.LinAlgError:  # the free ones are not determined apart
         pass
-    std = {n: float(values[n] * s if log else s) for n, s, log in zip(names, sigma_z, is_log)}  # delta method
+    with np.errstate(invalid="ignore"):  # an infinite error of a parameter at zero: NaN, as on a bound
+        std = {n: float(values[n] * s if log else s) for n, s, log in zip(names, sigma_z, is_log)}  # delta method
     return Estimate(values, std, sol.fun.copy())
 

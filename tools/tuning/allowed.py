@@ -266,6 +266,22 @@ class _Task:
     held: int
 
 
+@dataclass(frozen=True)
+class _End:
+    """A range end of a parameter a kept structure leaves open, to profile."""
+
+    structure: _Task
+    result: FitResult
+    name: str
+    value: float
+    end: float
+
+    def task(self, at: float) -> _Task:
+        """The refit with the parameter held at ``at`` (the end, or halfway to it)."""
+        return _Task(f"{self.structure.label}: {_end_label(self.name, self.value, self.end, at)}",
+                     _profile_options(self.structure.options, self.result, self.name, at), 1)
+
+
 def _fit(log: Log) -> Callable[[_Task], LogFit | str]:
     def run(task: _Task) -> LogFit | str:
         try:
@@ -275,13 +291,19 @@ def _fit(log: Log) -> Callable[[_Task], LogFit | str]:
     return run
 
 
-def _considered(tasks: list[_Task], fits: list[LogFit | str], deltas_of: Callable[[list[LogFit]], np.ndarray]
-                ) -> list[AllowedPlant]:
-    ok = [(t, f) for t, f in zip(tasks, fits) if isinstance(f, LogFit)]
-    deltas = deltas_of([f for _, f in ok]) if ok else np.zeros(0)
-    out = [AllowedPlant(t.label, f, float(d), dropped=None if d <= EVIDENCE_MARGIN else
-                        f"the evidence excludes it (delta {d:.1f} > {EVIDENCE_MARGIN:g})")
-           for (t, f), d in zip(ok, deltas)]
+def _judged(tasks: list[_Task], fits: list[LogFit | str], against: list[FitResult]) -> list[AllowedPlant | None]:
+    """Each task's fit with its evidence against the best of ``against`` and of these fits (None where it
+    failed), dropped where the evidence excludes it."""
+    ok = [k for k, f in enumerate(fits) if isinstance(f, LogFit)]
+    results = [fits[k].result for k in ok]  # type: ignore[union-attr]
+    deltas = evidence(against + results, [0] * len(against) + [tasks[k].held for k in ok])[len(against):] \
+        if ok else np.zeros(0)
+    out: list[AllowedPlant | None] = [None] * len(tasks)
+    for k, d in zip(ok, deltas):
+        fitted = fits[k]
+        assert isinstance(fitted, LogFit)
+        out[k] = AllowedPlant(tasks[k].label, fitted, float(d), dropped=None if d <= EVIDENCE_MARGIN else
+                              f"the evidence excludes it (delta {d:.1f} > {EVIDENCE_MARGIN:g})")
     return out
 
 
@@ -292,47 +314,26 @@ def allowed_plants(log: Log, log_name: str, options: LogFitOptions | None = None
     structure fits."""
     options = options or LogFitOptions()
     first = fit_log(log, options)  # the default fit: the heater, the segment, what kind of evidence
-    info = heater_settings(log, first.heater)
     base = dataclasses.replace(options, heater=first.heater, target_c=options.target_c or first.result.anchor_c)
     tasks = [_Task(_label(m, loss), dataclasses.replace(base, model=m, loss=loss), 0)
              for m, loss in structures(log, first)]
     fits = forked_map(_fit(log), tasks, on_done=_step(on_step, "fitting the structures", len(tasks)))
-    failed = [AllowedPlant(t.label, first, math.inf, dropped=f"does not fit: {f}")
-              for t, f in zip(tasks, fits) if isinstance(f, str)]
-    considered = _considered(tasks, fits, lambda ok: evidence([f.result for f in ok], [0] * len(ok)))
-    kept = [p for p in considered if p.dropped is None]
+    judged = _judged(tasks, fits, [])
+    dropped = [AllowedPlant(t.label, first, math.inf, dropped=f"does not fit: {f}")
+               for t, f in zip(tasks, fits) if isinstance(f, str)]
+    kept = [(t, p) for t, p in zip(tasks, judged) if p is not None and p.dropped is None]
+    dropped += [p for p in judged if p is not None and p.dropped]
     if not kept:
         raise NotFittable(f"{log_name}: no structure fits")
-    best_result = min(kept, key=lambda p: p.delta).result
-
-    # profiles of every kept structure
-    profile_tasks = []
-    for plant in kept:
-        task_options = next(t.options for t in tasks if t.label == plant.label)
-        for name, value, end in profile_points(plant.result):
-            profile_tasks.append((plant.label, task_options, plant.result, name, value, end))
-
-    def run_profiles(ends: list[tuple]) -> list[AllowedPlant]:
-        jobs = [_Task(f"{label}: {_end_label(name, value, end, at)}",
-                      _profile_options(opts, result, name, at), 1) for label, opts, result, name, value, end, at in ends]
-        results = forked_map(_fit(log), jobs, on_done=_step(on_step, "profiling what the log leaves open", len(jobs)))
-        good = [(j, f) for j, f in zip(jobs, results) if isinstance(f, LogFit)]
-        deltas: np.ndarray = evidence([best_result] + [f.result for _, f in good], [0] + [j.held for j, _ in good])[1:] \
-            if good else np.zeros(0)
-        # against the best fit: a profile's criterion minus the best's (which the evidence above keeps at 0 or more)
-        return [AllowedPlant(j.label, f, float(d), dropped=None if d <= EVIDENCE_MARGIN else
-                             f"the evidence excludes it (delta {d:.1f} > {EVIDENCE_MARGIN:g})")
-                for (j, f), d in zip(good, deltas)]
-
-    ends = run_profiles([(*t, t[5]) for t in profile_tasks])
-    retry = [(*t, halfway(t[3], t[4], t[5])) for t, p in zip(profile_tasks, ends) if p.dropped]
-    profiled = ends + run_profiles(retry) if retry else ends
-
-    candidates = kept + [p for p in profiled if p.dropped is None]
+    best = min((p for _, p in kept), key=lambda p: p.delta).result
+    ends = [_End(t, p.result, name, value, end) for t, p in kept for name, value, end in profile_points(p.result)]
+    profiled = _profiles(log, ends, best, on_step)
+    dropped += [p for p in profiled if p.dropped]
+    candidates = [p for _, p in kept] + [p for p in profiled if p.dropped is None]
+    info = heater_settings(log, first.heater)
     replays = forked_map(lambda p: replay(log, p.fitted, info), candidates,
                          on_done=_step(on_step, "replaying the log on each plant", len(candidates)))
     members: list[AllowedPlant] = []
-    dropped = failed + [p for p in considered if p.dropped] + [p for p in profiled if p.dropped]
     for plant, r in sorted(zip(candidates, replays), key=lambda pr: pr[0].delta):
         plant = dataclasses.replace(plant, replay=r)
         if not r.passed:
@@ -343,6 +344,19 @@ def allowed_plants(log: Log, log_name: str, options: LogFitOptions | None = None
         else:
             members.append(plant)
     return Allowed(log_name, first.heater, first, members, dropped)
+
+
+def _profiles(log: Log, ends: list[_End], best: FitResult,
+              on_step: Callable[[str, int], Callable[[], None]] | None) -> list[AllowedPlant]:
+    """Each end refitted and judged against the best fit; an end the evidence excludes once more halfway."""
+    def run(tasks: list[_Task]) -> list[AllowedPlant | None]:
+        fits = forked_map(_fit(log), tasks, on_done=_step(on_step, "profiling what the log leaves open", len(tasks)))
+        return _judged(tasks, fits, [best])
+
+    at_ends = run([e.task(e.end) for e in ends])
+    again = [e for e, p in zip(ends, at_ends) if p is None or p.dropped]
+    halfway_there = run([e.task(halfway(e.name, e.value, e.end)) for e in again]) if again else []
+    return [p for p in at_ends + halfway_there if p is not None]
 
 
 def _alike(plant: AllowedPlant, members: list[AllowedPlant]) -> AllowedPlant | None:

@@ -132,12 +132,12 @@ def bin_tables(plant, d: np.ndarray, kinds: tuple, n_max: int, bin_lo: int, bin_
                           np.array([m.h for m in models]), lti.c, lti.f, d, kinds, n_max)
             for i, k in enumerate(missing):
                 _BINS[(*where, k)] = _tables({f: getattr(built, f)[i:i + 1] for f in _ARRAYS})
-            while len(_BINS) > MAX_CACHED_BINS:
-                _BINS.popitem(last=False)
         parts = []
         for k in range(bin_lo, bin_hi + 1):
             _BINS.move_to_end((*where, k))
             parts.append(_BINS[(*where, k)])
+        while len(_BINS) > MAX_CACHED_BINS:  # only once this range's bins are all in hand
+            _BINS.popitem(last=False)
         stacked = {f: _frozen(np.concatenate([getattr(t, f) for t in parts])) for f in _ARRAYS}
         return _tables(stacked, bin_lo)
 

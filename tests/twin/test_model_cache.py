@@ -45,3 +45,20 @@ def test_eviction_changes_no_result():
     cached = _drive(make_plant(), np.random.default_rng(4), forget=False)
     rebuilt = _drive(make_plant(), np.random.default_rng(4), forget=True)
     assert cached == rebuilt  # bit for bit
+
+
+def test_a_range_of_radiating_bins_wider_than_the_bin_cache_is_built_whole(monkeypatch):
+    """Lanes on many radiating plants (an ensemble of fits) ask for more bins than the cache keeps: the range
+    asked for is stacked whole, the cache trimmed only after, and a second ask rebuilds the same tables."""
+    from twin import lane_tables
+    from twin.plants import SPECS, Plant
+
+    monkeypatch.setattr(lane_tables, "MAX_CACHED_BINS", 3)
+    monkeypatch.setattr(lane_tables, "_BINS", type(lane_tables._BINS)())
+    monkeypatch.setattr(lane_tables, "_CACHE", type(lane_tables._CACHE)())
+    plant = Plant("r", SPECS["hotend"].__class__(**{**vars(SPECS["hotend"]), "emissivity": 1.0}), 25.0)
+    first = lane_tables.bin_tables(plant, plant.d, ((0, ()),), 160, 40, 47)
+    assert first.px.shape[0] == 8 and len(lane_tables._BINS) == 3
+    lane_tables._CACHE.clear()
+    again = lane_tables.bin_tables(plant, plant.d, ((0, ()),), 160, 40, 47)
+    np.testing.assert_array_equal(again.px, first.px)

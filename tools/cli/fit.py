@@ -320,7 +320,7 @@ def run(args: argparse.Namespace) -> int:
         allowed = None
     else:
         allowed = allowed_plants(log, name, _options(args, None), Steps("bar"))
-        fitted = allowed.best
+        fitted = allowed.first  # the fit the options ask for; the plants the log allows follow it
     print(f"twin-fit: {args.log}")
     lines = _log_lines(log, fitted) + _point_lines(fitted.points) + _fit_report(fitted, log)
     print("\n".join(lines + ([] if allowed is None else allowed.lines())))

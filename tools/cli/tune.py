@@ -86,7 +86,7 @@ def plant_lines(plant: Source) -> list[str]:
     allows and the fits it does not."""
     if plant.fitted is None:
         return []
-    result = plant.fitted.result
+    result = (plant.allowed.first if plant.allowed is not None else plant.fitted).result
     lines = [f"plant: {result.model} fitted to {plant.name.split(' (')[0]} as twin-fit fits it:",
              *result.parameter_lines()]
     return lines + (plant.allowed.lines() if plant.allowed is not None else [])
@@ -158,9 +158,8 @@ def report_proof(problem: Problem, proof: Proven, seeds: int) -> None:
 
 def reference_name(result: TuneResult) -> str:
     """What the reference to beat is, for the verdict's line."""
-    if result.yours.method == YOURS:
-        return "your gains"
-    return f"{result.yours.method}'s gains"
+    what = "gains" if result.problem.controller.pid else "parameters"
+    return f"your {what}" if result.yours.method == YOURS else f"{result.yours.method}'s {what}"
 
 
 def report(result: TuneResult, proof: Proven | None, seeds: int, is_bed: bool, printer: PrinterGains | None) -> int:

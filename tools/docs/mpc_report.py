@@ -11,10 +11,12 @@ serves it (M303, M306 T, M306) and through twin-sim's heat_hold scenario:
 2. on ``hotend_cartridge`` at 210 C, from ambient: M303 E0 S210 C8 on the pid build gives the
    gains, M306 T then M306 on the mpc build the model; heat_hold (600 s) with each, without and
    with 1 LSB of ADC noise (the autotunes run with the same noise);
-3. the same hold with the MPC constants ``twin-tune --controller mpc`` identifies on that plant
-   (``TUNE_ARGS``: DE from M306 T's result, on the nominal plant), pasted as its M306 line
-   (``twin-sim --firmware mpc --mpc-from``): MPC's constants are its model, and a model identified
-   for the closed loop holds where M306 T's two-node reading of a three-node hotend drifts.
+3. the same hold with the MPC constants ``twin-tune --controller mpc`` answers on that plant
+   (``TUNE_ARGS``: DE from M306 T's result on the preset's ensemble with 1 LSB of ADC noise, proven over
+   10 seeds on every plant against M306 T's constants: the answer, or M306 T's where nothing beats
+   them), pasted as its M306 line (``twin-sim --firmware mpc --mpc-from``): MPC's constants are its
+   model, and a model identified for the closed loop may hold where M306 T's two-node reading of a
+   three-node hotend drifts.
 """
 
 from __future__ import annotations
@@ -55,8 +57,7 @@ CONSTANTS = (("C", "block_heat_capacity_j_k"), ("R", "sensor_responsiveness_per_
              ("F", "fan_ambient_xfer_w_k"))
 SERIAL = parse_scenario('name = "serial"\nduration_s = 86400\n', "serial")
 DEFINE = re.compile(r"^#define DEFAULT_K([pid]) (\S+)$", re.M)
-TUNE_ARGS = ("--controller", "mpc", "--plant", PLANT, "--target", str(TARGET_C), "--spread", "0", "--noise", "0",
-             "--method", "de", "--budget", "360", "--seed", "0")
+TUNE_ARGS = ("--controller", "mpc", "--plant", PLANT, "--target", str(TARGET_C), "--seed", "0")
 
 
 def session(scenario: Scenario, firmware: str, lines: Sequence[str], noise_lsb: float = 0.0) -> str:
@@ -169,28 +170,32 @@ def heat_hold(firmware: str, noise_lsb: float, *, gains: PidGains | None = None,
                 float(np.mean(error_c)), trip)
 
 
-def tuned_model() -> MpcConstants:
-    """``twin-tune TUNE_ARGS``'s answer, through the M306 line a user would paste."""
-    from firmware_port.firmwares import param_space
-    from tools.tuning.tuner import preset_problem, tune
+def tuned_model() -> tuple[MpcConstants, str]:
+    """``twin-tune TUNE_ARGS``'s answer (the ensemble, 1 LSB of noise, the proof and its verdict), through the
+    M306 line a user would paste, and which it is: new constants, or M306 T's kept."""
+    from tools.tuning.problems import build_problem, preset_source
+    from tools.tuning.tuner import proven, tune
 
-    problem = preset_problem(PLANT, TARGET_C, controller=param_space("mpc"))  # nominal plant, noiseless: TUNE_ARGS
-    best = tune(problem, method="de", budget=int(TUNE_ARGS[-3]), seed=int(TUNE_ARGS[-1])).best
-    c, r, a, f = (float(v) for v in best.params)
+    problem = build_problem(preset_source(PLANT), TARGET_C, controller="mpc")
+    proof = proven(tune(problem, seed=int(TUNE_ARGS[-1])))
+    chosen = proof.answer or proof.yours
+    c, r, a, f = (float(v) for v in chosen.params)
+    kind = "M306 T's kept: nothing beats them on every plant" if proof.answer is None else \
+        f"new: {proof.verdict.why}"
     return MpcConstants.from_m306(DEFAULT_CONSTANTS.heater_power_w, c, r, a, f,
-                                  DEFAULT_CONSTANTS.filament_heat_capacity_j_k_mm)
+                                  DEFAULT_CONSTANTS.filament_heat_capacity_j_k_mm), kind
 
 
 def comparison_rows() -> list[str]:
     rows = []
     cartridge = plant_scenario({"preset": PLANT})
-    tuned = tuned_model()
+    tuned, kind = tuned_model()
     for noise in NOISES_LSB:
         gains, model = m303(cartridge, noise), m306_t(cartridge, noise)
         for label, hold in ((f"PID, M303 gains Kp {gains.kp:g} Ki {gains.ki:g} Kd {gains.kd:g}",
                              heat_hold("pid", noise, gains=gains)),
                             (f"MPC, M306 T: `{model.m306()}`", heat_hold("mpc", noise, model=model)),
-                            (f"MPC, twin-tune: `{tuned.m306()}`", heat_hold("mpc", noise, model=tuned))):
+                            (f"MPC, twin-tune ({kind}): `{tuned.m306()}`", heat_hold("mpc", noise, model=tuned))):
             rows.append(f"| {noise:g} | {label} | " + " | ".join(hold.cells()) + " |")
     return rows
 
@@ -203,7 +208,7 @@ def markdown() -> str:
              *accuracy_rows(), "",
              f"`{PLANT}` at {TARGET_C} C (heat_hold, 600 s, no bed), each firmware tuned by its own autotune on the "
              "same twin, with the ADC noise of its row; the last row of each noise level runs the constants of "
-             f"`twin-tune {' '.join(TUNE_ARGS)}` (tuned once, noiseless). Overshoot and the time to within 2 C on the firmware's "
+             f"`twin-tune {' '.join(TUNE_ARGS)}` (tuned once, on the preset's ensemble with 1 LSB of noise, proven). Overshoot and the time to within 2 C on the firmware's "
              f"reading; the hold is reading - target over {HOLD_FROM_S:g}..600 s; holds: within {HOLD_BAND_C:g} C. "
              f"A noiseless reading steps by one ADC count, {B3950_TABLE.count_c(TARGET_C):.2f} C at {TARGET_C} C.",
              "", "| noise LSB | firmware and its tuning | overshoot C | to +-2 C s | hold C | mean C | holds |",

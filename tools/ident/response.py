@@ -93,39 +93,34 @@ def radiating_response(plant: Plant, t_s: np.ndarray, duty: np.ndarray) -> np.nd
     c = plant.model.lti.c[SENSOR]
     out = np.empty(len(ticks))
     out[0] = c @ x
+    xa = np.ones(len(x) + 2)  # [x, u, 1]: one matrix [Phi | g | H d] steps it
     for i, (j, u) in enumerate(zip(which, np.asarray(duty, float))):
-        phi, g, hd = grid.at(float(x[0]), j)
-        x = phi @ x + g * u + hd
+        xa[:-2], xa[-2] = x, u
+        where = x[0] / RADIATING_MAP_STEP_C
+        k = math.floor(where)
+        low = grid.point(k)[j] @ xa
+        x = low + (where - k) * (grid.point(k + 1)[j] @ xa - low)
         out[i + 1] = c @ x
     plant.x = x
     return out
 
 
-RADIATING_MAP_STEP_C = 2.0  # radiating_response's grid of linearisation temperatures
+RADIATING_MAP_STEP_C = 5.0  # radiating_response's grid of linearisation temperatures
 GRID_CHUNK = 16  # grid points built at once
 
 
 class _RadiatingMaps:
-    """The interval maps of a radiating plant at grid points of block temperature, built on demand."""
+    """The interval maps [Phi | g | H d] of a radiating plant at grid points of block temperature, built on
+    demand, one per interval length."""
 
     def __init__(self, plant: Plant, lengths_s: np.ndarray):
         self.plant, self.lengths_s = plant, lengths_s
-        self.maps: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # grid point -> per length
+        self.maps: dict[int, np.ndarray] = {}  # grid point -> (lengths, n, n + 2)
 
-    def at(self, block_c: float, length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(Phi, g, H d) for an interval of the given length index starting with the block at block_c."""
-        where = block_c / RADIATING_MAP_STEP_C
-        k = math.floor(where)
-        w = where - k
-        low, high = self._point(k), self._point(k + 1)
-        phi, g, hd = ((1.0 - w) * a[length] + w * b[length] for a, b in zip(low, high))
-        return phi, g, hd
-
-    def _point(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def point(self, k: int) -> np.ndarray:
         if k not in self.maps:
             first = k - GRID_CHUNK // 2
-            points = [p for p in range(first, first + GRID_CHUNK) if p not in self.maps]
-            self._build(points)
+            self._build([p for p in range(first, first + GRID_CHUNK) if p not in self.maps])
         return self.maps[k]
 
     def _build(self, points: list[int]) -> None:
@@ -135,10 +130,9 @@ class _RadiatingMaps:
                            ._replace(block_bin_c=p * RADIATING_MAP_STEP_C)) for p in points]
         n_len = len(self.lengths_s)
         phi, g, h = _interval_maps(models, np.tile(self.lengths_s, len(points)), repeat=n_len)
-        hd = h @ plant.d
+        affine = np.concatenate([phi, g[:, :, None], (h @ plant.d)[:, :, None]], axis=2)
         for i, p in enumerate(points):
-            part = slice(i * n_len, (i + 1) * n_len)
-            self.maps[p] = (phi[part], g[part], hd[part])
+            self.maps[p] = affine[i * n_len:(i + 1) * n_len]
 
 
 # --- the models ----------------------------------------------------------------------------------

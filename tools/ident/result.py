@@ -140,11 +140,14 @@ class FitResult:
         out = []
         for name, standing in self.identification().items():
             value = self.values[name]
-            if standing == "poorly identified":
+            if standing == "poorly identified":  # two standard errors, within what is plausible at all
                 error = 2.0 * abs(self.std_errors[name])
                 low = value - error if name in ("ambient_c", "delay_s") else max(value - error, value / 10.0)
-                out.append(Range(name, max(low, 0.0) if name == "delay_s" else low, value + error,
-                                 "the fit: two standard errors either way"))
+                r = plausible(name, self.heater, value)
+                out.append(Range(name, max(low, 0.0 if name == "delay_s" else -math.inf, min(r.low, value)),
+                                 min(value + error, max(r.high, value)),
+                                 f"the fit: two standard errors either way, within {r.low:.4g}..{r.high:.4g} "
+                                 f"({r.source})"))
             elif standing != "identified":
                 r = plausible(name, self.heater, value)
                 out.append(r._replace(low=min(r.low, value), high=max(r.high, value)))

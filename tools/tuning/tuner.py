@@ -272,10 +272,15 @@ def tune(problem: Problem, objective_name: str = DEFAULT_OBJECTIVE, method: str 
     on_step = on_step or _steps(progress)
     cost = objective(objective_name)
     rules, optimisers = plan(method, problem.controller.pid)
+    advance = on_step("the firmware's autotune, the references and the rules", 2) if on_step else None
     refs, notes = references(problem, cost, client, yours)
+    if advance is not None:
+        advance()
     gains, failures = rule_gains(problem, rules)
     notes += [f"rule {rule} gives no gains here: {why}" for rule, why in failures.items()]
     candidates = score(problem, cost, dict(gains), client) if gains else []
+    if advance is not None:
+        advance()
     if hopeless := hopeless_members(problem, [*refs, *candidates]):
         labels = ", ".join(problem.ensemble.members[k].label for k in hopeless) if problem.ensemble else ""
         problem = replace(problem, ensemble=without_members(problem.ensemble, hopeless))

@@ -66,7 +66,7 @@ def linearised_at_every_sample(plant: Plant, t_s: np.ndarray, duty: np.ndarray) 
 
 def test_the_radiating_grid_stays_within_its_bound_of_a_linearisation_at_every_sample():
     """A heat-up to 250 C and a cooling at 0.3 s samples: within 0.01 C of the per-sample linearisation
-    (the grid's error is second order in its 2 C step)."""
+    (the grid's error is second order in its 5 C step: 0.002 C measured)."""
     spec = dataclasses.replace(SPECS["hotend"], emissivity=1.0, radiating_area_m2=0.003)  # the fits' scale
     t_s = np.arange(0.0, 600.0, 0.3)
     duty = np.where(t_s < 200.0, 1.0, np.where(t_s < 400.0, 0.35, 0.0))
@@ -74,4 +74,4 @@ def test_the_radiating_grid_stays_within_its_bound_of_a_linearisation_at_every_s
     want = linearised_at_every_sample(Plant("r", spec, AMBIENT_C, AMBIENT_C), t_s, duty)
     assert want.max() > 200.0  # the radiation matters up there
     assert np.max(np.abs(got - want)) < 0.01
-    assert RADIATING_MAP_STEP_C == 2.0  # the bound above was measured for this step
+    assert RADIATING_MAP_STEP_C == 5.0  # the bound above was measured for this step

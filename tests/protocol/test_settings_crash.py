@@ -27,7 +27,16 @@ from tools.cli import serial as serial_cli
 TRIALS = 40
 SEED = 500
 KILL_WITHIN_S = 0.3  # after the stream starts: a few dozen M500s at most
-GAINS = re.compile(r"echo:  M301 P(\d+)\.00 ")
+GAINS = re.compile(r"echo:  M301 P(\d+\.\d\d) ")
+P_BASE, P_STEP = 100.0, 0.01  # the n-th P sent: 100.00, 100.01, ... (unique, within the firmware's |P| <= 1000)
+
+
+def _p(n: int) -> str:
+    return f"{P_BASE + n * P_STEP:.2f}"
+
+
+def _n(p: float) -> int:
+    return round((p - P_BASE) / P_STEP)
 DATA_LIMIT_BYTES = 768 << 20  # twin-serial's imports need about 300 MB of data segment and mappings (170 MB resident)
 
 
@@ -60,11 +69,11 @@ def _line(port) -> str:
 
 
 def _stream_until_killed(port, first: int) -> int | None:
-    """``M301 P<n>`` and ``M500`` for n = first, first + 1, ...; the last n whose M500 was acknowledged."""
+    """``M301 P<_p(n)>`` and ``M500`` for n = first, first + 1, ...; the last n whose M500 was acknowledged."""
     acked = None
     try:
-        for value in range(first, first + 100_000):
-            port.write(f"M301 P{value}\nM500\n".encode())
+        for value in range(first, first + 80_000):
+            port.write(f"M301 P{_p(value)}\nM500\n".encode())
             while not _line(port).startswith("echo:Settings Stored"):
                 pass
             while _line(port) != "ok":
@@ -76,12 +85,12 @@ def _stream_until_killed(port, first: int) -> int | None:
 
 
 def _stored_gain(banner: list[str]) -> int | None:
-    """The hotend P the banner loaded from the file, None for the defaults of a missing file."""
+    """The n of the hotend P the banner loaded from the file, None for the defaults of a missing file."""
     if "echo:Hardcoded Default Settings Loaded" in banner:
         assert not any("mismatch" in line for line in banner), banner  # never a damaged file
         return None
     assert any(line.startswith("echo:V87 stored settings retrieved (") for line in banner), banner
-    return int(next(GAINS.match(line) for line in banner if GAINS.match(line)).group(1))
+    return _n(float(next(GAINS.match(line) for line in banner if GAINS.match(line)).group(1)))
 
 
 @pytest.mark.slow
@@ -94,15 +103,15 @@ def test_a_crash_at_any_instant_of_m500_keeps_the_old_settings_or_the_new(tmp_pa
     eeprom, link = folder / "eeprom.json", tmp_path / "printer"
     allowed: set[int | None] = {None}  # no file yet
     acked: int | None = None
-    value = 100  # the next P to send: each is sent once in the whole test
+    value = 0  # the n of the next P to send: each is sent once in the whole test
     for trial in range(TRIALS + 1):
         proc, port = _start(context, link, eeprom)
         try:
             stored = _stored_gain(expect(port, "M304"))  # the banner's last line
-            assert stored in allowed, f"trial {trial}: the file holds P{stored}, expected one of {allowed}"
+            assert stored in allowed, f"trial {trial}: the file holds n={stored}, expected one of {allowed}"
             assert sorted(os.listdir(folder)) == ([] if stored is None else ["eeprom.json"])  # no leftovers
             if stored is not None:
-                assert Settings.from_bytes(eeprom.read_bytes()).hotend.kp == stored
+                assert _n(Settings.from_bytes(eeprom.read_bytes()).hotend.kp) == stored
             if trial == TRIALS:
                 proc.terminate()
                 return

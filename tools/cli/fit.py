@@ -18,8 +18,9 @@ at the relay's target for relay data, else the log's. ``--fit-only``: the fit al
 --loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
 
 Exit status: 0 fitted; 2 the log or the options cannot be used (one line on stderr); 3 the fit is
-degenerate (it identifies none of the model's lags) or no plant both fits the log and replays it: the
-report is printed, but no gains.
+degenerate (it identifies none of the model's lags), no plant both fits the log and replays it, or
+nothing proven holds on every plant it allows: the report is printed, but no gains, and one line on
+stderr says why.
 """
 
 from __future__ import annotations
@@ -59,7 +60,8 @@ EXIT_STATUS = """
 exit status:
   0  fitted, settings printed
   2  bad input: an option, or a log that cannot be read or fitted, said in one line
-  3  a degenerate fit, or no plant that fits the log replays it: the report is printed, but no gains
+  3  a degenerate fit, no plant that fits the log replays it, or nothing proven holds on every plant it
+     allows: the report is printed, but no gains, and one line on stderr says why
 """
 WIDTH = 120  # output lines are wrapped to this
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
@@ -217,19 +219,18 @@ def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str
 
 
 def _gains_lines(problem: Problem, answer: Proven, heater: str, printer: PrinterGains | None,
-                 plants: int) -> list[str]:
+                 plants: int) -> list[str] | None:
     """The PID gains twin-tune's tuner would print (tools/tuning/problems.py quick_answer: the rules and the
-    firmware's autotune, proven on every plant the log allows against the printer's gains), or why none."""
+    firmware's autotune, proven on every plant the log allows against the printer's gains), "keep your
+    gains", or None where nothing proven holds (the reference itself trips on some plant)."""
     bed = heater == BED
     where = f"on all {plants} plants the log allows, {PROOF_SEEDS} noise seeds each, on the {problem.loop} loop"
     if answer.verdict.keep and printer is not None:
         return [f"keep your gains ({printer.gains}: {printer.source}): {answer.verdict.why}",
                 "  (`twin-tune --from-log LOG` searches further)"]
     if answer.answer is None:
-        safe = all(r.passed for r in answer.rows if r.method == answer.yours.method)
-        if not safe:
-            return [f"no gains proven: nothing tried beats {answer.yours.method}, which trips on some plant the log "
-                    "allows; `twin-tune --from-log LOG` searches further and proves what it prints"]
+        if not all(r.passed for r in answer.rows if r.method == answer.yours.method):
+            return None
         chosen = answer.yours
         why = f"{chosen.method} on the twin: nothing tried beats it {where}"
     else:
@@ -327,19 +328,27 @@ def run(args: argparse.Namespace) -> int:
     if reason := fitted.degenerate:
         print(f"twin-fit: {args.log}: degenerate fit, no gains: {reason}", file=sys.stderr)
         return EXIT_DEGENERATE
+    if allowed is not None and not allowed.members:
+        print(f"twin-fit: {args.log}: no gains: {allowed.why_none()}", file=sys.stderr)
+        return EXIT_DEGENERATE
     settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s) + _log_notes(log, fitted)
     if allowed is None:
         settings.append("gains: not with --fit-only (twin-fit without it proves the rules' on every plant the log "
                         "allows; twin-tune --from-log searches further)")
-    elif not allowed.members:
-        settings.append(f"no gains: {allowed.why_none()}")
     else:
         source = allowed_source(log, allowed, _options(args, None))
         problem = build_problem(source, args.target)
-        settings += _gains_lines(problem, quick_answer(problem, source.printer), fitted.heater, source.printer,
-                                 len(allowed.members))
+        answer = quick_answer(problem, source.printer)
+        gains = _gains_lines(problem, answer, fitted.heater, source.printer, len(allowed.members))
+        if gains is None:
+            print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
+            print(f"twin-fit: {args.log}: no gains: nothing tried beats {answer.yours.method}, which trips on some "
+                  "plant the log allows; `twin-tune --from-log` searches further and proves what it prints",
+                  file=sys.stderr)
+            return EXIT_DEGENERATE
+        settings += gains
     print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
-    return 0 if allowed is None or allowed.members else EXIT_DEGENERATE
+    return 0
 
 
 def _describe(log: str) -> Callable[[BaseException], str]:

@@ -132,8 +132,13 @@ class Problem:
     seed: int = 0  # the noise's seed
     engine: str = "fast"  # the scalar twins' engine (twin/engine.py ENGINES): "reference" for a proof
     klipper: HeaterInfo | None = None  # the Klipper loop's heater settings (a log's); None: Klipper's example
+    # the heater_power a host's MPC states (Kalico's): a printer's setting, so every member keeps the nominal's;
+    # 0: this plant's input at full duty
+    heater_power_w: float = 0.0
 
     def __post_init__(self) -> None:
+        if not self.heater_power_w:
+            object.__setattr__(self, "heater_power_w", self.input_full_scale)
         if self.loop not in LOOPS:
             raise ValueError(f"unknown loop {self.loop!r}; choose one of: {', '.join(LOOPS)}")
         kalico_mpc = self.controller.name == KALICO_MPC
@@ -361,10 +366,11 @@ def klipper_setup(problem: Problem, plant, params: Sequence[float] | np.ndarray 
 
 def kalico_mpc_config(problem: Problem, params: Sequence[float] | np.ndarray | None) -> MpcConfig:
     """Kalico's ``control: mpc`` options for the MPC family's parameters (firmware_port/firmwares.py
-    ``kalico_mpc_space``; None: uncalibrated, what MPC_CALIBRATE starts from): heater_power the plant's input
-    at full duty, and on a plant with a part fan ``cooling_fan`` and the table ``ambient_transfer, fan``."""
+    ``kalico_mpc_space``; None: uncalibrated, what MPC_CALIBRATE starts from): the problem's heater_power (the
+    nominal plant's input at full duty, on every member: a transfer function's unit is not a watt), and on a
+    plant with a part fan ``cooling_fan`` and the table ``ambient_transfer, fan``."""
     fan_aware = problem.spec.world_inputs
-    power_w = problem.input_full_scale
+    power_w = problem.heater_power_w
     if params is None:
         return MpcConfig(power_w, cooling_fan=fan_aware)
     capacity, responsiveness, ambient, fan = (float(v) for v in params)

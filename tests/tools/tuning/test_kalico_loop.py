@@ -24,11 +24,12 @@ from tools.tuning.evaluate import (
     run_scalars,
     simulate,
 )
+from tools.tuning.ensemble import plant_ensemble
 from tools.tuning.objectives import heater_terms
 from tools.tuning.tuner import tune
 from tools.validation.compare import HeaterInfo
 from twin.klipper_twin import DEFAULT_SENSOR, KlipperTwin, kalico_extruder_setup
-from twin.plants import make_plant
+from twin.plants import SPECS, make_plant
 from twin.scenario import Event
 
 TARGET_C = 200.0
@@ -100,6 +101,18 @@ def test_mpc_calibrate_gives_kalico_mpc_the_constants_it_saves_and_they_hold():
     assert not run.tripped[0] and terms.hold_error_c[0] < 1.0
     setup = klipper_setup(problem, make_problem_plant(problem), params)
     assert setup.config.control == "mpc" and setup.config.mpc == kalico_mpc_config(problem, params)
+
+
+def test_every_member_keeps_the_nominal_heater_power():
+    """heater_power is the printer's setting: a member whose plant is a transfer function (its input in the
+    paper's unit, 2000 at full duty) runs Kalico's MPC with the nominal hotend's 40 W, and no part fan."""
+    ensemble = plant_ensemble((("hotend", SPECS["hotend"], 25.0), ("fopdt", SPECS["seed001_fopdt"], 25.0)), 1.0)
+    problem = replace(preset_problem("hotend", 210, loop="kalico", controller=param_space(KALICO_MPC)),
+                      ensemble=ensemble)
+    hotend, fopdt = problem.members()
+    assert (hotend.heater_power_w, fopdt.heater_power_w, fopdt.input_full_scale) == (40.0, 40.0, 2000.0)
+    params = param_space(KALICO_MPC).defaults
+    assert kalico_mpc_config(fopdt, params) == MpcConfig(40.0, *params[:3])
 
 
 def test_kalico_mpc_runs_on_the_kalico_loop_only():

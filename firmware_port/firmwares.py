@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NoReturn
 
 from firmware_port.fuzzy_pi import SEED004_BED, SEED004_HOTEND, FuzzyPi, FuzzyPiFloat, fuzzy_pi_space
 from firmware_port.fuzzy_pid import FuzzyPid, FuzzyPidFloat, fuzzy_pid_space
 from firmware_port.marlin.bangbang import BangBangBed, BangBangHotend
-from firmware_port.marlin.mpc import MpcController, mpc_space
+from firmware_port.marlin.mpc import MPC_SEARCH_FACTOR, MpcController, mpc_space
 from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidFixed, PidGains, pid_space
 from firmware_port.marlin.pid_float import PidFloat, pid_float_space
-from firmware_port.params import ParamSpace
+from firmware_port.params import Param, ParamSpace
 from firmware_port.seed000 import (
     adaptive_controller,
     adaptive_space,
@@ -98,6 +99,35 @@ def build_controllers(name: str):
     return hotend(), bed()
 
 
+KALICO_MPC = "kalico_mpc"
+KALICO_SAVED_DIGITS = 6  # SAVE_CONFIG writes MPC_CALIBRATE's constants as %#.6g (firmware_port/kalico/save_config.py)
+
+
+def kalico_mpc_space() -> ParamSpace:
+    """Kalico's MPC (``control: mpc``, firmware_port/kalico/mpc.py) as a tunable family: the constants
+    MPC_CALIBRATE measures, named as Kalico's section names them, and the part fan's transfer at full speed
+    (with ``cooling_fan``: the table ``fan_ambient_transfer: <ambient_transfer>, <this>``). Kalico's MPC is
+    Marlin's model on the host and has no defaults of its own, so the defaults and the bounds (1/10 .. 10 x)
+    are Marlin's Configuration.h model's; heater_power is the heater's own, not tuned. A tuner builds
+    Kalico's section from the parameters on the kalico loop (tools/tuning/evaluate.py ``klipper_setup``):
+    there is no board controller to make."""
+    marlin = mpc_space()
+    c, r, a, f = marlin.defaults
+    values = (("block_heat_capacity", "J/K", c), ("sensor_responsiveness", "1/s", r),
+              ("ambient_transfer", "W/K", a), ("fan_ambient_transfer", "W/K", a + f))
+    params = tuple(Param(name, unit, value / MPC_SEARCH_FACTOR, value * MPC_SEARCH_FACTOR, value, log=True)
+                   for name, unit, value in values)
+
+    def held(*constants: float) -> tuple[float, ...]:
+        return tuple(float(f"{value:.{KALICO_SAVED_DIGITS}g}") for value in constants)
+
+    return ParamSpace(KALICO_MPC, params, _kalico_host_only, held=held, autotune="MPC_CALIBRATE")
+
+
+def _kalico_host_only(*constants: float) -> NoReturn:
+    raise ValueError(f"{KALICO_MPC} is Kalico's host control: it runs on the kalico loop, not on Marlin's board")
+
+
 HEATERS = ("hotend", "bed")
 # name -> (hotend space, bed space): the builds whose controllers have parameters to tune, each
 # space's defaults being what the build runs on that heater.
@@ -113,19 +143,25 @@ PARAM_SPACES: dict[str, tuple[Callable[[], ParamSpace], Callable[[], ParamSpace]
     "seed000_fuzzy": (fuzzy_space, fuzzy_space),
     "seed000_gauss": (gaussian_space, gaussian_space),
     "seed000_adaptive": (adaptive_space, adaptive_space),
-    "mpc": (mpc_space, lambda: _hotend_only("mpc")),
+    "mpc": (mpc_space, lambda: _hotend_only("mpc", "Marlin's MPCTEMP: the bed runs PID or bang-bang")),
+}
+# name -> (hotend space, bed space): controls a printer's host runs (Kalico's, on the kalico loop), no board's
+HOST_SPACES: dict[str, tuple[Callable[[], ParamSpace], Callable[[], ParamSpace]]] = {
+    KALICO_MPC: (kalico_mpc_space, lambda: _hotend_only(KALICO_MPC, "its bounds are a hotend's")),
 }
 
 
-def _hotend_only(name: str) -> ParamSpace:
-    raise ValueError(f"{name} is a hotend controller (Marlin's MPCTEMP): the bed runs PID or bang-bang")
+def _hotend_only(name: str, why: str) -> ParamSpace:
+    raise ValueError(f"{name} is a hotend controller ({why})")
 
 
 def param_space(name: str, heater: str = "hotend") -> ParamSpace:
-    """The tunable parameters of a firmware build's controller on a heater; ValueError names the valid builds."""
+    """The tunable parameters of a firmware build's controller (or a host's control) on a heater; ValueError
+    names the valid ones."""
     if heater not in HEATERS:
         raise ValueError(f"heater must be one of {', '.join(HEATERS)}, not {heater!r}")
-    if name not in PARAM_SPACES:
+    spaces = {**PARAM_SPACES, **HOST_SPACES}
+    if name not in spaces:
         why = "has no parameters to tune" if name in FIRMWARES else "is not a firmware build"
-        raise ValueError(f"{name!r} {why}; tunable: {', '.join(PARAM_SPACES)}")
-    return PARAM_SPACES[name][HEATERS.index(heater)]()
+        raise ValueError(f"{name!r} {why}; tunable: {', '.join(spaces)}")
+    return spaces[name][HEATERS.index(heater)]()

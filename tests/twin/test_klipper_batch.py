@@ -181,11 +181,12 @@ def test_bad_noise_and_seeds_are_refused():
         KlipperBatch(setups, seed=[1, 2])
 
 
-def test_the_tuners_klipper_batch_is_its_scalar_twins_with_noise():
-    """tools.tuning.evaluate: a noisy Klipper-loop problem gives the same trace and trips on the batch
-    (simulate, Problem.batched) as one KlipperTwin per candidate (run_scalars); the last candidate
+@pytest.mark.parametrize("loop", ["klipper", "kalico"])
+def test_the_tuners_klipper_batch_is_its_scalar_twins_with_noise(loop):
+    """tools.tuning.evaluate: a noisy Klipper-loop (or Kalico-loop) problem gives the same trace and trips on
+    the batch (simulate, Problem.batched) as one KlipperTwin per candidate (run_scalars); the last candidate
     heats too slowly and trips verify_heater."""
-    problem = dataclasses.replace(preset_problem("hotend_cartridge", 210, loop="klipper"), noise_lsb=1.0, seed=3)
+    problem = dataclasses.replace(preset_problem("hotend_cartridge", 210, loop=loop), noise_lsb=1.0, seed=3)
     problem = dataclasses.replace(problem, scenario=dataclasses.replace(problem.scenario, duration_s=400.0))
     assert problem.batched
     params = np.array([[22.2, 1.08, 114.0], [10.0, 0.3, 50.0], [0.05, 0.0, 0.0]])

@@ -31,7 +31,9 @@ from tools.entry import OneLineParser, run_main
 from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
 from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
-from tools.tuning.evaluate import LOOPS, Candidate, Problem
+from firmware_port.firmwares import KALICO_MPC
+from firmware_port.kalico import mpc_options, pid_options, section
+from tools.tuning.evaluate import LOOPS, Candidate, Problem, kalico_mpc_config
 from tools.tuning.problems import BED_TARGET_C, HOTEND_TARGET_C, Source, build_problem, log_source, preset_source
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, heater_terms
 from tools.tuning.proof import CROSS_CHECK_S, PROOF_SEEDS, ProofRow
@@ -52,6 +54,8 @@ EPILOG = """examples:
   twin-tune --controller my_module:SPACE --plant hotend      # your own controller (a ParamSpace)
   twin-tune --controller pid,mpc --plant hotend_cartridge --budget 100   # PID against Marlin's MPC
   twin-tune --from-log klippy.log --heater extruder --loop klipper
+  twin-tune --plant hotend --loop kalico                      # Kalico's PID, against its PID_CALIBRATE
+  twin-tune --controller pid,mpc --plant hotend --loop kalico # Kalico's PID against its MPC (MPC_CALIBRATE)
 
   twin-tune --from-log m303.txt --current-gains "M301 P22.2 I1.08 D114" --json answer.json
 
@@ -75,7 +79,9 @@ def source(args: argparse.Namespace, steps: Steps) -> Source:
 
 def make_problem(args: argparse.Namespace, plant: Source, loop: str, controller_name: str) -> tuple[Problem, bool]:
     """The problem the arguments describe on ``plant`` (with ``loop`` and ``controller_name``), and whether its
-    heater is a bed."""
+    heater is a bed. On the kalico loop ``mpc`` is Kalico's MPC."""
+    if loop == "kalico" and controller_name == "mpc":
+        controller_name = KALICO_MPC
     problem = build_problem(plant, args.target, controller_name, None if loop == AUTO else loop, args.noise,
                             args.statistic, spread=args.spread > 0)
     return problem, plant.is_bed
@@ -124,12 +130,19 @@ def describe(problem: Problem, candidate: Candidate) -> str:
 
 def settings_lines(problem: Problem, best: Candidate, is_bed: bool, proven: bool = True) -> list[str]:
     """Ready to paste, for the loop that proved it (or marked unproven): Marlin's M301/M304 and
-    Configuration.h, or Klipper's section; for other controllers their parameters."""
+    Configuration.h, Klipper's section, or Kalico's (its PID or its MPC, as SAVE_CONFIG writes them); for
+    other controllers their parameters."""
+    heater = "heater_bed" if is_bed else "extruder"
+    if problem.loop == "kalico":
+        options = pid_options(*best.params) if problem.controller.pid else \
+            mpc_options(kalico_mpc_config(problem, best.params))
+        return [f"Kalico printer.cfg ({'proven on' if proven else 'UNPROVEN, from'} the Kalico loop):",
+                *("  " + line for line in section(heater, options).splitlines())]
     if not problem.controller.pid:
         return [f"{problem.controller.name} parameters (the firmware's units), from the {problem.loop} loop"
                 f"{'' if proven else ', UNPROVEN'}:",
                 *(f"  {p.name} = {v:.6g} {p.unit}".rstrip() for p, v in zip(problem.controller.params, best.params))]
-    gains, heater = best.gains, "heater_bed" if is_bed else "extruder"
+    gains = best.gains
     if problem.loop == "klipper":
         return [f"Klipper printer.cfg ({'proven on' if proven else 'UNPROVEN, from'} the Klipper loop):",
                 *("  " + line for line in gains.klipper_section(heater).splitlines())]
@@ -262,8 +275,9 @@ def build_parser() -> OneLineParser:
                              "module:attribute naming your ParamSpace; several, comma-separated, are tuned on the "
                              "same plant and compared, e.g. pid,mpc (default: pid)")
     parser.add_argument("--loop", default=AUTO, choices=(AUTO,) + LOOPS + (BOTH,),
-                        help="the loop the candidates run in: Marlin's board, Klipper's host PID, the papers' "
-                             "idealised continuous loop, or both firmware loops, each with its own answer "
+                        help="the loop the candidates run in: Marlin's board, Klipper's host PID, Kalico's (its PID, "
+                             "or its MPC with --controller mpc), the papers' idealised continuous loop, or both "
+                             "firmware loops (Marlin's and Klipper's), each with its own answer "
                              "(default: auto, the log's firmware: klipper for a klippy.log, a Klipper heattest or "
                              "a PID_CALIBRATE result, else marlin)")
     parser.add_argument("--current-gains", metavar="GAINS",

@@ -1,7 +1,8 @@
 """Which controller family a tune runs: a firmware build's name, or a user's ``module:attribute``.
 
 A firmware build (firmware_port/firmwares.py ``PARAM_SPACES``) gives the space of the heater it
-runs on (the bed's defaults differ from the hotend's). A user's ``module:attribute``, importable
+runs on (the bed's defaults differ from the hotend's); so does a host's control (``HOST_SPACES``:
+Kalico's MPC, on the kalico loop). A user's ``module:attribute``, importable
 from the current directory or the Python path (e.g. ``--controller my_smith:SPACE``), names either
 a ``ParamSpace``, or a function defined in that module whose one parameter is named ``heater``
 (it gets "hotend" or "bed" and returns a ParamSpace). Nothing else is ever called: the attribute is
@@ -15,13 +16,13 @@ import inspect
 import sys
 from pathlib import Path
 
-from firmware_port.firmwares import PARAM_SPACES, param_space
+from firmware_port.firmwares import HOST_SPACES, PARAM_SPACES, param_space
 from firmware_port.params import ParamSpace
 
 
 def controller_names() -> list[str]:
-    """The firmware builds with parameters to tune."""
-    return list(PARAM_SPACES)
+    """The firmware builds with parameters to tune, then the host controls (Kalico's MPC)."""
+    return list(PARAM_SPACES) + list(HOST_SPACES)
 
 
 def resolve_controller(name: str, heater: str) -> ParamSpace:

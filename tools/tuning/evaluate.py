@@ -10,6 +10,9 @@ default Marlin's fixed-point PID, whose parameters are Kp, Ki, Kd on the 0..255 
   (dead time and a radiating loss need numba's compiled lanes), others one ``Twin`` each.
 - ``klipper``: Klipper's host PID (twin/klipper_twin.py) as lanes of a ``KlipperBatch`` (with numba;
   else one ``KlipperTwin`` per candidate), PID families only.
+- ``kalico``: the Klipper loop with Kalico's heater (firmware_port/kalico: its PWM rules; its PID on the
+  same lanes, its PID_CALIBRATE the autotune), and Kalico's MPC (firmware_port/firmwares.py
+  ``kalico_mpc_space``, MPC_CALIBRATE its autotune) on one ``KlipperTwin`` per candidate.
 - ``ideal``: the papers' loop: a continuous PID, Kp + Ki/s + Kd s/(s/N + 1) with Simulink's
   default filter N = 100 1/s, on the plant's linear model, no saturation, no quantisation, the
   dead time exact; stepped with the plant's exact zero-order hold at ``IDEAL_DT_S`` (backward
@@ -32,6 +35,7 @@ import dataclasses
 import functools
 import math
 import warnings
+from contextlib import contextmanager
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -39,12 +43,13 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from firmware_port.klipper import CommandError
+from firmware_port.kalico import CONTROL_MPC, KalicoHeaterConfig, MpcConfig
+from firmware_port.klipper import CommandError, HeaterConfig
 from firmware_port.lane_law import law_for
 from twin import batch_kernel
 from firmware_port.marlin.board import HOTEND_CHANNEL
 from firmware_port.marlin.mpc_autotune import MpcAutotune
-from firmware_port.firmwares import param_space
+from firmware_port.firmwares import KALICO_MPC, param_space
 from firmware_port.marlin.pid import pid_space
 from firmware_port.params import ParamSpace
 from tools.ident.fopdt import CONTROL_DELAY_S
@@ -65,7 +70,8 @@ from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
 from twin.scenario import Event
 from twin.streaming import ScoreTotals
 
-LOOPS = ("marlin", "klipper", "ideal")
+LOOPS = ("marlin", "klipper", "kalico", "ideal")
+KLIPPER_FAMILY = ("klipper", "kalico")  # Klipper's host loop, with Klipper's heater or Kalico's
 CHUNK_LANES = 32  # candidates per batch: one dask task
 AMBIENT_C = 25.0
 HEATUP_FACTOR = 3.0  # heat-up phase = 3 x the open-loop time to the target at full power
@@ -81,7 +87,15 @@ M303_CYCLES = 8
 AUTOTUNE_TIMEOUT_S = 2 * 20 * 60.0  # twice Marlin's MAX_CYCLE_TIME_PID_AUTOTUNE (20 min)
 AUTOTUNE_POLL_S = 10.0
 KLIPPER_MAX_TEMP_C = 300.0  # above any tuning target, so only a real runaway trips
+# a Klipper section's own options that Kalico reads as Klipper does; the PWM rules are each firmware's
+KALICO_CARRIED = ("name", "min_temp_c", "max_temp_c", "pid_kp", "pid_ki", "pid_kd", "max_delta_c", "max_power",
+                  "smooth_time_s", "pwm_delay_s")
 OUT_OF_RANGE_COST = 1e9  # a candidate the firmware cannot take
+
+
+def klipper_family(loop: str) -> bool:
+    """Whether the loop is Klipper's host loop (``klipper``, or ``kalico`` with Kalico's heater)."""
+    return loop in KLIPPER_FAMILY
 
 
 @dataclass(frozen=True)
@@ -118,13 +132,21 @@ class Problem:
     seed: int = 0  # the noise's seed
     engine: str = "fast"  # the scalar twins' engine (twin/engine.py ENGINES): "reference" for a proof
     klipper: HeaterInfo | None = None  # the Klipper loop's heater settings (a log's); None: Klipper's example
+    # the heater_power a host's MPC states (Kalico's): a printer's setting, so every member keeps the nominal's;
+    # 0: this plant's input at full duty
+    heater_power_w: float = 0.0
 
     def __post_init__(self) -> None:
+        if not self.heater_power_w:
+            object.__setattr__(self, "heater_power_w", self.input_full_scale)
         if self.loop not in LOOPS:
             raise ValueError(f"unknown loop {self.loop!r}; choose one of: {', '.join(LOOPS)}")
-        if self.loop != "marlin" and not self.controller.pid:
-            raise ValueError(f"the {self.loop} loop runs a PID: controller {self.controller.name} runs on the "
-                             "marlin loop only")
+        kalico_mpc = self.controller.name == KALICO_MPC
+        if kalico_mpc and self.loop != "kalico":
+            raise ValueError(f"controller {KALICO_MPC} is Kalico's MPC: it runs on the kalico loop only")
+        if self.loop != "marlin" and not (self.controller.pid or kalico_mpc):
+            raise ValueError(f"the {self.loop} loop runs a PID{' or Kalico MPC' if self.loop == 'kalico' else ''}: "
+                             f"controller {self.controller.name} runs on the marlin loop only")
 
     @property
     def input_full_scale(self) -> float:
@@ -155,15 +177,15 @@ class Problem:
     def batched(self) -> bool:
         """Whether candidates run as lanes of one batch (else one twin each, as always on the reference
         engine). Without numba, only the numpy lanes' cases: the Marlin loop on a linear plant without
-        dead time."""
+        dead time. Kalico's MPC has no lanes."""
         if self.loop == "ideal":
             return True
         if self.engine == "reference":
             return False
-        if not batch_kernel.compiled() and (self.loop == "klipper" or not self.spec.linear or self.spec.delay_ticks):
+        if not batch_kernel.compiled() and (klipper_family(self.loop) or not self.spec.linear or self.spec.delay_ticks):
             return False
-        if self.loop == "klipper":
-            return True
+        if klipper_family(self.loop):
+            return self.controller.pid
         controller = self.controller.make(self.controller.defaults)
         if law_for(controller) is None:
             _no_lane_law(type(controller))
@@ -320,20 +342,39 @@ class Traces:
     streamed: ScoreTotals | None = None
 
 
-def klipper_setup(problem: Problem, plant, gains: Sequence[float] | np.ndarray | None = None) -> HeaterSetup:
+def klipper_setup(problem: Problem, plant, params: Sequence[float] | np.ndarray | None = None) -> HeaterSetup:
     """The Klipper loop's heater on a plant: the log's own settings (sensor, max_power, smooth_time, pwm
     cycle, the resend rule of its version) where the problem has them, else Klipper's example extruder;
-    max_temp raised to KLIPPER_MAX_TEMP_C so that only a real runaway trips; the gains given, else the
-    settings' own."""
+    max_temp raised to KLIPPER_MAX_TEMP_C so that only a real runaway trips; the gains given (a PID's
+    ``params``), else the settings' own. On the kalico loop the same section on Kalico's heater (its own PWM
+    rules), running the PID or, for Kalico's MPC, ``kalico_mpc_config`` of the params."""
     info = problem.klipper
     if info is None:
         setup = extruder_setup(plant, max_temp_c=KLIPPER_MAX_TEMP_C)
     else:
         setup = make_setup(replace(info, max_temp_c=max(info.max_temp_c, KLIPPER_MAX_TEMP_C)), "extruder", plant)
-    if gains is not None:
-        kp, ki, kd = (float(g) for g in gains)
-        setup = replace(setup, config=replace(setup.config, pid_kp=kp, pid_ki=ki, pid_kd=kd))
-    return replace(setup, noise_lsb=problem.noise_lsb)
+    config: HeaterConfig = setup.config
+    if params is not None and problem.controller.pid:
+        kp, ki, kd = (float(g) for g in params)
+        config = replace(config, pid_kp=kp, pid_ki=ki, pid_kd=kd)
+    if problem.loop == "kalico":
+        carried = {name: getattr(config, name) for name in KALICO_CARRIED}
+        config = KalicoHeaterConfig(**carried) if problem.controller.pid else \
+            KalicoHeaterConfig(**carried, control=CONTROL_MPC, mpc=kalico_mpc_config(problem, params))
+    return replace(setup, config=config, noise_lsb=problem.noise_lsb)
+
+
+def kalico_mpc_config(problem: Problem, params: Sequence[float] | np.ndarray | None) -> MpcConfig:
+    """Kalico's ``control: mpc`` options for the MPC family's parameters (firmware_port/firmwares.py
+    ``kalico_mpc_space``; None: uncalibrated, what MPC_CALIBRATE starts from): the problem's heater_power (the
+    nominal plant's input at full duty, on every member: a transfer function's unit is not a watt), and on a
+    plant with a part fan ``cooling_fan`` and the table ``ambient_transfer, fan``."""
+    fan_aware = problem.spec.world_inputs
+    power_w = problem.heater_power_w
+    if params is None:
+        return MpcConfig(power_w, cooling_fan=fan_aware)
+    capacity, responsiveness, ambient, fan = (float(v) for v in params)
+    return MpcConfig(power_w, capacity, responsiveness, ambient, (ambient, fan) if fan_aware else (), fan_aware)
 
 
 def _batch(problem: Problem, plants: Sequence[Plant], params: np.ndarray, seeds: Sequence[int],
@@ -618,14 +659,39 @@ def marlin_autotune(problem: Problem, cycles: int = M303_CYCLES) -> Gains:
 
 
 def klipper_autotune(problem: Problem) -> Gains:
-    """PID_CALIBRATE HEATER=extruder TARGET=<target> on a Klipper twin of the problem's plant."""
+    """PID_CALIBRATE HEATER=extruder TARGET=<target> on a twin of the problem's plant: Klipper's, or on the
+    kalico loop Kalico's (its default TOLERANCE). ValueError if it fails."""
     twin = KlipperTwin([klipper_setup(replace(problem, noise_lsb=0.0), make_problem_plant(problem))])
+    calibrate = twin.kalico_pid_calibrate if problem.loop == "kalico" else twin.pid_calibrate
+    with _calibrating(twin, problem, "PID_CALIBRATE"):
+        result = calibrate("extruder", problem.scenario.target_c)
+    return Gains(result.kp, result.ki, result.kd)
+
+
+def kalico_mpc_autotune(problem: Problem) -> np.ndarray:
+    """MPC_CALIBRATE HEATER=extruder TARGET=<target> on a Kalico twin of the problem's plant running an
+    uncalibrated MPC (``kalico_mpc_config``): the constants it saves, as the family's parameters (block heat
+    capacity, sensor responsiveness, ambient transfer, the fan table's last entry: the transfer at full fan,
+    its middle breakpoints dropped). ValueError if it fails."""
+    twin = KlipperTwin([klipper_setup(replace(problem, noise_lsb=0.0), make_problem_plant(problem))])
+    with _calibrating(twin, problem, "MPC_CALIBRATE"):
+        result = twin.mpc_calibrate("extruder", target_c=problem.scenario.target_c)
+    saved = result.config(kalico_mpc_config(problem, None))
+    ambient = saved.ambient_transfer_w_k
+    fans = saved.fan_ambient_transfer_w_k
+    return np.array([saved.block_heat_capacity_j_k, saved.sensor_responsiveness_per_s, ambient,
+                     fans[-1] if fans else ambient], float)
+
+
+@contextmanager
+def _calibrating(twin: KlipperTwin, problem: Problem, command: str) -> Iterator[None]:
+    """A calibration on a Klipper-family twin: its CommandError as a ValueError naming the command, the plant
+    and why it failed (the shutdown's message where the printer shut down)."""
     try:
-        result = twin.pid_calibrate("extruder", problem.scenario.target_c)
+        yield
     except CommandError as exc:
         why = (twin.shutdown_message or str(exc)).splitlines()[0]
-        raise ValueError(f"PID_CALIBRATE failed on {problem.name}: {why}") from None
-    return Gains(result.kp, result.ki, result.kd)
+        raise ValueError(f"{command} failed on {problem.name}: {why}") from None
 
 
 def mpc_autotune(problem: Problem) -> np.ndarray:
@@ -646,17 +712,20 @@ def mpc_autotune(problem: Problem) -> np.ndarray:
 
 
 def firmware_autotune(problem: Problem) -> tuple[str, np.ndarray]:
-    """The firmware's own autotune of the problem's controller family on its plant: (its name, the
-    parameters it gives). ValueError when it fails or the family has none."""
+    """The firmware's own autotune of the problem's controller family on its plant, in its loop's firmware
+    (the idealised loop has none: Marlin's): (its name, the parameters it gives). ValueError when it fails
+    or the family has none."""
     kind = problem.controller.autotune
     if kind == "M303":
-        if problem.loop == "klipper":
+        if klipper_family(problem.loop):
             gains = klipper_autotune(problem)
             return "PID_CALIBRATE", np.array([gains.kp, gains.ki, gains.kd])
         gains = marlin_autotune(problem)
         return f"M303 C{M303_CYCLES}", np.array([gains.kp, gains.ki, gains.kd])
     if kind == "M306 T":
         return kind, mpc_autotune(problem)
+    if kind == "MPC_CALIBRATE":
+        return kind, kalico_mpc_autotune(problem)
     raise ValueError(f"controller {problem.controller.name} has no firmware autotune")
 
 

@@ -220,7 +220,7 @@ def references(problem: Problem, cost: Callable[[Run], np.ndarray], client=None,
     notes = []
     if problem.controller.autotune:
         try:
-            name, params = firmware_autotune(replace(problem, loop="klipper" if problem.loop == "klipper" else "marlin"))
+            name, params = firmware_autotune(problem)
             table[name] = params
         except ValueError as exc:
             notes.append(str(exc))

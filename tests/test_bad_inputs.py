@@ -22,7 +22,7 @@ import serial
 import protocol  # noqa: F401  (registers twin://)
 from tools.cli import benchfuncs, compare, firmware_report, fit, hold_check, sim, tune
 from tools.cli import serial as serial_cli
-from tools.docs import crossval, mpc_report, optimtable
+from tools.docs import crossval, kalico_table, mpc_report, optimtable
 from tools.seeds import __main__ as seeds
 from twin import BatchTwin, KlipperTwin, PidGains, Twin, make_plant
 from twin.build import build_twin
@@ -35,7 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CLIS = {"twin-sim": sim.main, "twin-serial": serial_cli.main, "twin-fit": fit.main, "twin-compare": compare.main,
         "twin-tune": tune.main, "twin-firmware-report": firmware_report.main, "hold_check": hold_check.main,
         "tools.seeds": seeds.main, "benchfuncs": benchfuncs.main, "tools.docs.crossval": crossval.main,
-        "tools.docs.mpc_report": mpc_report.main, "tools.docs.optimtable": optimtable.main}
+        "tools.docs.mpc_report": mpc_report.main, "tools.docs.optimtable": optimtable.main,
+        "tools.docs.kalico_table": kalico_table.main}
 INTERNAL = ("Traceback", "internal error", "codec can't", "object has no attribute", "NoneType",
             "cannot convert float", "invalid literal")
 GAINS = ["--gains", "13,0.3,70"]
@@ -164,8 +165,10 @@ def _cases() -> list[tuple[str, list[str], str]]:
     add("benchfuncs", "--out", ["/proc/x.md", "{dir}", "{fifo}"], ["--quick"])
     add("benchfuncs", "--doc", ["{binary}", "{fifo}", "{page}", "{dir}/none.md"], ["--quick"])
     add("benchfuncs", "--seed", ["-1"], ["--quick"])
-    for generator in ("tools.docs.crossval", "tools.docs.mpc_report", "tools.docs.optimtable"):
+    for generator in ("tools.docs.crossval", "tools.docs.mpc_report", "tools.docs.optimtable", "tools.docs.kalico_table"):
         add(generator, "--doc", ["{binary}", "{fifo}", "{page}"])
+    add("tools.docs.kalico_table", "--budget", ["0", "x"])
+    add("tools.docs.kalico_table", "--mpc-budget", ["-1", "1e9"])
     return cases
 
 

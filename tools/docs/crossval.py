@@ -24,7 +24,7 @@ from tools.tuning.evaluate import Problem, score
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
 from tools.tuning.problems import build_problem, log_source
 from tools.tuning.tuner import tune
-from tools.validation.doc_compare import write_section
+from tools.validation.doc_compare import publish_section
 from tools.cli.args import doc_page
 from tools.entry import OneLineParser, run_cli
 
@@ -104,10 +104,7 @@ def build_parser() -> OneLineParser:
 def run(args: argparse.Namespace) -> int:
     groups = {printer: group_cells(heater, names, args.budget) for printer, (heater, names) in GROUPS.items()}
     body = markdown(groups, args.budget)
-    if args.doc is not None:
-        write_section(args.doc, body, BEGIN, END)
-    print(body)
-    return 0
+    return publish_section(body, args.doc, BEGIN, END)
 
 
 def main(argv: list[str] | None = None) -> int:

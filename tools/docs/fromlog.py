@@ -33,7 +33,7 @@ from tools.tuning.proof import ProofRow
 from tools.tuning.reference import from_log
 from tools.tuning.tuner import DEFAULT_BUDGET, Proven, proven, tune
 from tools.tuning.verdict import member_misses
-from tools.validation.doc_compare import write_section
+from tools.validation.doc_compare import publish_section
 
 BEGIN, END = "<!-- fromlog: begin", "<!-- fromlog: end -->"
 COMMAND = "python -m tools.docs.fromlog --doc docs/tuning.md"
@@ -165,10 +165,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{case.label}: {outcome.text}", file=sys.stderr, flush=True)
         outcomes.append(outcome)
     body = markdown(outcomes, args.budget)
-    if args.doc is not None:
-        write_section(args.doc, body, BEGIN, END)
-    print(body)
-    return 0
+    return publish_section(body, args.doc, BEGIN, END)
 
 
 def main(argv: list[str] | None = None) -> int:

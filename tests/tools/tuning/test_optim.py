@@ -182,3 +182,20 @@ def test_de_puts_known_points_in_its_first_population():
     assert first.shape == (45, 3)
     np.testing.assert_array_equal(first[:2], [[0.123] * 3, [1.0, 0.0, 0.5]])
     assert result.cost == 0.0 and "de" in WARM_STARTS
+
+
+def test_de_shrinks_its_default_population_to_two_generations_of_a_small_budget():
+    """Four parameters (scipy's population 60) on a budget of 90: a population of 45, two generations
+    spent exactly; an explicit population is kept, and refused where the budget cannot pay for two."""
+    calls: list[int] = []
+
+    def bowl(x: np.ndarray) -> np.ndarray:
+        calls.append(len(x))
+        return np.sum(np.asarray(x) ** 2, axis=1)
+
+    result = METHODS["de"](bowl, [[-1.0, 1.0]] * 4, rng=np.random.default_rng(0), budget=90)
+    assert calls == [45, 45] and result.evaluations == 90
+    with pytest.raises(ValueError, match="below two generations"):
+        METHODS["de"](bowl, [[-1.0, 1.0]] * 4, rng=np.random.default_rng(0), budget=90, population=60)
+    with pytest.raises(ValueError, match=r"budget 9 is below two generations of DE's smallest population \(10 "):
+        METHODS["de"](bowl, [[-1.0, 1.0]] * 4, rng=np.random.default_rng(0), budget=9)

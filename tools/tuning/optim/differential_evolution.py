@@ -5,7 +5,9 @@ mode scipy requires for it), seeded from ``rng``. Defaults are scipy's (strategy
 mutation 0.5-1, recombination 0.7, Latin-hypercube start) except three, all so that the run
 spends the budget it is given and no more: ``polish=False`` (the L-BFGS-B polish would evaluate
 outside the budget), ``tol=0`` (run all generations, as the seeds' fixed-iteration comparisons
-do) and a population of ``population`` points (default scipy's 15 per dimension). When every
+do) and a population of ``population`` points (default scipy's 15 per dimension, or half the budget
+where the budget cannot pay for two generations of that: a rougher search, as a small budget asks,
+for a family with many parameters). When every
 initial cost is inf, scipy evaluates the first population again; a generation the budget cannot
 pay for ends the run with the best point so far.
 """
@@ -22,6 +24,7 @@ from scipy.stats import qmc
 from tools.tuning.optim.result import BatchObjective, Ledger, OptimResult, check_bounds
 
 SCIPY_POPSIZE_PER_DIM = 15  # scipy.optimize.differential_evolution's default popsize multiplier
+MIN_POPULATION = 5  # scipy's own floor on a population (max(5, popsize * N) members)
 
 
 def minimize(
@@ -38,9 +41,12 @@ def minimize(
     them taken from ``starts`` (known points, rows; clipped into the bounds: a warm start from the
     tuning rules); options go to scipy (e.g. strategy, mutation)."""
     low, high = check_bounds(bounds)
-    size = SCIPY_POPSIZE_PER_DIM * low.size if population is None else int(population)
-    if size < 5:
-        raise ValueError(f"population must be >= 5 for DE, got {size}")
+    size = min(SCIPY_POPSIZE_PER_DIM * low.size, budget // 2) if population is None else int(population)
+    if size < MIN_POPULATION:
+        if population is None:
+            raise ValueError(f"budget {budget} is below two generations of DE's smallest population "
+                             f"({2 * MIN_POPULATION} evaluations)")
+        raise ValueError(f"population must be >= {MIN_POPULATION} for DE, got {size}")
     if budget < 2 * size:
         raise ValueError(f"budget {budget} is below two generations of DE ({2 * size} evaluations)")
     ledger = Ledger("de", objective, budget, low.size)

@@ -260,6 +260,19 @@ def check_tune(c: Command) -> None:
     assert list((c.folder / "twin-out").glob("twin-tune-*.png"))
 
 
+def check_kalico_tune(c: Command) -> None:
+    """An answer on Kalico's loop, proven: Kalico's [extruder] section, or keep your gains."""
+    done = run(c.runs, c.folder)
+    assert done.returncode == 0, done.stderr
+    answers = [line for line in done.stdout.splitlines() if line.startswith("answer: ")]
+    assert len(answers) == 1 and "loop kalico" in done.stdout, done.stdout
+    if answers[0].startswith("answer: new gains"):
+        assert re.search(r"^Kalico printer.cfg .*\n  \[extruder\]\n  pid_version: 1\n  control: pid\n  pid_kp: \S+\n",
+                         done.stdout, re.M), done.stdout
+    else:
+        assert answers[0].startswith("answer: keep "), answers
+
+
 def check_seeds(c: Command) -> None:
     done = run(c.runs, c.folder)
     assert done.returncode == 0, done.stderr
@@ -289,6 +302,7 @@ CASES: dict[str, Case] = {
     "twin-tune --plant hotend_cartridge --target 210": Case(check_tune, slow=True),
     "twin-tune --plant seed003_third --target 210": Case(check_tune, slow=True),
     "twin-tune --from-log my_m303.txt": Case(check_tune, logs=True, slow=True),
+    "twin-tune --from-log klippy.log --loop kalico": Case(check_kalico_tune, logs=True, slow=True),
     "twin-fit --help": Case(check_help),
     "python -m tools.seeds 000": Case(check_seeds, slow=True),
     "twin-compare klippy.log --plot compare.png": Case(check_compare, logs=True),
@@ -298,6 +312,7 @@ CHEAPER = {
     "twin-tune --plant hotend_cartridge --target 210": "--budget 90 --proof 2",
     "twin-tune --plant seed003_third --target 210": "--budget 90 --proof 2",
     "twin-tune --from-log my_m303.txt": "--budget 90 --proof 2",
+    "twin-tune --from-log klippy.log --loop kalico": "--budget 90 --proof 2",
     "python -m tools.seeds 000": "--budget 3",
 }
 COMMANDS = readme_commands(README.read_text())

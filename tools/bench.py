@@ -33,7 +33,8 @@ load, date, commit) before its lines; ``--doc FILE`` also rewrites FILE's sectio
 
 ``twin-tune``: the command as a user runs it, in its own process (interpreter, imports, fit, tune and proof),
 after one untimed warm-up run that leaves numba's compiled kernels in its cache:
-- ``twin-tune --plant hotend_cartridge --target 210``, the default tune (target: 15 s wall);
+- ``twin-tune --plant hotend_cartridge --target 210``, the default tune (target: 15 s wall), and the same
+  with ``--controller mpc`` (target: at most 3 x the default tune's wall time);
 - ``twin-tune --from-log`` on every M303 capture and every klippy.log (its Stats lines) in the hardware
   logs, on each heater a klippy.log reports (target: 30 s wall each);
 each one's wall and CPU time (its process and the threads it starts), exit status and verdict.
@@ -446,8 +447,11 @@ def bench_protocol(n_requests: int, n_lines: int) -> list[str]:
 TWIN_TUNE_CLI = [sys.executable, "-m", "tools.cli.tune"]
 PRESET_TUNE = ["--plant", TUNE_PRESET, "--target", f"{TUNE_TARGET_C}"]
 PRESET_TARGET_S, LOG_TARGET_S = 15, 30  # wall-time targets of the default tune and of a log's
+MPC_TUNE = [*PRESET_TUNE, "--controller", "mpc"]  # the robust MPC tune of the same preset (ensemble, noise, proof)
+MPC_RATIO_TARGET = 3.0  # its wall time, at most this many times the default (PID) tune's
+CHEAP = ["--budget", "90", "--proof", "1"]
+WARM_UPS = ([*PRESET_TUNE, "--loop", "both", *CHEAP], [*MPC_TUNE, *CHEAP])  # every kernel the cases run, cheaply
 CAPTURES = ("m303_*.txt", "klippy_stats_*.csv")  # every M303 capture, every klippy.log's Stats lines
-WARM_UP = [*PRESET_TUNE, "--loop", "both", "--budget", "90", "--proof", "1"]  # both loops' kernels, cheaply
 TWIN_TUNE_TIMEOUT_S = 3600  # one case, however slow: a hung one must not hang the benchmark
 
 
@@ -501,15 +505,20 @@ def _run_twin_tune(args: list[str]) -> tuple[float, float, int, str]:
 def bench_twin_tune(captures: str | None, sizes: list[str]) -> list[str]:
     """twin-tune's default tune and --from-log on every capture, each as a user runs it."""
     cases = twin_tune_cases(captures)
-    _run_twin_tune(WARM_UP)
+    for warm_up in WARM_UPS:
+        _run_twin_tune(warm_up)
     lines = [f"twin-tune in its own process ({' '.join(['python', *TWIN_TUNE_CLI[1:]])} ARGS{''.join(' ' + s for s in sizes)}"
-             " --plot none --json FILE), after one untimed warm-up; wall time (target), CPU time (the process "
+             " --plot none --json FILE), after untimed warm-ups; wall time (target), CPU time (the process "
              "and its threads), exit status, verdict:"]
-    for args, target_s in cases:
+    for k, (args, target_s) in enumerate(cases):
         wall_s, cpu_s, status, verdict = _run_twin_tune(args + sizes)
         shown = " ".join(Path(a).name if i and args[i - 1] == "--from-log" else a for i, a in enumerate(args))
         lines.append(f"  twin-tune {shown}: {wall_s:.1f} s wall (target <= {target_s:g} s), {cpu_s:.1f} s CPU, "
                      f"exit {status}: {verdict}")
+        if k == 0:  # the default tune's MPC twin, timed against it
+            mpc_s, mpc_cpu_s, mpc_status, mpc_verdict = _run_twin_tune(MPC_TUNE + sizes)
+            lines.append(f"  twin-tune {' '.join(MPC_TUNE)}: {mpc_s:.1f} s wall, {mpc_s / wall_s:.2f} x the PID tune's "
+                         f"(target <= {MPC_RATIO_TARGET:g} x), {mpc_cpu_s:.1f} s CPU, exit {mpc_status}: {mpc_verdict}")
     return lines
 
 

@@ -84,9 +84,12 @@ def test_twin_tune_bench_runs_the_command(hardware_logs, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert lines[2] == bench.NOT_MEASURED
     runs = lines[4:]
-    assert len(runs) == 3
+    assert len(runs) == 4
     assert re.fullmatch(r"  twin-tune --plant hotend_cartridge --target 210: [\d.]+ s wall \(target <= 15 s\), "
                         r"[\d.]+ s CPU, exit 0: (new gains Kp .+|keep \S+ gains): .+", runs[0]), runs[0]
-    for line in runs[1:]:
+    assert re.fullmatch(r"  twin-tune --plant hotend_cartridge --target 210 --controller mpc: [\d.]+ s wall, [\d.]+ x "
+                        r"the PID tune's \(target <= 3 x\), [\d.]+ s CPU, exit 0: (new gains|keep \S+ gains): .+",
+                        runs[1]), runs[1]
+    for line in runs[2:]:
         assert re.fullmatch(r"  twin-tune --from-log m303_hotend_C\d_degenerate_\w+\.txt: [\d.]+ s wall "
                             r"\(target <= 30 s\), [\d.]+ s CPU, exit 2: twin-tune: error: .+", line), line

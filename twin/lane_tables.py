@@ -25,7 +25,8 @@ from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, TICKS_PER_READING
 from twin.linear import BLOCK, SENSOR, TickModel
 from twin.plants import RADIATION_BIN_C
 
-MAX_CACHED_TABLES = 64  # stacked tables kept (LRU): a few scenarios' stretches
+MAX_CACHED_TABLE_BYTES = 384 << 20  # stacked tables kept (LRU) up to this size of their arrays: every member
+# of a log's ensemble (17 plants of a klippy.log, 68 tables, 139 MB) stays in hand from one generation to the next
 MAX_CACHED_BINS = 4096  # one bin's discretisation, or its tables for one set of run kinds: a few KiB
 MAX_SAMPLES = TICKS_PER_READING // MIN_ADC_ISR_LOOPS  # ADC samples in one Marlin control period
 ROW_OFFSET = TICKS_PER_READING  # ``sample_rows``: pulse edges up to a whole period before the first sample
@@ -97,12 +98,20 @@ def _key(*arrays: np.ndarray) -> tuple:
 _CACHE: OrderedDict[tuple, Tables] = OrderedDict()
 
 
+def _nbytes(tables: Tables) -> int:
+    return sum(a.nbytes for a in (tables.px, tables.pdd, tables.bx, tables.bdd, tables.fx, tables.fdd, tables.steps,
+                                  tables.sensor_steps, tables.block_steps, tables.io))
+
+
 def _cached(key: tuple, build) -> Tables:
+    """The tables of ``key``, built once; the least recently used dropped while the cache's arrays exceed
+    MAX_CACHED_TABLE_BYTES (the newest always kept)."""
     tables = _CACHE.get(key)
     if tables is None:
         tables = _CACHE[key] = build()
-        if len(_CACHE) > MAX_CACHED_TABLES:
-            _CACHE.popitem(last=False)
+        total = sum(_nbytes(t) for t in _CACHE.values())
+        while total > MAX_CACHED_TABLE_BYTES and len(_CACHE) > 1:
+            total -= _nbytes(_CACHE.popitem(last=False)[1])
     else:
         _CACHE.move_to_end(key)
     return tables

@@ -62,3 +62,29 @@ def test_a_range_of_radiating_bins_wider_than_the_bin_cache_is_built_whole(monke
     lane_tables._CACHE.clear()
     again = lane_tables.bin_tables(plant, plant.d, ((0, ()),), 160, 40, 47)
     np.testing.assert_array_equal(again.px, first.px)
+
+
+def test_the_table_cache_keeps_what_fits_its_byte_bound_least_recently_used_out_first(monkeypatch):
+    """Tables are kept while their arrays fit MAX_CACHED_TABLE_BYTES (the newest always), the least recently
+    used dropped first: a cached table is the same object, a dropped one is rebuilt equal."""
+    from twin import lane_tables
+    from twin.plants import SPECS, Plant
+
+    monkeypatch.setattr(lane_tables, "_CACHE", type(lane_tables._CACHE)())
+    plants = [Plant(str(k), SPECS["hotend"].__class__(**{**vars(SPECS["hotend"]), "block_heat_capacity_j_k": 16.0 + k}), 25.0)
+              for k in range(3)]
+
+    def tables(k: int):
+        return lane_tables.linear_tables(plants[k].model, plants[k].d, ((0, ()),), 160)
+
+    size = lane_tables._nbytes(tables(0))
+    monkeypatch.setattr(lane_tables, "MAX_CACHED_TABLE_BYTES", 2 * size)
+    first, second = tables(0), tables(1)
+    assert tables(0) is first  # a hit: now the most recently used
+    third = tables(2)  # over the bound: the least recently used (plant 1's) goes
+    assert len(lane_tables._CACHE) == 2 and tables(0) is first and tables(2) is third
+    rebuilt = tables(1)
+    assert rebuilt is not second
+    np.testing.assert_array_equal(rebuilt.px, second.px)
+    monkeypatch.setattr(lane_tables, "MAX_CACHED_TABLE_BYTES", 0)
+    assert tables(0) is not None and len(lane_tables._CACHE) == 1  # the newest is always kept

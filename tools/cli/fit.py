@@ -341,14 +341,19 @@ def run(args: argparse.Namespace) -> int:
         answer = quick_answer(problem, source.printer)
         gains = _gains_lines(problem, answer, fitted.heater, source.printer, len(allowed.members))
         if gains is None:
-            print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
+            _print_wrapped(settings)
             print(f"twin-fit: {args.log}: no gains: nothing tried beats {answer.yours.method}, which trips on some "
                   "plant the log allows; `twin-tune --from-log` searches further and proves what it prints",
                   file=sys.stderr)
             return EXIT_DEGENERATE
         settings += gains
-    print("\n".join(wrapped for line in settings for wrapped in _wrap_keeping_indent(line)))
+    _print_wrapped(settings)
     return 0
+
+
+def _print_wrapped(lines: list[str]) -> None:
+    """The lines on stdout, each wrapped to WIDTH with its indent kept."""
+    print("\n".join(wrapped for line in lines for wrapped in _wrap_keeping_indent(line)))
 
 
 def _describe(log: str) -> Callable[[BaseException], str]:

@@ -85,6 +85,7 @@ from protocol.printer import BUFSIZE
 from firmware_port.firmwares import param_space
 from tools.cli.args import section_page
 from tools.entry import OneLineParser, run_cli
+from twin.limits import UserError
 from tools.ident.log_fit import HEATER_NAMES
 from tools.logs import StatsLog, hardware_logs_dir, load_log
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
@@ -752,7 +753,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             section_page(args.doc, *markers(args.what))
         except ValueError as exc:
-            raise ValueError(f"--doc {args.doc}: {exc}") from None
+            raise UserError(f"--doc {args.doc}: {exc}") from None
     sized = any(name != "seed" for name in _non_default(args, parser))
     report = [command_line(args, parser), machine(args.doc), *([NOT_MEASURED] if sized else []), *measure(args)]
     print("\n".join(report))

@@ -31,6 +31,11 @@ SEED_MAX = 2**63 - 1  # a lane's seed is an int64 (twin/lane_noise.py)
 TRACE_MAX_BYTES = 2**31
 
 
+class UserError(ValueError):
+    """A value a user gave (a flag, a file, a scenario, a capture, an argument) that the twin cannot use. A
+    command line says it in one line and exits 2 (tools/entry.py); any other exception there is a bug."""
+
+
 def _show(value: object) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
@@ -39,38 +44,38 @@ def _show(value: object) -> str:
 def checked(name: str, value: object, low: float = -math.inf, high: float = math.inf, unit: str = "", *,
             above: bool = False) -> float:
     """``value`` as a float if it is a finite number in low..high (``above``: strictly above low), else
-    ValueError naming ``name``: the one-line message of a bad argument."""
+    UserError naming ``name``: the one-line message of a bad argument."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name}={_show(value)}: expected a number")
+        raise UserError(f"{name}={_show(value)}: expected a number")
     try:
         number = float(value)
     except OverflowError:  # an int beyond float's range
         number = math.inf
     if not math.isfinite(number):
-        raise ValueError(f"{name}={_show(value)}: must be a finite number")
+        raise UserError(f"{name}={_show(value)}: must be a finite number")
     if number < low or number > high or (above and number == low):
         bounds = ([f"{'>' if above else '>='} {low:g}"] if low > -math.inf else []) + \
             ([f"<= {high:g}"] if high < math.inf else [])
-        raise ValueError(f"{name}={_show(value)}: must be {' and '.join(bounds)}{' ' + unit if unit else ''}")
+        raise UserError(f"{name}={_show(value)}: must be {' and '.join(bounds)}{' ' + unit if unit else ''}")
     return number
 
 
 def checked_seed(name: str, value: object) -> int:
-    """A seed: a whole number in 0..SEED_MAX; ValueError naming ``name``."""
+    """A seed: a whole number in 0..SEED_MAX; UserError naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 <= int(value) <= SEED_MAX:
-        raise ValueError(f"{name}={_show(value)}: must be a whole number in 0..2**63-1")
+        raise UserError(f"{name}={_show(value)}: must be a whole number in 0..2**63-1")
     return int(value)
 
 
 def check_trace_bytes(horizon_s: float, trace_bytes: float, remedy: str) -> None:
     """Refuse a run whose records would outgrow TRACE_MAX_BYTES; ``remedy`` says what to do instead."""
     if trace_bytes > TRACE_MAX_BYTES:
-        raise ValueError(f"a run to {horizon_s:g} s would keep about {trace_bytes / 2**30:.3g} GiB of records, "
+        raise UserError(f"a run to {horizon_s:g} s would keep about {trace_bytes / 2**30:.3g} GiB of records, "
                          f"more than {TRACE_MAX_BYTES / 2**30:g} GiB: {remedy}")
 
 
 def check_regular_file(path: str | Path) -> None:
-    """ValueError (what it is, for the caller to prefix with the path) if ``path`` names anything but a
+    """UserError (what it is, for the caller to prefix with the path) if ``path`` names anything but a
     regular file (a FIFO blocks its reader, a device never ends); a path that does not exist is left for
     open() to report."""
     try:
@@ -79,4 +84,4 @@ def check_regular_file(path: str | Path) -> None:
         return
     if not stat.S_ISREG(mode):
         kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device or a socket"
-        raise ValueError(f"{kind}, not a regular file")
+        raise UserError(f"{kind}, not a regular file")

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from twin.clock import TICK_S
 
@@ -55,6 +54,8 @@ class TickModel:
         aug[:n, :n] = lti.a
         aug[:n, n] = lti.b
         aug[:n, n + 1 :] = lti.e
+        import scipy.linalg  # here, not at start-up: a command's --help needs no scipy
+
         disc = scipy.linalg.expm(aug * tick_s)
         self.lti = lti
         self.phi = disc[:n, :n]

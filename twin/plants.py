@@ -23,9 +23,8 @@ from dataclasses import dataclass
 from typing import ClassVar, NamedTuple, Protocol
 
 import numpy as np
-import scipy.signal
 
-from twin.limits import PHYSICAL_RANGE_C, checked
+from twin.limits import PHYSICAL_RANGE_C, UserError, checked
 from twin.linear import BLOCK, SENSOR, TICK_S, LinearPlant, Lti
 
 PARAMETER_MAX = 1e9  # any plant parameter's magnitude: far beyond physics, far below float overflow
@@ -256,6 +255,8 @@ class TransferFunction:
         return None
 
     def lti(self, key: None = None) -> Lti:
+        import scipy.signal  # here, not at start-up: only a transfer-function plant needs it
+
         a, b, c, _ = scipy.signal.tf2ss(*self.polynomials())
         n = a.shape[0]
         return Lti(a, b[:, 0] * self.input_full_scale, np.zeros((n, 1)), np.vstack((c, c)), np.ones((2, 1)))
@@ -451,11 +452,11 @@ def make_plant(preset: str = DEFAULT_HOTEND, *, ambient_c: float = 25.0, initial
     names = [field.name for field in dataclasses.fields(spec)]
     for name, value in params.items():
         if name not in names:
-            raise ValueError(f"unknown parameter {name!r} for plant preset {preset!r}; valid: {', '.join(names)}")
+            raise UserError(f"unknown parameter {name!r} for plant preset {preset!r}; valid: {', '.join(names)}")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ValueError(f"plant parameter {name}={value!r}: must be a finite number")
+            raise UserError(f"plant parameter {name}={value!r}: must be a finite number")
         if abs(value) > PARAMETER_MAX:
-            raise ValueError(f"plant parameter {name}={value!r}: beyond {PARAMETER_MAX:g}, no heater's (the model "
+            raise UserError(f"plant parameter {name}={value!r}: beyond {PARAMETER_MAX:g}, no heater's (the model "
                              "would overflow)")
     return Plant(preset, respec(spec, {name: float(value) for name, value in params.items()}),
                  ambient_c, initial_c)

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from tools.validation.doc_compare import replace_section
-from twin.limits import SEED_MAX, check_regular_file
+from twin.limits import SEED_MAX, UserError, check_regular_file
 
 
 def finite_float(text: str) -> float:
@@ -58,25 +58,25 @@ seed_int = ranged_int(0, SEED_MAX)  # a random seed, as numpy's SeedSequence tak
 
 def check_output(path: str | Path) -> Path:
     """An output file, checked before any work: not a folder nor a device, in an existing folder where a
-    file can be created (not /proc), and writable if it exists; ValueError says what is wrong (the caller
+    file can be created (not /proc), and writable if it exists; UserError says what is wrong (the caller
     names the file)."""
     path = Path(path)
     if path.is_dir():
-        raise ValueError("a folder, not a file")
+        raise UserError("a folder, not a file")
     check_regular_file(path)
     folder = path.absolute().parent
     if not folder.is_dir():
-        raise ValueError(f"the folder {str(folder)!r} does not exist")
+        raise UserError(f"the folder {str(folder)!r} does not exist")
     try:
         tempfile.TemporaryFile(dir=folder).close()
     except OSError as exc:
-        raise ValueError(f"cannot create a file in {str(folder)!r}: {exc.strerror or exc}") from None
+        raise UserError(f"cannot create a file in {str(folder)!r}: {exc.strerror or exc}") from None
     if path.exists():
         try:
             with open(path, "r+b"):
                 pass
         except OSError as exc:
-            raise ValueError(f"cannot write it: {exc.strerror or exc}") from None
+            raise UserError(f"cannot write it: {exc.strerror or exc}") from None
     return path
 
 
@@ -89,24 +89,24 @@ def output_file(text: str) -> Path:
 
 
 def read_text_file(path: str | Path) -> str:
-    """A regular UTF-8 text file's text; ValueError (the reason, for the caller to name the file) for a FIFO,
+    """A regular UTF-8 text file's text; UserError (the reason, for the caller to name the file) for a FIFO,
     a device, binary data or an unreadable file."""
     check_regular_file(path)
     try:
         return Path(path).read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
-        raise ValueError(f"not UTF-8 text (byte {exc.start})") from None
+        raise UserError(f"not UTF-8 text (byte {exc.start})") from None
     except OSError as exc:
-        raise ValueError(str(exc.strerror or exc)) from None
+        raise UserError(str(exc.strerror or exc)) from None
 
 
 def section_page(path: str | Path, begin: str, end: str) -> str:
     """A page whose generated section a command rewrites (``--doc``), checked before any work: a regular
-    UTF-8 file we can write, with the section's markers; its text. ValueError says what is wrong."""
+    UTF-8 file we can write, with the section's markers; its text. UserError says what is wrong."""
     text = read_text_file(path)
     check_output(path)
     if replace_section(text, "", begin, end) is None:
-        raise ValueError(f"no '{begin} ... -->' / '{end}' markers")
+        raise UserError(f"no '{begin} ... -->' / '{end}' markers")
     return text
 
 

@@ -19,6 +19,7 @@ from tools.tuning.optim import METHODS
 from tools.tuning.optim.benchmark import SEED_ITERATIONS, SEED_POPULATION, format_report, run_all, tasks_for
 from tools.cli.args import check_output, section_page
 from tools.entry import OneLineParser, run_main
+from twin.limits import UserError
 from tools.validation.doc_compare import replace_section
 
 PROG = "python -m tools.cli.benchfuncs"
@@ -112,14 +113,14 @@ def report(args: argparse.Namespace) -> str:
 def run(args: argparse.Namespace, command: str) -> int:
     problem = _problem(args)
     if problem:
-        raise ValueError(problem)
+        raise UserError(problem)
     for flag, path, check in (("--out", args.out, check_output),  # before the runs: a typo costs nothing
                               ("--doc", args.doc, lambda page: section_page(page, DOC_BEGIN, DOC_END))):
         try:
             if path is not None:
                 check(path)
         except ValueError as exc:
-            raise ValueError(f"{flag} {path}: {exc}") from None
+            raise UserError(f"{flag} {path}: {exc}") from None
     text = report(args)
     if args.out is None and args.doc is None:
         print(text, end="")
@@ -129,7 +130,7 @@ def run(args: argparse.Namespace, command: str) -> int:
             continue
         problem = _write_out(path, text) if flag == "--out" else _write_doc(path, text, command)
         if problem:
-            raise ValueError(f"{flag} {path}: {problem}")
+            raise UserError(f"{flag} {path}: {problem}")
         print(f"report written to {path}")
     print(text.split("\n\n")[0])
     return 0

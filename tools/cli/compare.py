@@ -29,7 +29,7 @@ from tools.ident.segments import NotFittable
 from tools.logs import Log, LogError, StatsLog, heattest, klipper_stats, m303
 from tools.validation import compare, m303_compare
 from tools.validation.tables import WIDTH, markdown_cells, text_tables
-from twin.limits import AMBIENT_RANGE_C
+from twin.limits import AMBIENT_RANGE_C, UserError
 
 
 
@@ -243,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
         return f"{args.log}: not usable: {(exc.strerror or exc) if isinstance(exc, OSError) else exc}"
 
     return run_main("twin-compare", lambda: run(args),
-                    errors=(LogError, compare.Unusable, NotFittable, OSError, ValueError), describe=describe)
+                    errors=(LogError, compare.Unusable, NotFittable, OSError, UserError), describe=describe)
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.thermistor import B3950_TABLE, TABLE_ERROR_BOUND_C, TEMP_ONE, Divider
 from tools.cli.args import ranged_int, section_page, seed_int
 from tools.entry import EXIT_USAGE, OneLineParser, run_main
+from twin.limits import UserError
 
 CALLS_MAX = 100_000  # --sequences, --steps: each law runs sequences x steps calls
 # Gain sets to measure: Marlin's defaults and M303 results from ../shared/hardware_logs.
@@ -156,7 +157,7 @@ def read_doc(path: Path) -> str:
     try:
         return section_page(path, AVR_DOC_BEGIN, AVR_DOC_END)
     except ValueError as exc:
-        raise ValueError(f"--doc {path}: {exc}") from None
+        raise UserError(f"--doc {path}: {exc}") from None
 
 
 def write_avr_doc(path: Path, text: str, body: str) -> None:

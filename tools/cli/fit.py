@@ -52,7 +52,7 @@ from tools.tuning.problems import allowed_source, build_problem, quick_answer
 from tools.tuning.proof import PROOF_SEEDS
 from tools.tuning.reference import PrinterGains
 from tools.tuning.tuner import Proven
-from twin.limits import AMBIENT_RANGE_C
+from twin.limits import AMBIENT_RANGE_C, UserError
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 EXIT_DEGENERATE = 3
@@ -368,7 +368,7 @@ def _describe(log: str) -> Callable[[BaseException], str]:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    return run_main("twin-fit", lambda: run(args), errors=(LogError, NotFittable, ValueError),
+    return run_main("twin-fit", lambda: run(args), errors=(LogError, NotFittable, UserError),
                     describe=_describe(args.log))
 
 

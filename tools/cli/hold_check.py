@@ -23,7 +23,7 @@ from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
 from tools.cli.args import ranged_float, ranged_int
 from tools.entry import OneLineParser, run_main
 from twin import PRESETS, PidGains, Twin
-from twin.limits import DURATION_MAX_S, HEATER_MAX_C, NOISE_MAX_LSB
+from twin.limits import DURATION_MAX_S, HEATER_MAX_C, NOISE_MAX_LSB, UserError
 
 DURATION_S = 900.0
 HOLD_FROM_S = 300.0
@@ -63,11 +63,11 @@ def check_run(plant: str, target_c: float, duration_s: float) -> None:
     twin = Twin.create("pid", hotend=plant, ambient_c=AMBIENT_C)
     twin.hotend.target_c = target_c
     if twin.hotend.target_c != int(target_c):
-        raise ValueError(f"--target {target_c:g}: the firmware clamps it to {twin.hotend.target_c} C on {plant}")
+        raise UserError(f"--target {target_c:g}: the firmware clamps it to {twin.hotend.target_c} C on {plant}")
     try:
         twin.check_horizon(duration_s)
     except ValueError as exc:
-        raise ValueError(f"--duration {duration_s:g}: {exc}") from None
+        raise UserError(f"--duration {duration_s:g}: {exc}") from None
 
 
 def passes(runs: list[SeedRun], max_chatter: float = MAX_CHATTER, max_hold_c: float = MAX_HOLD_C) -> bool:

@@ -24,7 +24,9 @@ from protocol.tcp_server import SECRET_LINE_MAX, TAKEOVER_AFTER_S, TcpServer
 from protocol.transcript import Transcript
 from tools.cli.args import output_file, ranged_float, ranged_int, seed_int
 from tools.entry import OneLineParser, run_main
+from twin.limits import UserError, check_regular_file
 from twin.plants import PRESETS as PLANT_PRESETS
+from twin.scenario import ScenarioError
 
 DEFAULT_TCP_HOST = "127.0.0.1"
 BAUD_MAX = 2**31 - 1  # termios's speed_t; any rate up to it is accepted (and ignored)
@@ -67,12 +69,16 @@ def _tcp_address(text: str) -> tuple[str, int]:
 
 
 def _secret(path: str) -> bytes:
-    """The first line of FILE (only its first SECRET_LINE_MAX + 1 bytes are read)."""
+    """The first line of FILE (only its first SECRET_LINE_MAX + 1 bytes are read); a FIFO or a device is
+    refused before it is opened (opening a FIFO waits for a writer)."""
     try:
+        check_regular_file(path)
         with open(path, "rb") as file:
             head = file.read(SECRET_LINE_MAX + 1)
     except OSError as exc:
         raise argparse.ArgumentTypeError(f"cannot read {path}: {exc.strerror or exc}") from None
+    except UserError as exc:
+        raise argparse.ArgumentTypeError(f"{path}: {exc}") from None
     line = head.split(b"\n", 1)[0].rstrip(b"\r")
     if not line or len(line) > SECRET_LINE_MAX:
         raise argparse.ArgumentTypeError(f"the first line of {path} must hold the secret, 1 to {SECRET_LINE_MAX} bytes")
@@ -193,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signum, _stop)
     args = parse_args(argv)
     logging.basicConfig(format="twin-serial: %(levelname)s: %(message)s", stream=sys.stderr)
-    return run_main("twin-serial", lambda: run(args))
+    return run_main("twin-serial", lambda: run(args), errors=(ScenarioError, UserError))
 
 
 if __name__ == "__main__":

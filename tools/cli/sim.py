@@ -23,7 +23,7 @@ from tools.cli.args import check_output, ranged_float, ranged_int, seed_int
 from twin.build import build_twin
 from twin.clock import TICK_S
 from twin.engine import ENGINES, TRACE_ROW_BYTES
-from twin.limits import AMBIENT_RANGE_C, DURATION_MAX_S, INITIAL_RANGE_C, NOISE_MAX_LSB, TARGET_RANGE_C
+from twin.limits import AMBIENT_RANGE_C, DURATION_MAX_S, INITIAL_RANGE_C, NOISE_MAX_LSB, TARGET_RANGE_C, UserError
 from twin.plants import DEFAULT_BED, DEFAULT_HOTEND
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
@@ -102,7 +102,7 @@ def parse_settings(items: list[str], option: str) -> dict[str, float | str]:
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise ValueError(f"{option} {item!r}: expected KEY=VALUE")
+            raise UserError(f"{option} {item!r}: expected KEY=VALUE")
         try:
             settings[key.strip()] = float(value)
         except ValueError:
@@ -120,7 +120,7 @@ def parse_gains(text: str | None, option: str) -> dict[str, float] | None:
     except ValueError:
         values = []
     if len(values) != 3:
-        raise ValueError(f"{option} {text!r}: expected three numbers KP,KI,KD")
+        raise UserError(f"{option} {text!r}: expected three numbers KP,KI,KD")
     return dict(zip(("kp", "ki", "kd"), values, strict=True))
 
 
@@ -133,11 +133,11 @@ def read_mpc_constants(source: str) -> MpcConstants:
             with open(source, encoding="utf-8", errors="replace") as handle:
                 text = handle.read()
         except OSError as exc:
-            raise ValueError(f"--mpc-from {source!r}: {exc.strerror or exc}") from None
+            raise UserError(f"--mpc-from {source!r}: {exc.strerror or exc}") from None
     try:
         return mpc_constants_from_text(text, strict=True)
     except ValueError as exc:
-        raise ValueError(f"--mpc-from {source!r}: {exc}") from None
+        raise UserError(f"--mpc-from {source!r}: {exc}") from None
 
 
 def hotend_controllers(args: argparse.Namespace) -> list:
@@ -145,7 +145,7 @@ def hotend_controllers(args: argparse.Namespace) -> list:
     if args.mpc_from is None:
         return []
     if args.firmware != "mpc":
-        raise ValueError(f"--mpc-from sets MPC's model: it needs --firmware mpc, not {args.firmware}")
+        raise UserError(f"--mpc-from sets MPC's model: it needs --firmware mpc, not {args.firmware}")
     return [functools.partial(MpcController, read_mpc_constants(args.mpc_from))]
 
 
@@ -166,17 +166,17 @@ def check_outputs(out_dir: str, paths: list[tuple[str, str | None]], plot_path: 
     """Before any work: the --out folder is made; every other output names a file we can write in an
     existing folder (as twin-compare asks of --plot, tools/cli/args.py check_output); the plot is a PNG."""
     if plot_path is not None and not plot_path.lower().endswith(".png"):
-        raise ValueError(f"--plot {plot_path!r}: the plot is written as PNG, give a .png path")
+        raise UserError(f"--plot {plot_path!r}: the plot is written as PNG, give a .png path")
     try:
         os.makedirs(out_dir, exist_ok=True)
     except OSError as exc:
-        raise ValueError(f"cannot create the output folder {out_dir!r}: {exc.strerror or exc}") from None
+        raise UserError(f"cannot create the output folder {out_dir!r}: {exc.strerror or exc}") from None
     for option, path in paths:
         if path is not None:
             try:
                 check_output(path)
             except ValueError as exc:
-                raise ValueError(f"{option} {path!r}: {exc}") from None
+                raise UserError(f"{option} {path!r}: {exc}") from None
 
 
 def clamp_notes(twin, scenario) -> list[str]:
@@ -221,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
         targets=targets or None, seed=args.seed, plant=plant, gains=gains or None,
     )
     if args.record_every > scenario.duration_s:
-        raise ValueError(f"--record-every {args.record_every:g}: must be 0..duration_s ({scenario.duration_s:g}) seconds")
+        raise UserError(f"--record-every {args.record_every:g}: must be 0..duration_s ({scenario.duration_s:g}) seconds")
     stem = run_name(scenario.name, args)
     plot_path = None if args.no_plot else (args.plot or os.path.join(args.out, stem + ".png"))
     csv_path = args.csv or os.path.join(args.out, stem + ".csv")
@@ -234,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         twin.check_horizon(scenario.duration_s)
     except ValueError as exc:
-        raise ValueError(f"--duration {scenario.duration_s:g}: {exc}") from None
+        raise UserError(f"--duration {scenario.duration_s:g}: {exc}") from None
     twin.run_until(0.0)  # the scenario's 0 s events: targets and gains in force
     engine = f", engine {args.engine} ({ENGINE_NOTES[args.engine]})" if args.engine in ENGINE_NOTES else ""
     print(f"twin-sim: {scenario.name}, firmware {args.firmware}, {scenario.duration_s:g} s virtual, "
@@ -290,7 +290,7 @@ def _write(path: str, text: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    return run_main("twin-sim", lambda: run(args), errors=(ScenarioError, ValueError))
+    return run_main("twin-sim", lambda: run(args), errors=(ScenarioError, UserError))
 
 
 if __name__ == "__main__":

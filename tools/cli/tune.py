@@ -26,10 +26,11 @@ import numpy as np
 
 from tools.cli.args import check_output, finite_float, output_file, plot_path
 from tools.progress import PROGRESS_MODES, Steps
-from twin.limits import NOISE_MAX_LSB, SEED_MAX
+from twin.limits import NOISE_MAX_LSB, SEED_MAX, UserError
 from tools.entry import OneLineParser, run_main
 from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
+from tools.logs import LogError
 from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
 from firmware_port.firmwares import KALICO_MPC
 from firmware_port.kalico import mpc_options, pid_options, section
@@ -329,21 +330,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def check_args(args: argparse.Namespace) -> None:
     if args.objective not in OBJECTIVES:
-        raise ValueError(f"--objective {args.objective!r}: choose one of: {', '.join(OBJECTIVES)}")
+        raise UserError(f"--objective {args.objective!r}: choose one of: {', '.join(OBJECTIVES)}")
     if not 1 <= args.budget <= BUDGET_MAX:
-        raise ValueError(f"--budget {args.budget}: must be within 1 .. {BUDGET_MAX}")
+        raise UserError(f"--budget {args.budget}: must be within 1 .. {BUDGET_MAX}")
     if args.noise is not None and not 0 <= args.noise <= NOISE_MAX_LSB:
-        raise ValueError(f"--noise {args.noise:g}: must be within 0 .. {NOISE_MAX_LSB:g} LSB")
+        raise UserError(f"--noise {args.noise:g}: must be within 0 .. {NOISE_MAX_LSB:g} LSB")
     if not 0 <= args.spread < 1:
-        raise ValueError(f"--spread {args.spread:g}: must be within 0 .. 1 (a fraction)")
+        raise UserError(f"--spread {args.spread:g}: must be within 0 .. 1 (a fraction)")
     if not 0 <= args.proof <= PROOF_MAX:
-        raise ValueError(f"--proof {args.proof}: must be within 0 .. {PROOF_MAX} seeds")
+        raise UserError(f"--proof {args.proof}: must be within 0 .. {PROOF_MAX} seeds")
     if not 0 <= args.seed <= SEED_MAX:
-        raise ValueError(f"--seed {args.seed}: must be a whole number >= 0 (below 2**63)")
+        raise UserError(f"--seed {args.seed}: must be a whole number >= 0 (below 2**63)")
     if args.method not in methods():
-        raise ValueError(f"--method {args.method!r}: choose one of: {', '.join(methods())}")
+        raise UserError(f"--method {args.method!r}: choose one of: {', '.join(methods())}")
     if args.model is not None and args.model not in MODELS:
-        raise ValueError(f"--model {args.model!r}: choose one of: {', '.join(MODELS)}")
+        raise UserError(f"--model {args.model!r}: choose one of: {', '.join(MODELS)}")
     path = plot_file(args)
     try:
         if path is not None and args.plot is None and not path.parent.exists():
@@ -351,7 +352,7 @@ def check_args(args: argparse.Namespace) -> None:
         elif path is not None:
             plot_path(str(path))
     except (argparse.ArgumentTypeError, ValueError) as exc:
-        raise ValueError(f"--plot {path}: {exc}") from None
+        raise UserError(f"--plot {path}: {exc}") from None
 
 
 def plot_file(args: argparse.Namespace) -> Path | None:
@@ -461,7 +462,7 @@ def main(argv: list[str] | None = None) -> int:
         args = parse_args(argv)
     except SystemExit as exc:  # --help, or a usage error already printed on one line
         return int(exc.code or 0)
-    return run_main("twin-tune", lambda: run(args))
+    return run_main("twin-tune", lambda: run(args), errors=(LogError, UserError))
 
 
 if __name__ == "__main__":

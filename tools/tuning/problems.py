@@ -44,6 +44,7 @@ from tools.tuning.proof import PROOF_SEEDS
 from tools.tuning.tuner import Proven, Step, proven, tune
 from tools.validation.compare import HeaterInfo, Unusable, heatup_windows, overlaps
 from tools.validation.m303_compare import twin_noise_lsb
+from twin.limits import UserError
 from twin.plants import SPECS, Spec
 
 HOTEND_TARGET_C, BED_TARGET_C = 210.0, 60.0
@@ -75,7 +76,7 @@ class Source:
 def preset_source(name: str, spread: float = DEFAULT_SPREAD) -> Source:
     """A twin/plants.py preset, its lag and loss terms spread +-``spread``; ValueError names a bad preset."""
     if name not in SPECS:
-        raise ValueError(f"--plant {name!r}: valid presets: {', '.join(SPECS)}")
+        raise UserError(f"--plant {name!r}: valid presets: {', '.join(SPECS)}")
     spec = SPECS[name]
     return Source(name, spec, heater_of(name) == "bed", AMBIENT_C, preset_spread(spec, spread) if spread else ())
 
@@ -181,13 +182,13 @@ def build_problem(source: Source, target_c: float | None = None, controller: str
     target = target_c if target_c is not None else source.target_c if source.target_c is not None else \
         default_target_c(source)
     if not target > source.ambient_c:
-        raise ValueError(f"--target {target:g}: a heater tune needs a target above the ambient "
+        raise UserError(f"--target {target:g}: a heater tune needs a target above the ambient "
                          f"{source.ambient_c:g} C")
     try:
         scenario = default_scenario(source.spec, target, source.ambient_c,
                                     world_inputs=all(spec.world_inputs for _, spec, _ in source.plants))
     except ValueError as exc:
-        raise ValueError(f"--target {target:g}: {exc}") from None
+        raise UserError(f"--target {target:g}: {exc}") from None
     space = resolve_controller(controller, "bed" if source.is_bed else "hotend")
     ensemble = None
     if loop != "ideal":  # the papers' loop is noiseless arithmetic on the nominal model

@@ -28,6 +28,7 @@ from pathlib import Path
 
 from firmware_port.marlin.mpc import MpcConstants
 from firmware_port.marlin.pid import BED_GAINS, HOTEND_GAINS, PidGains
+from twin.limits import UserError
 
 EEPROM_VERSION = "V87"  # Marlin 2.1's settings version string
 MAX_FILE_BYTES = 4096  # an image is about 330 bytes (480 with MPC): a larger file is not one, and is not read on
@@ -164,21 +165,21 @@ class Eeprom:
     @classmethod
     def open(cls, path: str | Path, *, keep_corrupt: bool = False) -> Eeprom:
         """The settings file ``path``: new, empty, or one M500 wrote, in a folder where M500 can
-        write. ValueError (one line naming the file) otherwise; M500's files left by a crash are
+        write. UserError (one line naming the file) otherwise; M500's files left by a crash are
         removed."""
         path = Path(path)
         try:
             eeprom = cls(path, keep_corrupt=keep_corrupt)
         except FileNotFoundError:
-            raise ValueError(f"settings file {path}: its directory does not exist") from None
+            raise UserError(f"settings file {path}: its directory does not exist") from None
         except OSError as exc:
-            raise ValueError(f"settings file {path}: cannot open its directory ({exc.strerror})") from None
+            raise UserError(f"settings file {path}: cannot open its directory ({exc.strerror})") from None
         try:
             problem = eeprom._refusal()
         except OSError as exc:
-            raise ValueError(f"settings file {path}: cannot read it ({exc.strerror})") from None
+            raise UserError(f"settings file {path}: cannot read it ({exc.strerror})") from None
         if problem:
-            raise ValueError(problem)
+            raise UserError(problem)
         eeprom._remove_leftovers()
         eeprom._check_writable()
         return eeprom
@@ -289,7 +290,7 @@ class Eeprom:
             os.close(fd)
             _remove(name, self._folder_fd)
         except OSError as exc:
-            raise ValueError(f"settings file {self.path}: cannot be written ({exc.strerror or exc})") from None
+            raise UserError(f"settings file {self.path}: cannot be written ({exc.strerror or exc})") from None
 
 
 def _remove(name: str, folder_fd: int) -> None:

@@ -20,6 +20,7 @@ import pytest
 import serial
 
 import protocol  # noqa: F401  (registers twin://)
+from tools import bench
 from tools.cli import benchfuncs, compare, firmware_report, fit, hold_check, sim, tune
 from tools.cli import serial as serial_cli
 from tools.docs import crossval, kalico_table, mpc_report, optimtable
@@ -36,7 +37,7 @@ CLIS = {"twin-sim": sim.main, "twin-serial": serial_cli.main, "twin-fit": fit.ma
         "twin-tune": tune.main, "twin-firmware-report": firmware_report.main, "hold_check": hold_check.main,
         "tools.seeds": seeds.main, "benchfuncs": benchfuncs.main, "tools.docs.crossval": crossval.main,
         "tools.docs.mpc_report": mpc_report.main, "tools.docs.optimtable": optimtable.main,
-        "tools.docs.kalico_table": kalico_table.main}
+        "tools.docs.kalico_table": kalico_table.main, "tools.bench": bench.main}
 INTERNAL = ("Traceback", "internal error", "codec can't", "object has no attribute", "NoneType",
             "cannot convert float", "invalid literal")
 GAINS = ["--gains", "13,0.3,70"]
@@ -118,6 +119,7 @@ def _cases() -> list[tuple[str, list[str], str]]:
     add("twin-serial", "--log", ["{fifo}", "/proc/x.log", "{dir}"])
     add("twin-serial", "--firmware", ["bogus"])
     add("twin-serial", "--plant", ["bogus"])
+    add("twin-serial", "--secret-file", ["{fifo}", "{dir}"], ["--tcp", "127.0.0.1:0"])  # a FIFO would block its open
     # twin-fit on a small plain CSV
     add("twin-fit", "--target", ["nan", "0", "1000"], ["{log}"])
     add("twin-fit", "--ambient", ["nan", "-300", "1000"], ["{log}"])
@@ -145,7 +147,9 @@ def _cases() -> list[tuple[str, list[str], str]]:
     add("twin-tune", "--seed", ["-1", "x"], preset)
     add("twin-tune", "--plot", ["/proc/x.png", "{dir}", "x.unknownext", "{missing}"], preset)
     add("twin-tune", "--controller", ["os:system", "subprocess:run", ":x", "nomodule_xyz:X", "bangbang",
-                                      "builtins:print"], preset)
+                                      "builtins:print", "..:x", ".x:y", "a b:c", "os.:x"], preset)
+    add("twin-tune", "--current-gains", ["1e308,1,1", "1,1e300,1", "1,1,9e9", "nan,1,1", "-1,1,1", "x"], preset)
+    add("twin-tune", "--cross-check", ["-1", "nan", "inf"], preset)
     add("twin-tune", "--method", ["guess"], preset)
     add("twin-tune", "--objective", ["fastest"], preset)
     add("twin-tune", "--statistic", ["x"], preset)
@@ -161,6 +165,13 @@ def _cases() -> list[tuple[str, list[str], str]]:
     add("tools.seeds", "--seeds", ["999", "x"])
     add("tools.seeds", "--out", ["/proc/x.md", "{dir}", "{binary}", "{fifo}"])
     cases.append(("tools.seeds", ["bogus"], "seed"))
+    cases += [("tools.seeds", ["--check", "--out", page], "--out") for page in ("{binary}", "{fifo}")]
+    # python -m tools.bench: its sizes, checked before any work
+    add("tools.bench", "--lanes", ["1000000000", "0", "-1"], ["twin"])
+    add("tools.bench", "--lines", ["-1", "0"], ["protocol"])
+    add("tools.bench", "--requests", ["0"], ["protocol"])
+    add("tools.bench", "--captures", ["/abs/*"], ["twin-tune"])
+    add("tools.bench", "--duration", ["nan", "-1", "1e300"], ["twin"])
     # the docs' generators and the optimiser benchmark: their pages and outputs, checked before the runs
     add("benchfuncs", "--out", ["/proc/x.md", "{dir}", "{fifo}"], ["--quick"])
     add("benchfuncs", "--doc", ["{binary}", "{fifo}", "{page}", "{dir}/none.md"], ["--quick"])

@@ -1,6 +1,6 @@
 """Benchmarks (not tests): ``python -m tools.bench WHAT``; ratios measured in one run.
 
-WHAT is twin, tune, twin-tune, protocol or scaling. Each prints the command and the machine (CPUs, model,
+WHAT is twin, tune, twin-tune, protocol, scaling or startup. Each prints the command and the machine (CPUs, model,
 load, date, commit) before its lines; ``--doc FILE`` also rewrites FILE's section between
 ``<!-- bench WHAT: begin`` and ``<!-- bench WHAT: end -->`` (docs/performance.md), checked before any work.
 
@@ -43,6 +43,9 @@ each one's wall and CPU time (its process and the threads it starts), exit statu
 noisy, dead time, radiating, the fuzzy PI, the Klipper loop), and against dask workers
 (docs/scaling.md).
 
+``startup``: the CPU time (its process, resource.getrusage of children) of each command's ``--help``
+(target: 0.5 s) and of twin-serial until it prints its link (target: 1 s), the median of ``--runs``.
+
 ``protocol``: twin-serial ``--speed max`` in its own process, pyserial on its pty, as a host:
 - M105 round trip, wall milliseconds, median and 99th percentile;
 - numbered, checksummed G1 lines streamed with 1 and with BUFSIZE (4) lines awaiting their ok:
@@ -71,7 +74,7 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TypeVar, cast
+from typing import IO, TypeVar, cast
 
 import numpy as np
 import scipy.optimize
@@ -85,7 +88,7 @@ from protocol.printer import BUFSIZE
 from firmware_port.firmwares import param_space
 from tools.cli.args import section_page
 from tools.entry import OneLineParser, run_cli
-from twin.limits import UserError
+from twin.limits import DURATION_MAX_S, TRACE_MAX_BYTES, UserError, checked
 from tools.ident.log_fit import HEATER_NAMES
 from tools.logs import StatsLog, hardware_logs_dir, load_log
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
@@ -93,7 +96,7 @@ from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
 from tools.tuning.problems import build_problem, preset_source
 from tools.tuning.tuner import DEFAULT_BUDGET, Candidate, tune
 from twin import batch_kernel
-from twin.batch import THREADS_ENV, BatchTwin, lane_threads
+from twin.batch import RECORD_LANE_BYTES, RECORD_ROW_BYTES, THREADS_ENV, BatchTwin, lane_threads
 from twin.klipper_batch import KlipperBatch, gains_setups
 from twin.klipper_twin import extruder_setup
 from twin.build import build_twin
@@ -642,12 +645,56 @@ def bench_scaling(seed: int) -> list[str]:
     return lines + _scaling_dask(seed)
 
 
+# -- startup: each command's --help, and twin-serial until it prints its link ----------------------------
+STARTUP_COMMANDS = {"twin-sim": "tools.cli.sim", "twin-serial": "tools.cli.serial",
+                    "twin-klipper-mcu": "tools.cli.klipper_mcu", "twin-fit": "tools.cli.fit",
+                    "twin-compare": "tools.cli.compare", "twin-tune": "tools.cli.tune",
+                    "twin-firmware-report": "tools.cli.firmware_report", "tools.bench": "tools.bench",
+                    "tools.seeds": "tools.seeds"}
+STARTUP_RUNS = 5  # the median of these, per command
+STARTUP_HELP_CPU_S = 0.5  # the targets (issue 37): --help, and twin-serial's link
+STARTUP_LINK_CPU_S = 1.0
+
+
+def _children_cpu_s(run: Callable[[], object]) -> float:
+    """CPU seconds (user + system) of the child processes ``run`` starts and waits for."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    run()
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+
+
+def _serial_link() -> None:
+    """twin-serial until it prints its link (the pty path), then stopped."""
+    with subprocess.Popen(SERIAL_CLI, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True) as proc:
+        out = cast("IO[str]", proc.stdout)
+        try:
+            if not select.select([out], [], [], START_TIMEOUT_S)[0] or not out.readline().strip():
+                raise RuntimeError("twin-serial printed no link")
+        finally:
+            proc.terminate()
+
+
+def bench_startup(runs: int) -> list[str]:
+    """The median CPU time of each command's --help, and of twin-serial until it prints its link."""
+    lines = [f"start-up CPU time (user + system of the process), median of {runs} runs; targets: --help "
+             f"{STARTUP_HELP_CPU_S:g} s, twin-serial's link {STARTUP_LINK_CPU_S:g} s:"]
+    for name, module in STARTUP_COMMANDS.items():
+        argv = [sys.executable, "-m", module, "--help"]
+        help_run = functools.partial(subprocess.run, argv, capture_output=True, check=True)
+        cpu_s = statistics.median(_children_cpu_s(help_run) for _ in range(runs))
+        lines.append(f"  {name} --help: {cpu_s:.2f} s")
+    cpu_s = statistics.median(_children_cpu_s(_serial_link) for _ in range(runs))
+    return lines + [f"  twin-serial until its link: {cpu_s:.2f} s (and its stop)"]
+
+
 # -- the report: the command, the machine, the lines; --doc --------------------------------------------
 ROOT = Path(__file__).resolve().parents[1]
-BENCHES = ("twin", "tune", "twin-tune", "protocol", "scaling")
+BENCHES = ("twin", "tune", "twin-tune", "protocol", "scaling", "startup")
 # the options each benchmark reads; all but --seed set its size
 OPTIONS = {"twin": ("duration", "lanes", "seed"), "tune": ("duration", "lanes", "seed"),
-           "twin-tune": ("budget", "proof", "captures"), "protocol": ("requests", "lines"), "scaling": ("seed",)}
+           "twin-tune": ("budget", "proof", "captures"), "protocol": ("requests", "lines"), "scaling": ("seed",),
+           "startup": ("runs",)}
 SETTINGS_ENV = ("OPENBLAS_NUM_THREADS", THREADS_ENV)  # environment that changes what a run measures
 NOT_MEASURED = ("NOT A MEASUREMENT: smaller than the defaults, a check that the benchmark runs; "
                 "re-run without the size options on a quiet machine")
@@ -721,6 +768,8 @@ def build_parser() -> OneLineParser:
                         help=f"twin-tune: the captures in the hardware logs to tune (default: {' and '.join(CAPTURES)})")
     parser.add_argument("--requests", type=int, default=500, help="protocol: M105 round trips (default: %(default)s)")
     parser.add_argument("--lines", type=int, default=5000, help="protocol: G1 lines per stream (default: %(default)s)")
+    parser.add_argument("--runs", type=int, default=STARTUP_RUNS,
+                        help="startup: runs of each command, the median reported (default: %(default)s)")
     parser.add_argument("--doc", type=Path, metavar="FILE",
                         help="also rewrite FILE's section between '<!-- bench WHAT: begin' and "
                              "'<!-- bench WHAT: end -->' (docs/performance.md)")
@@ -744,10 +793,37 @@ def measure(args: argparse.Namespace) -> list[str]:
         return bench_twin_tune(args.captures, sizes)
     if args.what == "scaling":
         return bench_scaling(args.seed)
+    if args.what == "startup":
+        return bench_startup(args.runs)
     return bench_protocol(args.requests, args.lines)
 
 
+def _memory_bytes() -> int:
+    """This machine's physical memory."""
+    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def check_sizes(args: argparse.Namespace) -> None:
+    """The size options, before any work: counts of at least 1, a batch whose records fit this machine's
+    memory (and TRACE_MAX_BYTES), captures named by a pattern inside the hardware logs."""
+    for name in ("lanes", "requests", "lines", "runs"):
+        if getattr(args, name) < 1:
+            raise UserError(f"--{name} {getattr(args, name)}: must be at least 1")
+    checked("--duration", args.duration, 0.0, DURATION_MAX_S, "s", above=True)
+    rows = args.duration / (TICKS_PER_READING * TICK_S)
+    need = rows * (RECORD_LANE_BYTES * args.lanes + RECORD_ROW_BYTES)
+    have = min(TRACE_MAX_BYTES, _memory_bytes())
+    if need > have:
+        raise UserError(f"--lanes {args.lanes}: {args.duration:g} s of their records would take "
+                        f"{need / 2**30:.3g} GiB, more than the {have / 2**30:.3g} GiB allowed here; give fewer "
+                        "--lanes or a shorter --duration")
+    if args.captures is not None and Path(args.captures).is_absolute():
+        raise UserError(f"--captures {args.captures}: a pattern inside the hardware logs folder "
+                        f"({hardware_logs_dir()}), not an absolute path")
+
+
 def run(args: argparse.Namespace) -> int:
+    check_sizes(args)
     parser = build_parser()
     if args.doc is not None:
         try:

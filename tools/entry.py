@@ -80,13 +80,13 @@ def internal_error(prog: str, exc: BaseException) -> int:
 
 
 def _traceback_file(prog: str, text: str) -> Path | None:
-    """A new file holding ``text`` in the user's state folder (else the temporary folder); None if neither
-    takes it."""
+    """A new file holding ``text`` in the user's state folder (else the temporary folder), named after the
+    command (its last word: ``python -m tools.bench`` -> tools.bench-*); None if neither takes it."""
     state = Path(os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state") / "heater-twin"
     for folder in (state, Path(tempfile.gettempdir())):
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            handle, name = tempfile.mkstemp(prefix=f"{prog}-", suffix=".traceback.txt", dir=folder)
+            handle, name = tempfile.mkstemp(prefix=f"{prog.split()[-1]}-", suffix=".traceback.txt", dir=folder)
             with os.fdopen(handle, "w", encoding="utf-8") as file:
                 file.write(text)
             return Path(name)

@@ -10,6 +10,7 @@ from firmware_port.controller import ControllerSpec
 from firmware_port.marlin.board import BED_CHANNEL, HOTEND_CHANNEL
 from firmware_port.marlin.pid import PidGains
 from twin.engine import BOOT_S, Twin
+from twin.limits import UserError
 from twin.plants import DEFAULT_BED, DEFAULT_HOTEND, make_plant
 from twin.scenario import Event, Scenario
 from twin.sensor import DETACHED, OPEN, SHORT
@@ -53,7 +54,7 @@ def build_twin(
         if event.heater == "bed" and not with_bed:
             continue
         if event.kind == "gains" and not twin.board.has_gains(CHANNELS[str(event.heater)]):
-            raise ValueError(f"{scenario.name}: pid gains for the {event.heater} at {event.at_s:g} s, but firmware "
+            raise UserError(f"{scenario.name}: pid gains for the {event.heater} at {event.at_s:g} s, but firmware "
                              f"{firmware!r} has no PID on that heater")
         twin.schedule(event.at_s, functools.partial(apply_event, event=event))
     return twin

@@ -32,6 +32,7 @@ from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
 from tools.logs import LogError
 from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
+from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
 from firmware_port.firmwares import KALICO_MPC
 from firmware_port.kalico import mpc_options, pid_options, section
 from tools.tuning.evaluate import LOOPS, Candidate, Problem, kalico_mpc_config
@@ -345,6 +346,15 @@ def check_args(args: argparse.Namespace) -> None:
         raise UserError(f"--method {args.method!r}: choose one of: {', '.join(methods())}")
     if args.model is not None and args.model not in MODELS:
         raise UserError(f"--model {args.model!r}: choose one of: {', '.join(MODELS)}")
+    if args.cross_check < 0:
+        raise UserError(f"--cross-check {args.cross_check:g}: must be >= 0 seconds (0: skip)")
+    if args.current_gains:
+        check_current_gains(args.current_gains)
+    check_plot(args)
+
+
+def check_plot(args: argparse.Namespace) -> None:
+    """--plot (or the default one): a file we can write, in a format matplotlib writes."""
     path = plot_file(args)
     try:
         if path is not None and args.plot is None and not path.parent.exists():
@@ -353,6 +363,18 @@ def check_args(args: argparse.Namespace) -> None:
             plot_path(str(path))
     except (argparse.ArgumentTypeError, ValueError) as exc:
         raise UserError(f"--plot {path}: {exc}") from None
+
+
+def check_current_gains(text: str) -> None:
+    """--current-gains: gains parse_gains reads, each within what the firmware takes (Marlin's PID_MAX scale)."""
+    try:
+        gains = parse_gains(text)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    for name, value, high in zip("PID", (gains.kp, gains.ki, gains.kd), (KP_MAX, KI_MAX, KD_MAX), strict=True):
+        if value > high:
+            raise UserError(f"--current-gains {text!r}: {name} {value:g} is beyond {high:g}, the most the firmware "
+                            "takes")
 
 
 def plot_file(args: argparse.Namespace) -> Path | None:

@@ -20,12 +20,13 @@ from pathlib import Path
 from tqdm import tqdm
 
 from tools.cli.args import check_output, read_text_file
-from tools.entry import OneLineParser, run_main
+from tools.entry import EXIT_USAGE, OneLineParser, run_main
 from tools.docs import seeds_page as page
 from tools.seeds.command import BUDGET_HELP, run_seed
 from tools.seeds.papers import PAPERS
 from tools.seeds.report import SMALL_BUDGET, parse_budget
 from tools.validation.doc_compare import compare_docs
+from twin.limits import UserError
 
 EXIT_STATUS = """exit status:
   0  the report printed, or the page written (or, with --check, current)
@@ -97,7 +98,7 @@ def _page(seeds: list[str], out: Path, check: bool) -> int:
             out.write_text(page.assemble(texts))
         except OSError as error:
             print(f"tools.seeds: --out {out}: {error.strerror}", file=sys.stderr)
-            return 2
+            return EXIT_USAGE
         print(f"wrote {out}")
         status = 0
     print(f"{len(seeds)} seeds in {time.perf_counter() - start_s:.0f} s")
@@ -115,18 +116,18 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [s for s in seeds if s not in page.SECTIONS]
     if unknown:
         print(f"tools.seeds: --seeds: unknown {unknown}, choose from {list(page.SECTIONS)}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     if args.check and not out.is_file():
         print(f"tools.seeds: --out {out}: no such file to check", file=sys.stderr)
-        return 2
-    if not args.check:
-        try:  # before the papers' runs: a page that cannot be written would lose them
+        return EXIT_USAGE
+    try:  # before the papers' runs: a page that cannot be written (or read, to check it) would lose them
+        if not args.check:
             check_output(out)
-            if out.exists():
-                read_text_file(out)
-        except ValueError as exc:
-            print(f"tools.seeds: --out {out}: {exc}", file=sys.stderr)
-            return 2
+        if out.exists():
+            read_text_file(out)
+    except UserError as exc:
+        print(f"tools.seeds: --out {out}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     return run_main("tools.seeds", lambda: _page(seeds, out, args.check))
 
 

@@ -7,7 +7,8 @@ from the current directory or the Python path (e.g. ``--controller my_smith:SPAC
 a ``ParamSpace``, or a function defined in that module whose one parameter is named ``heater``
 (it gets "hotend" or "bed" and returns a ParamSpace). Nothing else is ever called: the attribute is
 checked before, so ``os:system`` or ``subprocess:run`` is refused, not run. The module's name must be dotted
-identifiers, each level's file a regular one (a FIFO would hang the import), and sys.path is left as it was.
+identifiers, each level found as a file before it is imported (not one built into Python), and sys.path is
+left as it was.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from types import ModuleType
 
 from firmware_port.firmwares import HOST_SPACES, PARAM_SPACES, param_space
 from firmware_port.params import ParamSpace
-from twin.limits import UserError, check_regular_file
+from twin.limits import UserError
 
 
 def controller_names() -> list[str]:
@@ -56,9 +57,9 @@ def resolve_controller(name: str, heater: str) -> ParamSpace:
 
 
 def _user_module(module_name: str) -> ModuleType:
-    """``module_name`` imported from the current directory or the Python path, each level's file checked
-    first (a regular file); sys.path as it was afterwards. ValueError for a name that is not dotted
-    identifiers (``..``, ``a b``), ImportError for one not found."""
+    """``module_name`` imported from the current directory or the Python path, each level found as a file
+    before it is imported; sys.path as it was afterwards. ValueError for a name that is not dotted
+    identifiers (``..``, ``a b``), ImportError for one not found or built into Python (``sys``)."""
     if not all(part.isidentifier() for part in module_name.split(".")):
         raise ValueError(f"{module_name!r} is not a module name (dotted identifiers)")
     saved = list(sys.path)
@@ -67,10 +68,10 @@ def _user_module(module_name: str) -> ModuleType:
         parts = module_name.split(".")
         for depth in range(1, len(parts) + 1):
             spec = importlib.util.find_spec(".".join(parts[:depth]))
-            if spec is None:
+            if spec is None:  # importlib's finders skip what is not a regular file (a FIFO would block)
                 raise ImportError(f"no module named {'.'.join(parts[:depth])!r}")
-            if spec.has_location and spec.origin:
-                check_regular_file(spec.origin)
+            if not spec.has_location:
+                raise ImportError(f"{spec.name!r} is built into Python, not a module file")
         return importlib.import_module(module_name)
     finally:
         sys.path[:] = saved

@@ -8,6 +8,7 @@ import sys
 from collections.abc import Callable
 
 from tqdm import tqdm
+from twin.limits import UserError
 
 PROGRESS_MODES = ("bar", "lines")
 
@@ -18,7 +19,7 @@ class Steps:
 
     def __init__(self, mode: str = "bar"):
         if mode not in PROGRESS_MODES:
-            raise ValueError(f"--progress {mode!r}: choose one of: {', '.join(PROGRESS_MODES)}")
+            raise UserError(f"--progress {mode!r}: choose one of: {', '.join(PROGRESS_MODES)}")
         self.mode = mode
 
     def __repr__(self) -> str:

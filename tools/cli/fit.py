@@ -29,6 +29,7 @@ import argparse
 import sys
 import textwrap
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 from pathlib import Path
 
 import numpy as np
@@ -46,14 +47,13 @@ from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, Log, LogError, M303Log, StatsLog
 from tools.progress import Steps
-from tools.tuning.allowed import allowed_plants
-from tools.tuning.evaluate import Problem
-from tools.tuning.problems import allowed_source, build_problem, quick_answer
-from tools.tuning.proof import PROOF_SEEDS
-from tools.tuning.reference import PrinterGains
-from tools.tuning.tuner import Proven
 from twin.limits import AMBIENT_RANGE_C, UserError
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
+
+if TYPE_CHECKING:  # the tuning layer (numba, scipy) is imported where gains are computed, not at start-up
+    from tools.tuning.evaluate import Problem
+    from tools.tuning.reference import PrinterGains
+    from tools.tuning.tuner import Proven
 
 EXIT_DEGENERATE = 3
 EXIT_STATUS = """
@@ -223,6 +223,8 @@ def _gains_lines(problem: Problem, answer: Proven, heater: str, printer: Printer
     """The PID gains twin-tune's tuner would print (tools/tuning/problems.py quick_answer: the rules and the
     firmware's autotune, proven on every plant the log allows against the printer's gains), "keep your
     gains", or None where nothing proven holds (the reference itself trips on some plant)."""
+    from tools.tuning.proof import PROOF_SEEDS
+
     bed = heater == BED
     where = f"on all {plants} plants the log allows, {PROOF_SEEDS} noise seeds each, on the {problem.loop} loop"
     if answer.verdict.keep and printer is not None:
@@ -320,6 +322,8 @@ def run(args: argparse.Namespace) -> int:
             fitted = fit_log(log, _options(args, bar.update))
         allowed = None
     else:
+        from tools.tuning.allowed import allowed_plants
+
         allowed = allowed_plants(log, name, _options(args, None), Steps("bar"))
         fitted = allowed.first  # the fit the options ask for; the plants the log allows follow it
     print(f"twin-fit: {args.log}")
@@ -336,6 +340,8 @@ def run(args: argparse.Namespace) -> int:
         settings.append("gains: not with --fit-only (twin-fit without it proves the rules' on every plant the log "
                         "allows; twin-tune --from-log searches further)")
     else:
+        from tools.tuning.problems import allowed_source, build_problem, quick_answer
+
         source = allowed_source(log, allowed, _options(args, None))
         problem = build_problem(source, args.target)
         answer = quick_answer(problem, source.printer)

@@ -30,6 +30,7 @@ from twin.limits import NOISE_MAX_LSB, SEED_MAX, UserError
 from tools.entry import OneLineParser, run_main
 from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
+from tools.ident.segments import NotFittable
 from tools.logs import LogError
 from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
 from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
@@ -484,7 +485,7 @@ def main(argv: list[str] | None = None) -> int:
         args = parse_args(argv)
     except SystemExit as exc:  # --help, or a usage error already printed on one line
         return int(exc.code or 0)
-    return run_main("twin-tune", lambda: run(args), errors=(LogError, UserError))
+    return run_main("twin-tune", lambda: run(args), errors=(LogError, NotFittable, UserError))
 
 
 if __name__ == "__main__":

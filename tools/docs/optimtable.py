@@ -30,6 +30,7 @@ from tools.tuning.evaluate import Problem
 from tools.tuning.problems import build_problem, log_source, preset_source
 from tools.tuning.tuner import optimise, references, search_bounds
 from twin.plants import SPECS
+from twin.limits import UserError
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "tuning.md"
 BEGIN, END = "<!-- optim-table: begin", "<!-- optim-table: end -->"
@@ -131,9 +132,9 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
     labels = args.plants.split(",")
     unknown = [p for p in labels if p not in PLANTS]
     if unknown:
-        raise ValueError(f"--plants: unknown {unknown}, choose from {list(PLANTS)}")
+        raise UserError(f"--plants: unknown {unknown}, choose from {list(PLANTS)}")
     if args.budget < 150:
-        raise ValueError("--budget must be >= 150 (OCALO: 3 x its population of 50)")
+        raise UserError("--budget must be >= 150 (OCALO: 3 x its population of 50)")
     table = markdown([run_plant(p, args.budget, args.seed) for p in labels], args.budget, args.seed)
     if args.doc is not None:
         write_doc(args.doc, table, ("python -m tools.docs.optimtable " + " ".join(argv)).strip())

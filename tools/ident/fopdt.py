@@ -12,7 +12,6 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-import scipy.optimize
 
 from tools.ident.response import radiating_response, spec_lti
 from tools.ident.result import FitResult
@@ -77,6 +76,7 @@ def ultimate_point(fopdt: Fopdt) -> tuple[float, float]:
 
     The closed form for a FOPDT (twin-fit, seed 001); tools.tuning.ultimate.ultimate_point does any
     model from its frequency response."""
+    import scipy.optimize  # here: a command's start-up needs no scipy
     k, tau, delay = fopdt
     if delay <= 0 or k <= 0 or tau < 0:
         raise ValueError(f"no ultimate point for {fopdt}: needs a positive gain and dead time")

@@ -213,7 +213,7 @@ def _first_cycles(points: list[RelayPoint], trace: Segment | None,
                   count: int) -> tuple[list[RelayPoint], Segment | None, str]:
     """The first count points, the trace up to the last of them, and a note saying so."""
     if not 0 < count <= len(points):
-        raise ValueError(f"--fit-cycles {count}: the capture prints {len(points)} cycles with Tu")
+        raise UserError(f"--fit-cycles {count}: the capture prints {len(points)} cycles with Tu")
     points = points[:count]
     trace = None if trace is None else trace.before_line(points[-1].line_no + 1)
     if trace is not None and not (trace.observed is None or trace.observed.any()):
@@ -258,7 +258,7 @@ def _pid_results_fit(results: PidCalibrateResults, options: LogFitOptions) -> Lo
     target_c = options.target_c or KLIPPER_TARGET_C[BED if heater_kind(heater) == "bed" else "extruder"]
     model = options.model or "fopdt"
     if model != "fopdt":
-        raise ValueError(f"--model {model}: a PID_CALIBRATE result (Tu and swing, no bias) fits fopdt only")
+        raise UserError(f"--model {model}: a PID_CALIBRATE result (Tu and swing, no bias) fits fopdt only")
     ambient_c, ambient_note, assumed = _ambient(results, options)
     assert ambient_c is not None
     points = klipper_points([entry], target_c)
@@ -293,7 +293,7 @@ def fit_log(log: Log, options: LogFitOptions | None = None) -> LogFit:
     """Fit a log as twin-fit does (module docstring); NotFittable or ValueError say why it cannot be."""
     options = options or LogFitOptions()
     if options.fit_cycles is not None and not isinstance(log, M303Log):
-        raise ValueError("--fit-cycles needs an M303 capture (printed relay cycles)")
+        raise UserError("--fit-cycles needs an M303 capture (printed relay cycles)")
     if isinstance(log, M303Log):
         return _m303_fit(log, options)
     if isinstance(log, list):

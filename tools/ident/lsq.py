@@ -16,7 +16,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.optimize
 
 LINEAR_PARAMS = ("ambient_c", "initial_c", "delay_s")  # fitted as they are; the others as their logarithms
 LOG_X_SCALE = 0.1  # least_squares x_scale of a logarithm (10 % steps); 1 C or 1 s for the linear ones
@@ -81,6 +80,8 @@ def least_squares_fit(residuals: Callable[[dict[str, float]], np.ndarray], start
             on_evaluation()
         with np.errstate(over="ignore", invalid="ignore"):  # exploring far out: non-finite residuals, a rejected step
             return residuals(params(z))
+
+    import scipy.optimize  # here: a command's start-up needs no scipy
 
     sol = scipy.optimize.least_squares(evaluate, internal(start.values()),
                                        x_scale=np.where(is_log, LOG_X_SCALE, 1.0), max_nfev=MAX_EVALUATIONS,

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-import scipy.optimize
 
 from firmware_port.klipper.heater import REPORT_TIME
 from firmware_port.klipper.pid_calibrate import TUNE_PID_DELTA
@@ -167,6 +166,7 @@ class _Loop:
     def first_time(self, start_s: float, above: bool, level_c: float) -> float:
         """The first time from start_s when the reading is above (or below) level_c: searched in
         windows that double from FIRST_WINDOW_S, up to the horizon."""
+        import scipy.optimize  # here: a command's start-up needs no scipy
         sign = 1.0 if above else -1.0
         horizon_s = start_s + HORIZON_TIME_CONSTANTS * self.plant.slowest_s + self.lag_s
         window_s, from_s = FIRST_WINDOW_S, start_s
@@ -187,6 +187,7 @@ class _Loop:
 
     def extreme(self, start_s: float, end_s: float, highest: bool) -> float:
         """The highest (or lowest) reading over [start_s, end_s]."""
+        import scipy.optimize  # here: a command's start-up needs no scipy
         sign = 1.0 if highest else -1.0
         best = -math.inf
         for a, b, duty, z in self._pieces(start_s, end_s):

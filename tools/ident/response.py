@@ -14,7 +14,6 @@ import dataclasses
 import math
 
 import numpy as np
-import scipy.linalg
 
 from twin.linear import SENSOR, TICK_S, Lti
 from twin.plants import Lumped, Plant, Spec, TransferFunction
@@ -61,6 +60,7 @@ def _interval_maps(models: Lti | list[Lti], lengths_s: np.ndarray, repeat: int =
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Zero-order hold of x' = A x + b u + E d over each interval length: (Phi, g, H) stacked per length;
     with a list of models, each taken for ``repeat`` consecutive lengths."""
+    import scipy.linalg  # here: a command's start-up needs no scipy
     models = [models] if isinstance(models, Lti) else models
     n, m = models[0].a.shape[0], models[0].e.shape[1]
     aug = np.zeros((len(lengths_s), n + 1 + m, n + 1 + m))

@@ -20,7 +20,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.optimize
 
 from tools.ident.lsq import information_criterion
 from tools.ident.plausible import Range, identification, plausible
@@ -87,6 +86,7 @@ class FitResult:
         With the radiating loss the rise solves P = (A + h(T)) (T - Ta), h the radiation's secant
         conductance (twin/plants.py ``Lumped.radiation_w_k``), and the time constant is the one near
         ambient, where h is 4 sigma eps area Ta^3: both scale with P like C, A and the area."""
+        import scipy.optimize  # here: a command's start-up needs no scipy
         v = self.values
         spec = self.spec()
         if not isinstance(spec, Lumped):

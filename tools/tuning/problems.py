@@ -201,7 +201,7 @@ def build_problem(source: Source, target_c: float | None = None, controller: str
     try:
         return Problem(source.name, source.spec, scenario, loop, space, ensemble, klipper=source.klipper)
     except ValueError as exc:
-        raise ValueError(f"--loop {loop}: {exc}") from None
+        raise UserError(f"--loop {loop}: {exc}") from None
 
 
 def quick_answer(problem: Problem, printer: PrinterGains | None, seeds: int = PROOF_SEEDS) -> Proven:

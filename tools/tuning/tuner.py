@@ -49,6 +49,7 @@ from tools.tuning.objectives import DEFAULT_OBJECTIVE, Against, Run, heater_cost
 from tools.tuning.optim import METHODS, WARM_STARTS
 from tools.tuning.proof import CROSS_CHECK_S, PROOF_SEEDS, ProofRow, cross_check, prove
 from tools.tuning.verdict import HOLD_FACTOR, HOLD_SLACK_C, OVERSHOOT_SLACK_C, Verdict, judge
+from twin.limits import UserError
 
 __all__ = ["Candidate", "Param", "ParamSpace", "Problem", "TuneResult", "preset_problem", "simulate", "tune"]
 
@@ -145,9 +146,9 @@ def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
         return [], [method]
     if method in rule_names():
         if not pid:
-            raise ValueError(f"--method {method}: tuning rules give PID gains; choose an optimiser, 'auto' or 'all'")
+            raise UserError(f"--method {method}: tuning rules give PID gains; choose an optimiser, 'auto' or 'all'")
         return [method], []
-    raise ValueError(f"--method {method!r}: choose one of: {', '.join(methods())}")
+    raise UserError(f"--method {method!r}: choose one of: {', '.join(methods())}")
 
 
 def methods() -> list[str]:
@@ -202,7 +203,7 @@ def search(problem: Problem, cost: Callable[[Run], np.ndarray], method: str, bou
     try:
         result = METHODS[method](objective_z, box, rng=np.random.default_rng(seed), budget=budget, **warm)
     except ValueError as exc:  # e.g. a budget below two of the optimiser's generations
-        raise ValueError(f"--method {method} --budget {budget}: {exc}") from None
+        raise UserError(f"--method {method} --budget {budget}: {exc}") from None
     best = space.hold(np.clip(space.from_search(result.x), bounds[:, 0], bounds[:, 1]))
     others = [space.hold(row) for row in evaluator.best(runners_up + 1, RUNNER_UP_APART)
               if np.any(np.abs(space.hold(row) - best) > RUNNER_UP_APART * np.maximum(np.abs(best), 1e-12))]

@@ -20,7 +20,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import scipy.optimize
 
 from firmware_port.klipper import HeaterConfig
 from firmware_port.klipper.heater import (
@@ -135,6 +134,7 @@ def _response(fit: FitResult, fan_xfer_w_k: float, run: Run) -> np.ndarray:
 
 def _fit_fan(fit: FitResult, run: Run) -> float:
     """The fan loss F (W/K at the run's fan) that fits the run best, its session carried through."""
+    import scipy.optimize  # here: a command's start-up needs no scipy
     a = fit.values["ambient_xfer_w_k"]
     best = scipy.optimize.minimize_scalar(
         lambda f: float(np.mean(np.square(_response(fit, f, run) - run.temp_c))),

@@ -87,7 +87,7 @@ from protocol.lines import with_checksum
 from protocol.printer import BUFSIZE
 from firmware_port.firmwares import param_space
 from tools.cli.args import section_page
-from tools.entry import OneLineParser, run_cli
+from tools.entry import EXIT_STATUS_HELP, OneLineParser, run_cli
 from twin.limits import DURATION_MAX_S, TRACE_MAX_BYTES, UserError, checked
 from tools.ident.log_fit import HEATER_NAMES
 from tools.logs import StatsLog, hardware_logs_dir, load_log
@@ -755,7 +755,7 @@ def machine(doc: Path | None = None) -> str:
 
 
 def build_parser() -> OneLineParser:
-    parser = OneLineParser(prog="python -m tools.bench", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python -m tools.bench", description=__doc__.splitlines()[0], epilog=EXIT_STATUS_HELP)
     parser.add_argument("what", choices=BENCHES, help="what to benchmark")
     parser.add_argument("--duration", type=float, default=600.0,
                         help="twin, tune: virtual seconds (default: %(default)s)")

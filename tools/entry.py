@@ -29,9 +29,12 @@ from twin.limits import UserError
 EXIT_USAGE = 2  # argparse's own status for a usage error; ours for any input we cannot use
 EXIT_INTERNAL = 70  # EX_SOFTWARE (sysexits.h): an internal software error, never the user's input
 REPORT_AT = "the heater-twin issue tracker"
-# What every command's --help says about how it ends (the verdict codes of twin-fit/twin-tune are their own).
-EXIT_CODES_HELP = (f"exit status: {EXIT_USAGE} for input it cannot use (one line on stderr); {EXIT_INTERNAL} for an "
-                   "internal error (its traceback in a file that line names)")
+# The lines of --help's "exit status:" block that every command shares (a command adds its own verdicts).
+INTERNAL_STATUS_HELP = (f"  {EXIT_INTERNAL} an internal error (a bug, not your input): one line on stderr says so and names\n"
+                        "     the file holding its traceback; please report it")
+EXIT_STATUS_HELP = ("exit status:\n  0  done\n"
+                    f"  {EXIT_USAGE}  bad input (an option or a file), said in one line on stderr; nothing is run\n"
+                    + INTERNAL_STATUS_HELP)
 
 
 class OneLineParser(argparse.ArgumentParser):

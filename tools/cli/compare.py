@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import cast
 
 from tools.cli.args import plot_path, ranged_float
-from tools.entry import OneLineParser, run_main
+from tools.entry import EXIT_STATUS_HELP, OneLineParser, run_main
 from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.lsq import MAX_EVALUATIONS
 from tools.ident.segments import NotFittable
@@ -182,7 +182,7 @@ EXAMPLES = """examples:
 
 
 def build_parser() -> OneLineParser:
-    parser = OneLineParser(prog="twin-compare", description=__doc__, epilog=EXAMPLES)
+    parser = OneLineParser(prog="twin-compare", description=__doc__, epilog=EXAMPLES + "\n" + EXIT_STATUS_HELP)
     parser.add_argument("log", type=Path, metavar="LOG", help="the hardware log")
     parser.add_argument("--plot", metavar="FILE", type=plot_path,
                         help="write logged vs twin to FILE (png, pdf, svg, ...); its folder must exist")

@@ -31,7 +31,7 @@ from firmware_port.marlin.pid import (
 from firmware_port.marlin.pid_float import PidFloat
 from firmware_port.thermistor import B3950_TABLE, TABLE_ERROR_BOUND_C, TEMP_ONE, Divider
 from tools.cli.args import ranged_int, section_page, seed_int
-from tools.entry import EXIT_USAGE, OneLineParser, run_main
+from tools.entry import EXIT_STATUS_HELP, EXIT_USAGE, OneLineParser, run_main
 from twin.limits import UserError
 
 CALLS_MAX = 100_000  # --sequences, --steps: each law runs sequences x steps calls
@@ -168,7 +168,7 @@ def write_avr_doc(path: Path, text: str, body: str) -> None:
 
 
 def build_parser() -> OneLineParser:
-    parser = OneLineParser(prog="twin-firmware-report", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="twin-firmware-report", description=__doc__.splitlines()[0], epilog=EXIT_STATUS_HELP)
     parser.add_argument("--seed", type=seed_int, default=1,
                         help="seed of the random input sequences (default: %(default)s)")
     parser.add_argument("--sequences", type=ranged_int(1, CALLS_MAX), default=40,

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from tools.cli.args import ranged_float
-from tools.entry import OneLineParser, run_main
+from tools.entry import INTERNAL_STATUS_HELP, OneLineParser, run_main
 from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.fit import LOSSES, LUMPED_MODELS, MODELS, RADIATING_BOUNDS_M2, RADIATING_EMISSIVITY, RADIATING_PARAM
 from tools.ident.fopdt import CONTROL_DELAY_S, Fopdt, fopdt_equivalent, relay_fopdt, ultimate_point
@@ -62,7 +62,7 @@ exit status:
   2  bad input: an option, or a log that cannot be read or fitted, said in one line
   3  a degenerate fit, no plant that fits the log replays it, or nothing proven holds on every plant it
      allows: the report is printed, but no gains, and one line on stderr says why
-"""
+""" + INTERNAL_STATUS_HELP + "\n"
 WIDTH = 120  # output lines are wrapped to this
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
 STATS_NOTE = ("Klipper Stats: pwm is the last value sent to the MCU, once a second; Klipper holds back a change "

@@ -23,7 +23,7 @@ from protocol.server import Server
 from protocol.tcp_server import SECRET_LINE_MAX, TAKEOVER_AFTER_S, TcpServer
 from protocol.transcript import Transcript
 from tools.cli.args import output_file, ranged_float, ranged_int, seed_int
-from tools.entry import OneLineParser, run_main
+from tools.entry import EXIT_STATUS_HELP, OneLineParser, run_main
 from twin.limits import UserError, check_regular_file
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import ScenarioError
@@ -101,7 +101,7 @@ def build_parser() -> OneLineParser:
             "(the end of line included) before the printer reads it: Marlin's checksum and line-number "
             "checks answer with Resend. A flipped end of line leaves the line open until the host sends "
             "more, and a line number flipped to the last one is dropped silently: a host that waits for "
-            "'ok' without a timeout stalls there, as on a real printer.", width=100),
+            "'ok' without a timeout stalls there, as on a real printer.", width=100) + "\n\n" + EXIT_STATUS_HELP,
     )
     parser.add_argument("--firmware", choices=list(FIRMWARES), default="pid", help="firmware build (default pid)")
     parser.add_argument("--plant", choices=list(PLANT_PRESETS), help="hotend plant preset (default hotend)")

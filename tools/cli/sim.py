@@ -28,7 +28,7 @@ from twin.plants import DEFAULT_BED, DEFAULT_HOTEND
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
 from twin.scenario import ScenarioError, scenario_for, with_overrides
-from tools.entry import OneLineParser, run_main
+from tools.entry import INTERNAL_STATUS_HELP, OneLineParser, run_main
 
 PROGRESS_STEP_S = 10.0  # virtual seconds between progress bar updates
 ENGINE_NOTES = {"reference": "the tick-by-tick reference engine",
@@ -38,7 +38,8 @@ EXIT_STATUS = """exit status:
   0  the run completed and no protection fault tripped
   1  the board halted: a thermal protection fault tripped (runaway, heating failed, MINTEMP,
      MAXTEMP); the trace and plot are written all the same
-  2  bad input (an option, a scenario file, an output path), said in one line; nothing is run"""
+  2  bad input (an option, a scenario file, an output path), said in one line; nothing is run
+""" + INTERNAL_STATUS_HELP
 
 
 def build_parser() -> OneLineParser:

@@ -27,7 +27,7 @@ import numpy as np
 from tools.cli.args import check_output, finite_float, output_file, plot_path
 from tools.progress import PROGRESS_MODES, Steps
 from twin.limits import NOISE_MAX_LSB, SEED_MAX, UserError
-from tools.entry import OneLineParser, run_main
+from tools.entry import INTERNAL_STATUS_HELP, OneLineParser, run_main
 from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
 from tools.ident.segments import NotFittable
@@ -67,7 +67,7 @@ exit status:
   1  no safe answer: nothing beats your gains and they trip on some plant (the report says where),
      or nothing passed the proof where there are no gains to keep
   2  bad input (an option, a log, a controller), said in one line; nothing is tuned
-"""
+""" + INTERNAL_STATUS_HELP + "\n"
 AUTO = "auto"  # --loop auto: the loop the log's printer runs (Marlin for a preset)
 
 

@@ -22,6 +22,7 @@ import sys
 import time
 
 from tools.entry import OneLineParser, run_cli
+from twin.limits import UserError
 
 TERMINATOR = b"\x03"
 OUTPUT_KEY = "heater-twin-output"  # marks the subscription's messages (the response_template)
@@ -137,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(line)
         return 0
 
-    return run_cli(parser, run, argv, errors=(KlippyError, ValueError))
+    return run_cli(parser, run, argv, errors=(KlippyError, UserError))
 
 
 if __name__ == "__main__":

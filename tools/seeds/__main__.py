@@ -20,7 +20,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from tools.cli.args import check_output, read_text_file
-from tools.entry import EXIT_USAGE, OneLineParser, run_main
+from tools.entry import EXIT_USAGE, INTERNAL_STATUS_HELP, OneLineParser, run_main
 from tools.docs import seeds_page as page
 from tools.seeds.command import BUDGET_HELP, run_seed
 from tools.seeds.papers import PAPERS
@@ -31,7 +31,8 @@ from twin.limits import UserError
 EXIT_STATUS = """exit status:
   0  the report printed, or the page written (or, with --check, current)
   1  --check: the page differs from a fresh rendering
-  2  bad input (an option, an unwritable or missing page), said in one line"""
+  2  bad input (an option, an unwritable or missing page), said in one line
+""" + INTERNAL_STATUS_HELP
 DESCRIPTION = ("Re-run one seed paper and print it beside the paper's numbers, or (no SEED) write docs/seeds.md, "
                "or --check it is current.")
 

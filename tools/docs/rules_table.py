@@ -21,6 +21,7 @@ from tools.entry import OneLineParser, run_cli
 from tools.tuning.evaluate import Candidate, firmware_autotune, preset_problem, rule_gains, rule_names, score
 from tools.tuning.objectives import heater_cost, heater_terms
 from twin.metrics import step_metrics
+from twin.limits import UserError
 from twin.plants import SPECS
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "tuning.md"
@@ -107,7 +108,7 @@ def table_of(doc: str) -> str:
     """The generated table inside a document (ValueError without the markers)."""
     match = re.search(re.escape(BEGIN) + r"\n(.*?)" + re.escape(END), doc, re.S)
     if match is None:
-        raise ValueError("docs/tuning.md lacks the rules-table markers")
+        raise UserError("docs/tuning.md lacks the rules-table markers")
     return match.group(1).rstrip("\n")
 
 

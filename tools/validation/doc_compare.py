@@ -19,6 +19,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from twin.limits import UserError
+
 NUMBER_RE = re.compile(r"(?<![\w.])[-+]?\d+\.\d+(?![\w.])")  # a decimal number standing on its own
 # Klipper sends a pwm change only when it exceeds 5 % of max_power (or at the resend interval), so a
 # replay's sent pwm, and what it heats, can move by that much when a fit moves by a hair. Measured:
@@ -75,7 +77,7 @@ def write_section(path: Path, body: str, begin: str, end: str) -> None:
     """Rewrite the file's generated section between the markers; ValueError if they are missing."""
     new = replace_section(path.read_text(), body, begin, end)
     if new is None:
-        raise ValueError(f"{path} lacks the '{begin} ... -->' / '{end}' markers")
+        raise UserError(f"{path} lacks the '{begin} ... -->' / '{end}' markers")
     path.write_text(new)
 
 

@@ -2,8 +2,9 @@
 a result code, a one-line error on input it cannot use, quiet on a closed pipe, and a bug said to be one
 (``run_main``).
 
-Bad input is a ``UserError`` (twin/limits.py) or an OSError on a path the user gave: one line, exit 2. Anything
-else is a bug in the twin, not the user's mistake: one line that says so and where its traceback was written
+Bad input is a ``UserError`` (twin/limits.py), raised where a flag, a file, a scenario or a capture is checked,
+or an OSError (a path the user gave, a port taken: the machine refused): one line, exit 2. Anything else is a
+bug in the twin, not the user's mistake: one line that says so and where its traceback was written
 (``$XDG_STATE_HOME/heater-twin/``, else ``~/.local/state/heater-twin/``, else the temporary folder), exit 70
 (EX_SOFTWARE in BSD's sysexits.h).
 

@@ -93,3 +93,15 @@ def test_twin_tune_bench_runs_the_command(hardware_logs, capsys):
     for line in runs[2:]:
         assert re.fullmatch(r"  twin-tune --from-log m303_hotend_C\d_degenerate_\w+\.txt: [\d.]+ s wall "
                             r"\(target <= 30 s\), [\d.]+ s CPU, exit 2: twin-tune: error: .+", line), line
+
+
+def test_startup_reports_each_commands_help_and_twin_serials_link(monkeypatch, capsys):
+    monkeypatch.setattr(bench, "STARTUP_COMMANDS", {"twin-sim": "tools.cli.sim", "tools.seeds": "tools.seeds"})
+    assert bench.main(["startup", "--runs", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].endswith("python -m tools.bench startup --runs 1")
+    assert lines[2] == bench.NOT_MEASURED
+    assert lines[3].startswith("start-up CPU time (user + system of the process), median of 1 runs")
+    assert [line.split(":")[0] for line in lines[4:]] == ["  twin-sim --help", "  tools.seeds --help",
+                                                          "  twin-serial until its link"]
+    assert all(re.search(r": \d+\.\d\d s", line) for line in lines[4:])

@@ -22,7 +22,9 @@ from protocol.klipper_mcu.printer_cfg import printer_cfg
 from protocol.klipper_mcu.server import McuServer
 from tools.cli.args import ranged_float
 from tools.entry import OneLineParser, run_main
+from twin.limits import UserError
 from twin.plants import PRESETS as PLANT_PRESETS
+from twin.scenario import ScenarioError
 
 VERSION = "heater-twin-0.1.0"
 LIBFAKETIME = "/usr/lib/x86_64-linux-gnu/faketime/libfaketimeMT.so.1"  # Debian's libfaketime package
@@ -95,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signum, _stop)
     args = build_parser().parse_args(argv)
     logging.basicConfig(format="twin-klipper-mcu: %(levelname)s: %(message)s", stream=sys.stderr)
-    return run_main("twin-klipper-mcu", lambda: run(args))
+    return run_main("twin-klipper-mcu", lambda: run(args), errors=(ScenarioError, UserError))
 
 
 if __name__ == "__main__":

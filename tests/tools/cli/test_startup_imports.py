@@ -15,10 +15,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[3]
 HEAVY = ("numba", "scipy", "matplotlib", "dask")
 LIGHT = ["tools.cli.sim", "tools.cli.serial", "tools.cli.klipper_mcu", "tools.cli.fit", "tools.cli.compare",
-         "tools.cli.firmware_report"]
+         "tools.cli.firmware_report", "tools.seeds"]
 # Still heavy at start-up: their parsers read the tuning layer's constants (tools/tuning/evaluate.py imports
-# twin.batch, whose kernel imports numba, and scipy) or the seeds' modules (scipy at import).
-STILL_HEAVY = ["tools.cli.tune", "tools.bench", "tools.seeds"]
+# twin.batch, whose kernel imports numba, and scipy); tools/bench.py imports its cases' libraries at the top.
+STILL_HEAVY = ["tools.cli.tune", "tools.bench"]
 HELP = """
 import json, runpy, sys
 sys.argv = [{module!r}, "--help"]
@@ -45,8 +45,8 @@ def test_help_imports_no_heavy_library(module):
 
 
 @pytest.mark.parametrize("module", STILL_HEAVY)
-@pytest.mark.xfail(strict=True, reason="the parser needs the tuning layer or the seeds' modules, which import "
-                                       "numba/scipy at import (not this CLI's files); strict: passes once fixed")
+@pytest.mark.xfail(strict=True, reason="the parser needs the tuning layer, which imports numba and scipy at "
+                                       "import (not this CLI's files); strict: passes once fixed")
 def test_help_of_the_tuning_commands_imports_no_heavy_library(module):
     assert _help_imports(module)["loaded"] == []
 
@@ -54,3 +54,11 @@ def test_help_of_the_tuning_commands_imports_no_heavy_library(module):
 def test_the_check_sees_a_heavy_import():
     loaded = _help_imports("tools.tuning.ultimate")  # a python -m command whose module imports scipy at the top
     assert "scipy" in loaded["loaded"]
+
+
+def test_the_seed_ids_name_every_seed_module():
+    from tools.seeds.papers import PAPERS, SEED_IDS
+
+    files = sorted(p.stem.removeprefix("seed") for p in (ROOT / "tools" / "seeds").glob("seed[0-9][0-9][0-9].py"))
+    assert list(SEED_IDS) == files
+    assert all(callable(PAPERS[seed].report) and callable(PAPERS[seed].steps) for seed in SEED_IDS)

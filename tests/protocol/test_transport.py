@@ -107,7 +107,7 @@ def test_signal_stops_cleanly_and_removes_the_link(tmp_path, signum):
     with twin_serial("--link", str(link), tmp_path=tmp_path) as (proc, path):
         assert os.readlink(link) == path
         proc.send_signal(signum)
-        assert proc.wait(timeout=10) == 0
+        assert proc.wait(timeout=START_TIMEOUT_S) == 0
     assert not os.path.lexists(link)
     assert "Traceback" not in (tmp_path / "stderr.txt").read_text()
 

@@ -147,6 +147,7 @@ def test_the_answer_for_a_program_json_progress_lines_and_your_gains(capsys, tmp
     assert ("proving", "5", "5") in steps and "bit for bit" in captured.out  # the cross-check ran
 
 
+@pytest.mark.slow  # 3.9 s of CPU: a tune
 def test_proof_zero_never_says_proven(capsys):
     assert main(["--plant", "hotend", "--budget", "90", "--proof", "0", "--plot", "none"]) == 0
     out = capsys.readouterr().out

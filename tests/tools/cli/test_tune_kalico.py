@@ -17,6 +17,7 @@ def _options(block: str) -> dict[str, str]:
     return dict(line.strip().split(": ", 1) for line in block.splitlines())
 
 
+@pytest.mark.slow  # 5.6 s of CPU: a tune and its proof
 def test_kalico_pid_is_tuned_proven_and_printed_as_kalicos_section(capsys):
     status = main(["--plant", "hotend", "--loop", "kalico", "--budget", "90", "--proof", "2", "--plot", "none",
                    "--progress", "lines"])

@@ -11,6 +11,10 @@ from typing import NamedTuple
 
 HEATERS = {"extruder": ("M301", "E0"), "heater_bed": ("M304", "E-1")}  # heater: (its gains command, M303's E)
 MIN_CYCLES = 3  # Marlin's M303 prints Ku/Tu and gains from its third cycle on (temperature.cpp, PID_autotune)
+MAX_CYCLES = 20  # the top of M303's C range: Marlin clamps C to 3..20, so C25 would run 20 and say nothing
+# Text as a terminal shows it: no NUL or other control character but tab and line ends, and no U+FFFD (what a
+# browser reads where a file's bytes are not UTF-8). A binary file uploaded as a capture has them.
+NOT_TEXT_RE = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ufffd]")
 # An M301/M304 line: M503's "echo:  M301 P22.20 I1.08 D114.00", the command Apply sends "M301 E0 P.. I.. D..";
 # builds with PID_EXTRUSION_SCALING or PID_FAN_SCALING print C and F after D.
 GAINS_RE = re.compile(r"\b(M30[14])(?:\s+E0)?\s+P([-+]?[\d.]+)\s+I([-+]?[\d.]+)\s+D([-+]?[\d.]+)")
@@ -62,6 +66,11 @@ def last_gains(lines: list[str], heater: str) -> Gains | None:
     """The last gains of ``heater`` among ``lines`` (M503's report, or a pasted capture with it)."""
     found = [g for g in (gains_in(line, heater) for line in lines) if g is not None]
     return found[-1] if found else None
+
+
+def is_text(capture: str) -> bool:
+    """Whether ``capture`` is console text (a binary file is not)."""
+    return NOT_TEXT_RE.search(capture) is None
 
 
 def is_complaint(line: str) -> bool:

@@ -17,8 +17,8 @@ from typing import Any, Protocol
 
 from octoprint_heater_twin import tuner
 from octoprint_heater_twin.console import (
-    ERROR_PREFIX, FAILED, FINISHED, HEATERS, MIN_CYCLES, Gains, autotune_command, gains_in, is_complaint, is_ok,
-    last_gains, received, sent)
+    ERROR_PREFIX, FAILED, FINISHED, HEATERS, MAX_CYCLES, MIN_CYCLES, Gains, autotune_command, gains_in, is_complaint,
+    is_ok, is_text, last_gains, received, sent)
 
 IDLE, READING, AUTOTUNE, TUNING, ANSWER, APPLYING, APPLIED = (
     "idle", "reading", "autotune", "tuning", "answer", "applying", "applied")
@@ -59,6 +59,7 @@ class Session:
         self.progress: tuner.Progress | None = None
         self.messages: list[str] = []
         self.answer: dict | None = None
+        self.no_plot: str | None = None  # why the answer has no plot
         self.applied: dict | None = None
         self.problems: list[str] = []  # Apply: what the printer objected to (EEPROM, unknown command)
         self.timer: threading.Timer | None = None
@@ -73,6 +74,8 @@ class Session:
             return f"target {target_c:g} C: must be above 0 C"
         if cycles < MIN_CYCLES:
             return f"cycles {cycles}: Marlin's autotune needs at least {MIN_CYCLES}"
+        if cycles > MAX_CYCLES:
+            return f"cycles {cycles}: Marlin's M303 runs at most {MAX_CYCLES} (it clamps C to {MIN_CYCLES}..{MAX_CYCLES})"
         with self.lock:
             if refused := self._refusal():
                 return refused
@@ -91,6 +94,9 @@ class Session:
             return f"heater {heater!r}: choose one of {', '.join(HEATERS)}"
         if not any(line.strip() for line in lines):
             return "The pasted capture is empty: paste the console text of an M303 run"
+        if not is_text(text):
+            return "The capture is not text (it holds control bytes, as a binary file does): paste the console " \
+                   "text of an M303 run"
         with self.lock:
             if self.phase in BUSY:
                 return f"Busy: {BUSY[self.phase]}"
@@ -208,7 +214,7 @@ class Session:
             if outcome.answer is None:
                 self._fail(str(outcome.error))
                 return
-            self.phase, self.answer, self.progress = ANSWER, outcome.answer, None
+            self.phase, self.answer, self.no_plot, self.progress = ANSWER, outcome.answer, outcome.no_plot, None
             self._publish()
 
     def _on_progress(self, progress: tuner.Progress) -> None:
@@ -231,7 +237,7 @@ class Session:
                 "current": None if self.current is None else self.current._asdict(), "current_from": self.current_from,
                 "progress": None if self.progress is None else self.progress.__dict__, "messages": self.messages,
                 "answer": self.answer, "applied": self.applied,
-                "plot": bool(self.answer and self.answer.get("plot")),
+                "plot": bool(self.answer and self.answer.get("plot")), "no_plot": self.no_plot,
             }
 
     def plot(self) -> Path | None:
@@ -252,7 +258,7 @@ class Session:
         self.run_id = f"{time.strftime('%Y%m%d-%H%M%S')}-{self.runs}"
         self.heater, self.error, self.result, self.current, self.current_from = heater, None, None, None, None
         self.capture, self.reply, self.reply_open, self.messages = [], [], False, []
-        self.progress, self.answer, self.applied = None, None, None
+        self.progress, self.answer, self.no_plot, self.applied = None, None, None, None
 
     def _fail(self, error: str) -> None:
         self._cancel_timer()

@@ -8,6 +8,7 @@ is an answer in ``--json``'s file, 1 no answer could be proven, 2 bad input.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import re
@@ -23,6 +24,8 @@ PROGRESS_RE = re.compile(r"^progress: (.+) (\d+)/(\d+)$")
 NICENESS = 10  # below OctoPrint's own priority; a tune takes minutes on a Raspberry Pi
 EXIT_ANSWER, EXIT_UNPROVEN, EXIT_BAD_INPUT = 0, 1, 2
 CAPTURE, ANSWER, PLOT, REPORT = "capture.txt", "answer.json", "plot.png", "twin-tune.txt"  # a run's files
+NO_MATPLOTLIB = ("No plot: matplotlib is not installed in OctoPrint's environment (install the plugin with its "
+                 "octoprint extra, or pip install matplotlib there)")
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,7 @@ class Outcome:
 
     answer: dict | None
     error: str | None
+    no_plot: str | None = None  # why the answer has no plot
 
 
 def twin_tune() -> Path:
@@ -45,11 +49,17 @@ def twin_tune() -> Path:
     return Path(sys.executable).with_name("twin-tune")
 
 
-def command(run_dir: Path, heater: str, current: Gains | None) -> list[str]:
+def can_plot() -> bool:
+    """Whether twin-tune can draw its plot: matplotlib in this environment (the ``octoprint`` extra's)."""
+    return importlib.util.find_spec("matplotlib") is not None
+
+
+def command(run_dir: Path, heater: str, current: Gains | None, plot: bool) -> list[str]:
     args = [str(twin_tune()), "--from-log", str(run_dir / CAPTURE), "--heater", heater]
     if current is not None:
         args += ["--current-gains", current.flag()]
-    return args + ["--json", str(run_dir / ANSWER), "--progress", "lines", "--plot", str(run_dir / PLOT)]
+    return args + ["--json", str(run_dir / ANSWER), "--progress", "lines", "--plot", str(run_dir / PLOT) if plot
+                   else "none"]
 
 
 def progress(line: str) -> Progress | None:
@@ -63,8 +73,10 @@ def _lower_priority() -> None:
 
 def run(run_dir: Path, heater: str, current: Gains | None, on_progress: Callable[[Progress], None],
         on_message: Callable[[str], None]) -> Outcome:
-    """Tune the capture in ``run_dir`` (blocking: call it from a thread); its report goes to REPORT."""
-    args = command(run_dir, heater, current)
+    """Tune the capture in ``run_dir`` (blocking: call it from a thread); its report goes to REPORT. Without
+    matplotlib the answer comes without a plot, and says why."""
+    plot = can_plot()
+    args = command(run_dir, heater, current, plot)
     last = ""
     try:
         with open(run_dir / REPORT, "w") as report, subprocess.Popen(
@@ -83,7 +95,7 @@ def run(run_dir: Path, heater: str, current: Gains | None, on_progress: Callable
     answer_path = run_dir / ANSWER
     if proc.returncode == EXIT_ANSWER:
         try:
-            return Outcome(json.loads(answer_path.read_text()), None)
+            return Outcome(json.loads(answer_path.read_text()), None, None if plot else NO_MATPLOTLIB)
         except (OSError, ValueError) as exc:
             return Outcome(None, f"twin-tune's answer {answer_path} is unreadable: {exc}")
     if proc.returncode == EXIT_UNPROVEN:

@@ -201,9 +201,12 @@ class Eeprom:
         problem = self._refusal()
         if problem:
             raise SettingsRefused(problem)
+        mode = self._mode()
         name, fd = self._new_file()
         try:
             try:
+                if mode is not None:
+                    os.fchmod(fd, mode)  # the file keeps its permission bits (a new one gets the umask's)
                 view = memoryview(data)
                 while view:
                     view = view[os.write(fd, view):]
@@ -263,6 +266,13 @@ class Eeprom:
         if not os.access(self._name, os.W_OK, dir_fd=self._folder_fd):
             return f"settings file {self.path}: is read-only; M500 leaves it as it is"
         return None
+
+    def _mode(self) -> int | None:
+        """The permission bits of the settings file there now; None when there is none."""
+        try:
+            return stat.S_IMODE(os.stat(self._name, dir_fd=self._folder_fd, follow_symlinks=False).st_mode)
+        except FileNotFoundError:
+            return None
 
     def _new_file(self) -> tuple[str, int]:
         """A file of M500's own beside the settings file (O_EXCL: nobody else's), named so that a

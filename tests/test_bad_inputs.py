@@ -347,7 +347,7 @@ TYPED = [
 
 @pytest.mark.parametrize("argv", TYPED, ids=[" ".join(a[1:3]) for a in TYPED])
 def test_a_typed_bad_value_is_one_line_and_exit_2(tmp_path, argv):
-    done = subprocess.run([sys.executable, *argv], cwd=tmp_path, capture_output=True, text=True, timeout=120,
+    done = subprocess.run([sys.executable, *argv], cwd=tmp_path, capture_output=True, text=True, timeout=600,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert done.returncode == 2 and done.stdout == "", (done.returncode, done.stdout, done.stderr)
     assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr, done.stderr

@@ -77,7 +77,7 @@ def test_every_cli_runs_without_a_writable_install_or_home(tmp_path):
                if key not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "MPLCONFIGDIR", "PYTHONPATH")}
         env.update(HOME=str(home), TMPDIR=str(temp), PYTHONPATH=str(install), PYTHONDONTWRITEBYTECODE="")
         done = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(runs)], cwd=install, env=env,
-                              capture_output=True, text=True, timeout=300)
+                              capture_output=True, text=True, timeout=1800)
     finally:
         _writable_again(install)
     assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr

@@ -1,5 +1,9 @@
 """twin-serial as a host sees it: run it as a process (``twin_serial``) and read its replies with a
-timeout (``expect``); shared by the serial tests under tests/protocol."""
+timeout (``expect``); shared by the serial tests under tests/protocol.
+
+The bounds are hang guards, not timings: on a busy 2-core machine (load 10 to 40) a start that takes 2 s
+when quiet took over a minute, so a server's readiness (the line it prints) is waited for for minutes, and
+so is a reply. Each read on a port stays short (READ_TIMEOUT_S), so no read hangs."""
 
 from __future__ import annotations
 
@@ -16,8 +20,9 @@ import serial
 
 ROOT = Path(__file__).resolve().parents[2]  # tests/helpers/ -> the repository
 CLI = [sys.executable, "-m", "tools.cli.serial"]
-START_TIMEOUT_S = 30  # interpreter start and imports on a loaded machine
-READ_TIMEOUT_S = 5
+START_TIMEOUT_S = 600  # a server's first line: interpreter start and imports, seconds when quiet
+READ_TIMEOUT_S = 5  # one read on a port; ``expect`` reads again until its own bound
+REPLY_TIMEOUT_S = 300  # ``expect``'s bound on a reply: milliseconds when quiet
 
 
 @contextlib.contextmanager
@@ -43,7 +48,7 @@ def twin_serial(*args: str, tmp_path: Path):
             proc.stdout.close()
 
 
-def expect(port: serial.SerialBase, pattern: str, timeout_s: float = READ_TIMEOUT_S) -> list[str]:
+def expect(port: serial.SerialBase, pattern: str, timeout_s: float = REPLY_TIMEOUT_S) -> list[str]:
     """Read lines until one matches ``pattern``; the lines read, the match last."""
     seen: list[str] = []
     deadline = time.monotonic() + timeout_s

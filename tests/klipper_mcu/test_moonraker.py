@@ -20,8 +20,8 @@ from tools.klipper_host.session import MOONRAKER_VENV_ENV, Missing, venv_command
 
 pytestmark = pytest.mark.slow
 
-HTTP_TIMEOUT_S = 10
-START_TIMEOUT_S = 90
+HTTP_TIMEOUT_S = 120
+START_TIMEOUT_S = 900
 HOTEND = "heater_generic hotend"
 CONFIG = """[server]
 host: 127.0.0.1

@@ -15,9 +15,11 @@ require_octoprint()
 
 from octoprint_heater_twin import session as tab  # noqa: E402  (OctoPrint first: the package imports it)
 from octoprint_heater_twin import tuner  # noqa: E402
-from octoprint_heater_twin.console import Gains, autotune_command, gains_in  # noqa: E402
+from octoprint_heater_twin.console import Gains, autotune_command, gains_in, is_text  # noqa: E402
 
 TIMEOUT_S = 3600.0  # a test's autotune never times out unless it says so
+TUNE_TIMEOUT_S = 1800.0  # a hang guard for a real twin-tune (well under a minute when quiet)
+M303_CAPTURE = "m303_hotend_ender3v3se_creality_stock_navaismo16_partial.txt"  # a hotend's M303 with its trace
 M503 = ["echo:; Hotend PID:", "echo:  M301 P19.96 I2.06 D48.23", "echo:; Bed PID:",
         "echo:  M304 P86.92 I10.40 D484.20", "ok"]
 ANSWER = {"verdict": "new gains", "why": "beats yours on every member", "heater": "extruder", "target_c": 210.0,
@@ -54,7 +56,7 @@ def session(tmp_path, printer):
     made._cancel_timer()
 
 
-def until(test, timeout_s: float = 10.0) -> bool:
+def until(test, timeout_s: float = 300.0) -> bool:
     """Whether ``test()`` comes true within ``timeout_s`` (the session's timer and tune run on threads)."""
     deadline = time.monotonic() + timeout_s
     while not test() and time.monotonic() < deadline:
@@ -84,12 +86,13 @@ def test_gains_hold_when_m503_prints_them_to_its_two_decimals():
 
 
 def test_the_tuner_is_called_as_its_contract_says(tmp_path):
-    args = tuner.command(tmp_path, "heater_bed", Gains(86.92, 10.4, 484.2))
+    args = tuner.command(tmp_path, "heater_bed", Gains(86.92, 10.4, 484.2), plot=True)
     assert args[0].endswith("twin-tune")
     assert args[1:] == ["--from-log", str(tmp_path / "capture.txt"), "--heater", "heater_bed",
                         "--current-gains", "86.92,10.4,484.2", "--json", str(tmp_path / "answer.json"),
                         "--progress", "lines", "--plot", str(tmp_path / "plot.png")]
-    assert "--current-gains" not in tuner.command(tmp_path, "extruder", None)
+    assert "--current-gains" not in tuner.command(tmp_path, "extruder", None, plot=True)
+    assert tuner.command(tmp_path, "extruder", None, plot=False)[-2:] == ["--plot", "none"]  # no matplotlib
     assert tuner.progress("progress: fitting 3/7") == tuner.Progress("fitting", 3, 7)
     assert tuner.progress("twin-tune: progress: 3/7 was a message") is None
 
@@ -126,10 +129,16 @@ def test_start_refuses_while_a_run_is_on(session, printer):
     (("nozzle", 210.0, 8), "heater 'nozzle': choose one of extruder, heater_bed"),
     (("extruder", 0.0, 8), "target 0 C: must be above 0 C"),
     (("extruder", 210.0, 2), "cycles 2: Marlin's autotune needs at least 3"),
+    (("extruder", 210.0, 21), "cycles 21: Marlin's M303 runs at most 20 (it clamps C to 3..20)"),
 ])
 def test_bad_requests_are_one_line(session, printer, args, error):
     assert session.start(*args, TIMEOUT_S) == error
     assert printer.sent == []
+
+
+def test_the_cycles_go_up_to_the_top_of_m303s_range(session, printer):
+    assert session.start("heater_bed", 60.0, 20, TIMEOUT_S) is None
+    assert printer.sent == ["M503", "M303 E-1 S60 C20"]
 
 
 def _autotune(session: tab.Session) -> None:
@@ -223,6 +232,37 @@ def test_apply_refuses_a_busy_printer(session, printer):
 
 def test_an_empty_paste_is_refused(session):
     assert session.paste("\n  \n", "extruder") == "The pasted capture is empty: paste the console text of an M303 run"
+
+
+@pytest.mark.parametrize("binary", [
+    "\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR",  # a file's bytes as latin-1
+    "PK\x03\x04\x14\x00\x06\x00",  # a zip's
+    "Recv: PID Autotune start\nRecv: \ufffd\ufffd\ufffd",  # bytes that are not UTF-8, as a browser reads them
+])
+def test_a_capture_that_is_not_text_is_refused_and_not_tuned(session, monkeypatch, binary):
+    monkeypatch.setattr(tuner, "run", lambda *args: pytest.fail("a binary capture reached twin-tune"))
+    assert session.paste(binary, "extruder") == ("The capture is not text (it holds control bytes, as a binary file "
+                                                 "does): paste the console text of an M303 run")
+    assert session.phase == tab.IDLE and session.run_id is None
+
+
+def test_a_capture_with_tabs_and_crlf_is_text():
+    assert is_text("Send: M303 E0 S210 C8\r\nRecv:\t T:210.00 /0.00 @:0 \u00b0C\n")
+
+
+@pytest.mark.slow
+def test_without_matplotlib_the_answer_has_no_plot_and_says_why(session, monkeypatch, hardware_logs):
+    """The real twin-tune on a real M303 capture, as in an OctoPrint environment without matplotlib
+    (.ci/run runs this test in one, matplotlib uninstalled: no plot is asked for, so none is needed)."""
+    assert tuner.twin_tune().exists(), f"{tuner.twin_tune()}: the package is not installed in this environment"
+    monkeypatch.setattr(tuner, "can_plot", lambda: False)
+    capture = (hardware_logs / M303_CAPTURE).read_text()
+    assert session.paste(capture, "extruder") is None
+    assert until(lambda: session.phase != tab.TUNING, TUNE_TIMEOUT_S), "twin-tune did not end"
+    state = session.state()
+    assert (state["phase"], state["error"]) == (tab.ANSWER, None)
+    assert state["answer"]["plot"] is None and state["plot"] is False and session.plot() is None
+    assert state["no_plot"] == tuner.NO_MATPLOTLIB
 
 
 def test_a_paste_takes_the_gains_to_beat_from_m503_in_it(session, monkeypatch):

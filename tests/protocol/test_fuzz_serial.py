@@ -27,7 +27,7 @@ import serial
 import protocol  # noqa: F401  registers twin://
 from protocol.build import build_printer
 from tests.helpers.serial_fuzz import bad_replies, fuzz_lines
-from tests.helpers.serial_host import twin_serial
+from tests.helpers.serial_host import REPLY_TIMEOUT_S, twin_serial
 
 FUZZ_LINES = int(os.environ.get("FUZZ_LINES", "20000"))
 # Two plants x MAX_CACHED_MODELS (8) x MAX_CACHED_RUNS (48) maps of up to ~45 kB: 35 MB at most,
@@ -114,10 +114,11 @@ def test_fuzzed_lines_over_twin_url_get_marlin_replies_only(caplog):
 def test_fuzzed_lines_over_a_pty_never_stop_the_server(tmp_path):
     """The twin-serial process: it survives the lines, answers each as Marlin would, logs nothing."""
     with twin_serial("--idle-speed", "0", tmp_path=tmp_path) as (proc, path):
-        with serial.Serial(path, 115200, timeout=0.5) as port:
+        with serial.Serial(path, 115200, timeout=REPLY_TIMEOUT_S) as port:  # a hang guard: reads end at the marks
             port.write(b"M105\n")
             banner = port.read_until(b"ok T:") + port.read_until(b"\n")
             assert b"start" in banner
+            port.timeout = 0.5
             received = bytearray()
             for line in fuzz_lines(SEED + 1, PTY_FUZZ_LINES):
                 if b"M112" in line or proc.poll() is not None:
@@ -129,7 +130,7 @@ def test_fuzzed_lines_over_a_pty_never_stop_the_server(tmp_path):
                     if ready:
                         received += port.read(port.in_waiting or 1)
         assert proc.poll() is None, "twin-serial exited"
-        with serial.Serial(path, 115200, timeout=5) as port:  # a command may still run: reconnect
+        with serial.Serial(path, 115200, timeout=REPLY_TIMEOUT_S) as port:  # a command may still run: reconnect
             port.write(b"M105\n")
             tail = port.read_until(b"ok T:")
         assert b"ok T:" in tail  # still serving after all of that

@@ -42,8 +42,8 @@ except ImportError:  # CI installs Printrun (pip install --no-deps Printrun): ne
         raise
     printcore = None
 
-PRINT_DEADLINE_S = 120  # wall, for the whole print; about 5 s on an idle 2-core machine
-STALL_S = 20  # wall seconds without a line from the printer: the exchange is stuck
+PRINT_DEADLINE_S = 1800  # a hang guard for the whole print; about 5 s on an idle 2-core machine
+STALL_S = 300  # wall seconds without a line from the printer: the exchange is stuck (milliseconds when quiet)
 # At 2 %, seed 61 flips a bit in 65 of the ~3100 lines this exchange sends: 55 checksum errors,
 # 4 lines cut short (no checksum), 6 line-number errors, 4 of them after a line whose leading N
 # became another letter (Marlin runs it as an unknown command; the next line's number asks for

@@ -6,13 +6,12 @@ Every read has a deadline and the port and the process are closed whatever happe
 from __future__ import annotations
 
 import re
-import time
 
 import pytest
 import serial
 from tests.helpers.serial_host import READ_TIMEOUT_S, expect, twin_serial
 
-M303_DEADLINE_S = 30  # wall; well under 2 s on an idle machine (python -m tools.bench protocol)
+M303_DEADLINE_S = 600  # a hang guard: well under 2 s on an idle machine (python -m tools.bench protocol)
 PRINTED = 0.005  # Marlin prints these floats with 2 decimals
 BIAS = re.compile(r"^ bias: \d+ d: \d+ min: \d+\.\d\d max: \d+\.\d\d")
 KU_TU = re.compile(r"Ku: (\d+\.\d\d) Tu: (\d+\.\d\d)$")
@@ -38,14 +37,11 @@ def test_m303_over_a_pty_reports_and_applies_classic_pid(tmp_path):
     with (twin_serial("--speed", "max", tmp_path=tmp_path) as (_, path),
           serial.Serial(path, 115200, timeout=READ_TIMEOUT_S) as port):
         expect(port, "^echo:  M304 ")  # the banner's last line
-        start_s = time.monotonic()
         port.write(b"M303 E0 S210 C8 U1\n")
         lines = expect(port, "^ok$", timeout_s=M303_DEADLINE_S)
-        wall_s = time.monotonic() - start_s
         port.write(b"M301\n")
         reported = expect(port, "^ok$")
 
-    assert wall_s < M303_DEADLINE_S
     assert lines[0] == "PID Autotune start"
     assert sum(bool(BIAS.match(line)) for line in lines) >= 3
     ku_tu = [(float(m[1]), float(m[2])) for line in lines if (m := KU_TU.search(line))]

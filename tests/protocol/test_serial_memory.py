@@ -86,7 +86,7 @@ def test_a_host_that_never_reads_stalls_the_printer_not_the_memory():
         assert port.printer.rx_dropped > FLOOD_BYTES / 2
         port.reset_input_buffer()
         port.write(b"M105\n")
-        port.timeout = 5
+        port.timeout = 60  # a hang guard: the read ends at the mark
         assert port.read_until(b"ok T:").endswith(b"ok T:")  # it serves again once the host reads
 
 

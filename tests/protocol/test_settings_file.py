@@ -120,6 +120,21 @@ def test_m500_refuses_what_was_planted_at_the_path_after_start(eeprom, tmp_path,
     assert "M500 not written" in caplog.text
 
 
+@pytest.mark.parametrize("mode", [0o600, 0o640, 0o664])
+def test_m500_keeps_the_settings_files_permission_bits(eeprom, mode):
+    """The new file renamed over the old one has the old one's mode, not the umask's: a file the user made
+    private stays private."""
+    printer = _stored_printer(eeprom)
+    eeprom.chmod(mode)
+    old_umask = os.umask(0o002)  # a new file would be 0o664 under it
+    try:
+        assert _send(printer, "M301 P40", "M500")[-1] == "ok"
+    finally:
+        os.umask(old_umask)
+    assert Settings.from_bytes(eeprom.read_bytes()).hotend.kp == 40
+    assert eeprom.stat().st_mode & 0o7777 == mode
+
+
 def test_a_read_only_settings_file_is_left_alone(eeprom, monkeypatch):
     printer = _stored_printer(eeprom)
     kept = eeprom.read_bytes()

@@ -17,8 +17,8 @@ from protocol.build import build_printer
 from protocol.tcp_server import TcpServer, is_loopback
 from tools.cli.serial import parse_args
 
-START_TIMEOUT_S = 60
-READ_TIMEOUT_S = 30
+START_TIMEOUT_S = 600  # hang guards (tests/helpers/serial_host.py)
+READ_TIMEOUT_S = 300
 SECRET = b"correct horse battery staple"
 
 

@@ -22,6 +22,7 @@ from protocol.build import build_printer
 from protocol.pacing import CATCH_UP_S, MAX, PACE_S, Pacer, parse_speed
 from tests.helpers.serial_host import CLI, READ_TIMEOUT_S, ROOT, START_TIMEOUT_S, expect, twin_serial
 
+SPEED_TOLERANCE_S = 0.1  # virtual: the clock runs in whole timer ticks (about 1 ms)
 M105_REPLY = re.compile(r"^ok T:\d+\.\d\d /0\.00 B:\d+\.\d\d /0\.00 @:0 B@:0$")
 
 
@@ -106,7 +107,7 @@ def test_signal_stops_cleanly_and_removes_the_link(tmp_path, signum):
     with twin_serial("--link", str(link), tmp_path=tmp_path) as (proc, path):
         assert os.readlink(link) == path
         proc.send_signal(signum)
-        assert proc.wait(timeout=10) == 0
+        assert proc.wait(timeout=START_TIMEOUT_S) == 0
     assert not os.path.lexists(link)
     assert "Traceback" not in (tmp_path / "stderr.txt").read_text()
 
@@ -138,24 +139,29 @@ def test_url_handler_m109_at_speed_max_runs_free():
         expect(port, "^ok$")
         start_wall, start_virtual = time.monotonic(), port.printer.time_s
         port.write(b"M109 S200\n")
-        lines = expect(port, "^ok$", timeout_s=60)
+        lines = expect(port, "^ok$")
         wall_s, virtual_s = time.monotonic() - start_wall, port.printer.time_s - start_virtual
     reports = [line for line in lines if line.startswith(" T:")]
     # the last report ends the 10 s residency (W:0), never beyond TEMP_HYSTERESIS (3 C) since
     last = re.match(r" T:(\S+) /200\.00 .* W:0$", reports[-1])
     assert len(reports) > 50 and last and abs(float(last[1]) - 200) <= TEMP_HYSTERESIS_C
     assert 60 < virtual_s < 300  # about 100 s from 25 C, with M109's 10 s residency
-    assert wall_s < virtual_s / 4  # loose: it runs hundreds of times faster than real time
+    assert wall_s < virtual_s  # it runs free: hundreds of times faster than real time when quiet
 
 
 def test_url_handler_speed_50_follows_the_wall_clock():
     with serial.serial_for_url("twin://?speed=50", timeout=0.1) as port:
+        # each "now" the clock is brought up to lies between the wall times read either side of in_waiting,
+        # so the virtual time elapsed is 50 x a wall time between those bounds, however busy the machine
+        before_start = time.monotonic()
         port.in_waiting  # noqa: B018  brings the clock up to now
-        start_wall, start_virtual = time.monotonic(), port.printer.time_s
+        after_start, start_virtual = time.monotonic(), port.printer.time_s
         time.sleep(0.5)
+        before_end = time.monotonic()
         port.in_waiting  # noqa: B018
-        ratio = (port.printer.time_s - start_virtual) / (time.monotonic() - start_wall)
-    assert 30 < ratio < 70
+        after_end, virtual_s = time.monotonic(), port.printer.time_s - start_virtual
+    assert 50 * (before_end - after_start) - SPEED_TOLERANCE_S <= virtual_s
+    assert virtual_s <= 50 * (after_end - before_start) + SPEED_TOLERANCE_S
 
 
 def test_url_handler_read_timeout_when_idle():
@@ -163,7 +169,7 @@ def test_url_handler_read_timeout_when_idle():
         port.read(port.in_waiting)
         start = time.monotonic()
         assert port.read(10) == b""
-        assert 0.15 < time.monotonic() - start < 2
+        assert 0.15 < time.monotonic() - start < 60  # its timeout, not a hang
 
 
 def test_url_handler_dtr_resets_and_buffers_reset():

@@ -6,6 +6,7 @@ from __future__ import annotations
 import tracemalloc
 
 import numpy as np
+import pytest
 
 from twin.linear import MAX_CACHED_MODELS, MAX_CACHED_RUNS
 from twin.plants import make_plant
@@ -30,6 +31,7 @@ def _drive(plant, rng: np.random.Generator, forget: bool) -> list[float]:
     return readings
 
 
+@pytest.mark.slow  # 4.1 s of CPU: 3000 runs
 def test_the_caches_stay_bounded_over_ever_new_conditions_and_run_shapes():
     plant = make_plant()
     tracemalloc.start()

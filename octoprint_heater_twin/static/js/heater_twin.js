@@ -28,6 +28,7 @@ $(function () {
         self.messages = ko.observableArray([]);
         self.answer = ko.observable(null);
         self.applied = ko.observable(null);
+        self.noPlot = ko.observable(null);
         self.hasPlot = ko.observable(false);
         self.currentFrom = ko.observable(null);
 
@@ -116,6 +117,7 @@ $(function () {
             self.answer(state.answer);
             self.applied(state.applied);
             self.hasPlot(state.plot);
+            self.noPlot(state.no_plot);
             self.currentFrom(state.current_from);
         };
 

@@ -230,7 +230,7 @@ def test_progress_goes_to_a_terminal_only(tmp_path):
     import termios
 
     args = [sys.executable, "-m", "tools.cli.sim", "--duration", "60", "--no-plot", "--out", str(tmp_path)]
-    piped = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    piped = subprocess.run(args, capture_output=True, text=True, timeout=1800)
     assert piped.returncode == 0 and piped.stderr == ""
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))  # a terminal has a size
@@ -248,7 +248,7 @@ def test_progress_goes_to_a_terminal_only(tmp_path):
             shown += chunk
     finally:
         os.close(master)
-        assert proc.wait(timeout=300) == 0
+        assert proc.wait(timeout=1800) == 0
     assert b"60/60 s virtual" in shown
 
 

@@ -44,6 +44,7 @@ def test_every_rule_on_hotend_cartridge_beats_or_loses_to_m303_and_the_best_beat
     assert plot.stat().st_size > 10_000
 
 
+@pytest.mark.slow  # 13.7 s of CPU: fits, profiles and tunes a capture
 def test_a_fitted_log_is_tuned(capsys, tmp_path, hardware_logs):
     log = hardware_logs / "klipper_heattest_onionheater_heattest_200.csv"
     method = rule_names()[0]
@@ -119,6 +120,7 @@ def test_same_table_tolerates_small_moves_but_not_verdicts():
     assert np.isclose(10.0, 10.1, rtol=table.REL_TOL)
 
 
+@pytest.mark.slow  # 4.3 s of CPU: a tune and its proof
 def test_the_answer_for_a_program_json_progress_lines_and_your_gains(capsys, tmp_path):
     """--current-gains sets the gains to beat; --json writes the verdict, the gains and the proof rows a
     program reads; --progress lines reports each step on stderr, 'progress: <step> <done>/<total>'."""
@@ -145,6 +147,7 @@ def test_the_answer_for_a_program_json_progress_lines_and_your_gains(capsys, tmp
     assert ("proving", "5", "5") in steps and "bit for bit" in captured.out  # the cross-check ran
 
 
+@pytest.mark.slow  # 3.9 s of CPU: a tune
 def test_proof_zero_never_says_proven(capsys):
     assert main(["--plant", "hotend", "--budget", "90", "--proof", "0", "--plot", "none"]) == 0
     out = capsys.readouterr().out

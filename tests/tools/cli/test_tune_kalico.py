@@ -17,6 +17,7 @@ def _options(block: str) -> dict[str, str]:
     return dict(line.strip().split(": ", 1) for line in block.splitlines())
 
 
+@pytest.mark.slow  # 5.6 s of CPU: a tune and its proof
 def test_kalico_pid_is_tuned_proven_and_printed_as_kalicos_section(capsys):
     status = main(["--plant", "hotend", "--loop", "kalico", "--budget", "90", "--proof", "2", "--plot", "none",
                    "--progress", "lines"])
@@ -35,6 +36,7 @@ def test_kalico_pid_is_tuned_proven_and_printed_as_kalicos_section(capsys):
         assert float(options[key]) == pytest.approx(float(shown), rel=1e-3)  # the section holds the answer's gains
 
 
+@pytest.mark.slow  # 13.6 s of CPU: two tunes and their proofs
 def test_pid_and_mpc_are_compared_on_the_kalico_loop(capsys):
     assert main(["--plant", "hotend", "--controller", "pid,mpc", "--loop", "kalico", "--method", "rules",
                  "--spread", "0", "--proof", "2", "--plot", "none", "--progress", "lines"]) == 0
@@ -46,6 +48,7 @@ def test_pid_and_mpc_are_compared_on_the_kalico_loop(capsys):
     assert all(re.search(r"0 trips of 2, overshoot worst \S+ C", line) for line in comparison[1:]), comparison
 
 
+@pytest.mark.slow  # 9.9 s of CPU: a tune and its proof
 def test_an_unproven_kalico_mpc_prints_its_mpc_section(capsys):
     assert main(["--plant", "hotend", "--controller", "mpc", "--loop", "kalico", "--method", "rules",
                  "--spread", "0", "--proof", "0", "--plot", "none", "--progress", "lines"]) == 0

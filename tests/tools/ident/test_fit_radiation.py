@@ -129,6 +129,7 @@ def test_onionheater_pulse_refit_is_the_stored_radiating_preset():
     assert radiating.rmse_c == pytest.approx(0.43, abs=0.005) and fits["linear"].rmse_c == pytest.approx(1.89, abs=0.005)
 
 
+@pytest.mark.slow  # 49 s of CPU: twin-fit's loss auto on a capture
 def test_twin_fit_loss_auto_keeps_radiating_on_the_onionheater_pulse(capsys, hardware_logs):
     """The no-fan pulse's cooling rate per kelvin rises with temperature (docs/plants.md): the
     default two_node fit with --loss auto prints both fits and keeps the radiating one."""

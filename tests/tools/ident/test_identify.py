@@ -202,6 +202,7 @@ def _rmse(out: str) -> float:
     return float(re.search(r"RMSE (\S+) C", out).group(1))
 
 
+@pytest.mark.slow  # 43 s of CPU: twin-fit on a capture
 def test_twin_fit_onionheater_two_node(capsys, hardware_logs):
     code, out, err = twin_fit(capsys, str(hardware_logs / ONION))
     assert code == 0, err
@@ -216,6 +217,7 @@ def test_twin_fit_onionheater_two_node(capsys, hardware_logs):
                      r"    pid_Kd: [\d.]+$", out, re.M) and "M301" not in out
 
 
+@pytest.mark.slow  # 57 s of CPU: twin-fit on two heaters of a capture
 def test_twin_fit_klipper_stats_bed_and_extruder(capsys, hardware_logs):
     code, out, err = twin_fit(capsys, str(hardware_logs / CHES), "--heater", "heater_bed")
     assert code == 0, err

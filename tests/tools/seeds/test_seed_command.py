@@ -100,7 +100,7 @@ def test_seed_003_prints_its_table_beside_the_papers_with_one_progress_step_each
 @pytest.mark.slow
 def test_python_m_seed_module_is_the_same_command() -> None:
     done = subprocess.run([sys.executable, "-m", "tools.seeds.seed001", "--budget", "small"], capture_output=True,
-                          text=True, timeout=600, check=False)
+                          text=True, timeout=3600, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("Seed 001: Fuzzy-PID nozzle temperature control")
     assert "fuzzy-PID settles faster than the PID" in done.stdout

@@ -79,6 +79,7 @@ def test_member_lanes_are_the_members_own_runs():
     assert NOMINAL.size == 1 and CARTRIDGE.members() == [CARTRIDGE]
 
 
+@pytest.mark.slow  # 4.9 s of CPU: the proof against scalar twins
 def test_the_proof_on_the_batch_counts_the_trips_of_scalar_twins():
     """250 s of heat-up with 1 LSB of noise: zero gains stall short of the target (outside the PID's band
     the law is bang-bang) and trip Marlin's protection on most plants, M303-like gains on some; the proof

@@ -61,6 +61,7 @@ def test_the_kalico_loop_runs_the_logs_heater_on_kalico():
     assert setup.noise_lsb == 1.0 and setup.sensor == DEFAULT_SENSOR
 
 
+@pytest.mark.slow  # 9.4 s of CPU
 def test_kalico_loop_lanes_equal_kalico_scalar_twins_and_differ_from_klippers():
     problem = _logged("kalico")
     assert problem.batched

@@ -34,6 +34,7 @@ def table():
     return problem, found, proven_rows(found, SEEDS)
 
 
+@pytest.mark.slow  # the table fixture: 14 s of CPU
 def test_the_rows_are_each_autotune_the_printers_gains_and_twin_tunes_answer_on_each_loop(table):
     _, found, rows = table
     assert [e.by for e in found[:5]] == BY
@@ -49,6 +50,7 @@ def test_the_rows_are_each_autotune_the_printers_gains_and_twin_tunes_answer_on_
     assert all(isinstance(row, Row) and row.runs == SEEDS for row in rows[2:])
 
 
+@pytest.mark.slow  # the table fixture: 14 s of CPU
 def test_a_row_is_its_entry_proven_alone(table):
     """The proof of a loop's rows together gives each row what proving it alone gives."""
     problem, found, rows = table
@@ -59,6 +61,7 @@ def test_a_row_is_its_entry_proven_alone(table):
         (alone.trips, alone.overshoot_c[1], alone.hold_error_c[1], alone.chatter[0], alone.cost_s[0])
 
 
+@pytest.mark.slow  # the table fixture: 14 s of CPU
 def test_the_markdown_has_a_row_per_entry_and_says_in_sample(table):
     problem, _, rows = table
     text = markdown([("capture", IN_SAMPLE, problem, rows)], 90, 120, SEEDS)

@@ -40,8 +40,8 @@ tests (tests/twin/test_batch_paths.py, tests/firmware_port/marlin/test_lanes.py)
   ``pip install heater-twin[fast]``): this loop, compiled, for every batch;
 - ``numpy`` (the default without numba, or with ``NUMBA_DISABLE_JIT=1``): the numpy lanes where
   they run (linear plants, with a dead time too (twin/lane_ring.py), and laws that do not read the
-  board: a few times slower than the compiled loop), this loop elsewhere (a radiating loss, Marlin's
-  MPC), as plain Python without numba, hundreds of times slower: the same answers either way
+  board: tens of times the compiled loop's CPU), this loop elsewhere (a radiating loss, Marlin's
+  MPC), as plain Python without numba, about a thousand times: the same answers either way
   (docs/performance.md, ``python -m tools.bench fallback``).
 
 Without numba (or with ``NUMBA_DISABLE_JIT=1``, when numba's decorators return the Python

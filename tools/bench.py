@@ -45,6 +45,10 @@ noisy, dead time, radiating, the fuzzy PI, the Klipper loop), and against dask w
 
 ``startup``: the CPU time (its process, resource.getrusage of children) of each command's ``--help``
 (target: 0.5 s) and of twin-serial until it prints its link (target: 1 s), the median of ``--runs``.
+``fallback``: the batch without numba (NUMBA_DISABLE_JIT=1, HEATER_TWIN_KERNEL=numpy, as a platform without
+numba's wheels runs it) against the compiled loop, CPU ratios in one run: 1000 lanes x 600 s on the numpy
+lanes (linear plant), 16 lanes of a dead-time plant on the loop as plain Python, and twin-tune's default
+tune in its own process (and whether it prints the same report).
 
 ``protocol``: twin-serial ``--speed max`` in its own process, pyserial on its pty, as a host:
 - M105 round trip, wall milliseconds, median and 99th percentile;
@@ -63,6 +67,7 @@ import importlib
 import json
 import os
 import platform
+import re
 import resource
 import select
 import shlex
@@ -686,15 +691,69 @@ def bench_startup(runs: int) -> list[str]:
         lines.append(f"  {name} --help: {cpu_s:.2f} s")
     cpu_s = statistics.median(_children_cpu_s(_serial_link) for _ in range(runs))
     return lines + [f"  twin-serial until its link: {cpu_s:.2f} s (and its stop)"]
+# -- fallback: the batch without numba, against the compiled loop --------------------------------------
+FALLBACK_ENV = {"NUMBA_DISABLE_JIT": "1", batch_kernel.KERNEL_ENV: "numpy"}  # what a platform without numba runs
+FALLBACK_LOOP_PRESET, FALLBACK_LOOP_LANES = "seed003_third", 16  # dead time: numpy lanes, or the loop as Python
+
+
+def fallback_batch_cpu_s(preset: str, n_lanes: int, duration_s: float, seed: int, kernel: str | None = None) -> float:
+    """CPU seconds of one streamed heat-and-hold batch of random gains on ``kernel`` (default: the default)."""
+    rng = np.random.default_rng(seed)
+    gains = [PidGains(*map(float, g)) for g in _random_gains(rng, TUNE_BOUNDS, n_lanes)]
+    return _timed_value(lambda: _heat_and_hold(make_plant(preset), gains, duration_s, kernel, streamed=True))[2]
+
+
+def _fallback_process(argv: list[str], fallback: bool) -> tuple[subprocess.CompletedProcess, float, float]:
+    """argv in its own process (compiled, or the fallback's environment): the run, wall s, CPU s."""
+    env = {**os.environ, **(FALLBACK_ENV if fallback else {}), "PYTHONPATH": str(ROOT)}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    done, wall_s, _ = _timed_value(lambda: subprocess.run(argv, env=env, capture_output=True, text=True,
+                                                           timeout=TWIN_TUNE_TIMEOUT_S))
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return done, wall_s, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+
+
+def bench_fallback(n_lanes: int, duration_s: float, seed: int, sizes: list[str]) -> list[str]:
+    """The fallback's cost as a ratio to the compiled loop, measured in this run: the numpy lanes (linear
+    plant), the loop as plain Python (dead time), and twin-tune's default tune in its own process."""
+    fallback_batch_cpu_s(TUNE_PRESET, n_lanes, duration_s, seed, "numba")  # warm-up: numba's cache, the tables
+    compiled_cpu = fallback_batch_cpu_s(TUNE_PRESET, n_lanes, duration_s, seed, "numba")
+    numpy_cpu = fallback_batch_cpu_s(TUNE_PRESET, n_lanes, duration_s, seed, "numpy")
+    loop_args = (FALLBACK_LOOP_PRESET, FALLBACK_LOOP_LANES, duration_s, seed)
+    fallback_batch_cpu_s(*loop_args, "numba")
+    loop_cpu = fallback_batch_cpu_s(*loop_args, "numba")
+    probe = f"from tools.bench import fallback_batch_cpu_s as f; print(f(*{loop_args!r}, 'numpy'), " \
+            f"f(*{loop_args!r}, 'numba'))"  # numba's kernel without its JIT: the loop as plain Python
+    plain = _fallback_process([sys.executable, "-c", probe], fallback=True)[0]
+    ring_cpu, plain_cpu = map(float, plain.stdout.split()[-2:]) if plain.returncode == 0 else (float("nan"), float("nan"))
+    tune_argv = [*TWIN_TUNE_CLI, *PRESET_TUNE, *sizes, "--plot", "none"]
+    _fallback_process(tune_argv, fallback=False)  # warm-up: numba's cache
+    tunes = {fallback: _fallback_process(tune_argv, fallback) for fallback in (False, True)}
+    answers = [re.sub(r"^\(\d+(\.\d+)? s\)$", "", done.stdout, flags=re.MULTILINE) for done, _, _ in tunes.values()]
+    (_, wall_s, cpu_s), (fb, fb_wall_s, fb_cpu_s) = tunes[False], tunes[True]
+    same = "the same report" if answers[0] == answers[1] and fb.returncode == 0 else "REPORTS DIFFER"
+    return [
+        f"the batch without numba ({' '.join(f'{k}={v}' for k, v in FALLBACK_ENV.items())}: numba's decorators return "
+        f"the Python functions) against the compiled loop (numba {'compiled' if batch_kernel.compiled() else 'MISSING'}), "
+        f"CPU seconds, each a streamed heat-and-hold of random gains (seed {seed}) x {duration_s:g} s:",
+        f"  numpy lanes, {n_lanes} lanes of {TUNE_PRESET} (linear): {numpy_cpu:.2f} s against {compiled_cpu:.2f} s "
+        f"compiled: {numpy_cpu / compiled_cpu:.1f} x",
+        f"  {FALLBACK_LOOP_LANES} lanes of {FALLBACK_LOOP_PRESET} (dead time) against {loop_cpu:.3f} s compiled: numpy lanes "
+        f"{ring_cpu:.2f} s ({ring_cpu / loop_cpu:.0f} x); the loop as plain Python (what a radiating plant or Marlin's "
+        f"MPC runs) {plain_cpu:.2f} s ({plain_cpu / loop_cpu:.0f} x, {plain_cpu / FALLBACK_LOOP_LANES:.2f} s per lane)",
+        f"  twin-tune {' '.join([*PRESET_TUNE, *sizes])} in its own process: {fb_wall_s:.1f} s wall, {fb_cpu_s:.1f} s CPU "
+        f"without numba against {wall_s:.1f} s wall, {cpu_s:.1f} s CPU compiled (after a warm-up): "
+        f"{fb_cpu_s / cpu_s:.1f} x the CPU, {same}",
+    ]
 
 
 # -- the report: the command, the machine, the lines; --doc --------------------------------------------
 ROOT = Path(__file__).resolve().parents[1]
-BENCHES = ("twin", "tune", "twin-tune", "protocol", "scaling", "startup")
+BENCHES = ("twin", "tune", "twin-tune", "protocol", "scaling", "startup", "fallback")
 # the options each benchmark reads; all but --seed set its size
 OPTIONS = {"twin": ("duration", "lanes", "seed"), "tune": ("duration", "lanes", "seed"),
            "twin-tune": ("budget", "proof", "captures"), "protocol": ("requests", "lines"), "scaling": ("seed",),
-           "startup": ("runs",)}
+           "startup": ("runs",), "fallback": ("duration", "lanes", "seed", "budget", "proof")}
 SETTINGS_ENV = ("OPENBLAS_NUM_THREADS", THREADS_ENV)  # environment that changes what a run measures
 NOT_MEASURED = ("NOT A MEASUREMENT: smaller than the defaults, a check that the benchmark runs; "
                 "re-run without the size options on a quiet machine")
@@ -795,6 +854,10 @@ def measure(args: argparse.Namespace) -> list[str]:
         return bench_scaling(args.seed)
     if args.what == "startup":
         return bench_startup(args.runs)
+    if args.what == "fallback":
+        sizes = [word for name in ("budget", "proof") if getattr(args, name) is not None
+                 for word in (f"--{name}", str(getattr(args, name)))]
+        return bench_fallback(args.lanes, args.duration, args.seed, sizes)
     return bench_protocol(args.requests, args.lines)
 
 

@@ -29,10 +29,13 @@ tests keep each lane equal to a scalar ``Twin`` (tests/twin/test_batch_paths.py,
 
 Two implementations of the stretch between scenario events, equal bit for bit where both run:
 period by period on numpy lanes, or ``twin.batch_kernel``'s compiled loop over lanes and periods
-(``kernel="numba"``, the default when numba is installed), spread over threads (the loop releases
+(``kernel="numba"``, the default when numba compiles), spread over threads (the loop releases
 the GIL; ``threads``, default every CPU this process may use, or ``HEATER_TWIN_THREADS``). The
-numpy lanes run linear plants without dead time; a faulted sensor chain, a thermistor placed on a
-gradient or a Steinhart-Hart part (no table of switching temperatures) always take them. The
+numpy lanes run linear plants (dead time too) and laws that do not read the board; with
+``kernel="numpy"`` (the default without numba) the others run on the loop, as plain Python where
+numba is missing: the same answers, slower (docs/performance.md). A faulted sensor chain, a
+thermistor placed on a gradient or a Steinhart-Hart part (no table of switching temperatures)
+always take the numpy lanes. The
 shared clock (ADC phase, soft-PWM counter, millis) is planned once per stretch and cached, and the
 plant's tables once per model, so a tuner that replays the same scenario pays only for the lanes.
 """
@@ -60,7 +63,7 @@ from firmware_port.marlin.lanes import HotendLanes, lookup_q5
 from firmware_port.marlin.pid import PID_LAW, PREV_TEMP_EVERY_SAMPLE, PidFixed, PidGains
 from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, KELVIN_OFFSET, MAX_RAW_THERMISTOR_VALUE, \
     TEMP_FRAC_BITS, TEMP_ONE, TempTable
-from twin import adc_table, batch_kernel as bk
+from twin import adc_table, batch_kernel as bk, lane_ring
 from twin.clock import TICK_S, EventQueue, ticks_at
 from twin.engine import FAN_SPEED_MAX, m104_target
 from twin.engine_protocol import LaneHeater, Runs, Trip, each_plant
@@ -147,18 +150,23 @@ class BatchTwin(Runs):
     @staticmethod
     def accepts(controller: object, prev_temp_mode: str | None = None) -> bool:
         """Whether a lane can run this controller: one whose family declares a lane law (a PID in
-        ``prev_temp_mode``, when given; a law that reads the board, as Marlin's MPC, on the compiled loop)."""
+        ``prev_temp_mode``, when given), on either kernel."""
         law = law_for(controller)
-        if law is None or (law.reads_board and bk.default_kernel() != "numba"):
+        if law is None:
             return False
         return prev_temp_mode is None or not isinstance(controller, PidFixed) or \
             controller.prev_temp_mode == prev_temp_mode
 
     @staticmethod
     def needs_kernel(plant) -> bool:
-        """Whether a plant needs the loop of ``batch_kernel`` (dead time, radiating loss): the numpy
-        lanes run linear plants without dead time only."""
-        return bool(plant.delay_ticks) or not getattr(plant, "linear", True)
+        """Whether a plant needs the loop of ``batch_kernel``: a radiating loss (the numpy lanes run linear
+        plants, with or without dead time)."""
+        return not getattr(plant, "linear", True)
+
+    def numpy_lanes_run(self) -> bool:
+        """Whether the numpy lanes run this batch: linear plants (``needs_kernel``) and a law that does not read
+        the board (kernel='numpy' runs the others on ``batch_kernel``'s loop, plain Python without numba)."""
+        return not self.law.reads_board and not any(self.needs_kernel(g.plant) for g in self.groups)
 
     def __init__(self, plant, controllers: Sequence[PidGains | Tunable | object], *,
                  prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE, sensor: SensorChain | None = None,
@@ -175,12 +183,6 @@ class BatchTwin(Runs):
         self.law, control = _control_lanes(controllers, prev_temp_mode)
         self.lanes = HotendLanes(control)
         self.groups = self._group(plant)
-        if self.kernel == "numpy" and any(self.needs_kernel(g.plant) for g in self.groups):
-            raise ValueError("kernel='numpy' runs linear plants without dead time; dead time and a radiating "
-                             "loss need kernel='numba'")
-        if self.kernel == "numpy" and self.law.reads_board:
-            raise ValueError(f"kernel='numpy' does not give controllers the board's inputs; "
-                             f"{self.law.controller.__name__} needs kernel='numba'")
         self.sensor = sensor if sensor is not None else SensorChain()
         self._noise_setup(noise_lsb, seed)
         self.record, self.score = record, score
@@ -324,12 +326,12 @@ class BatchTwin(Runs):
                 self._run_to(stop)
 
     def _run_to(self, stop: int) -> None:
-        if self.kernel == "numba" and self._kernel_sensor():
+        if self._kernel_sensor() and (self.kernel == "numba" or not self.numpy_lanes_run()):
             self._run_kernel(stop)
             return
-        if any(self.needs_kernel(g.plant) for g in self.groups):
+        if not self.numpy_lanes_run():
             raise ValueError("this sensor chain (faulted, on a gradient, or a Steinhart-Hart part) runs on the "
-                             "numpy lanes, which need a linear plant without dead time")
+                             "numpy lanes, which need a linear plant and a law that does not read the board")
         while self.tick < stop:
             self._period(min(stop - self.tick, self.lanes.adc.ticks_to_reading()))
 
@@ -367,7 +369,7 @@ class BatchTwin(Runs):
         lanes = self.lanes
         offsets = tuple(lanes.adc.sample_offsets(n)[0])
         kinds = ((n, offsets),)
-        pulses = lanes.pulses(n)
+        pulses = self._plant_pulses(lanes.pulses(n), n)
         s = np.array(offsets, dtype=np.int64)[:, None]
         noise = self._lane_noise(draw(self._generators, len(offsets))) if self.noise_lsb.any() else None
         samples = np.zeros((len(offsets), self.n_lanes), np.int64)
@@ -377,7 +379,7 @@ class BatchTwin(Runs):
             sensor_c = _dot(t.px[0, 0].T, group.x) + t.pdd[0, 0][:, None]
             sstep = t.sensor_steps[0]
             for alpha, beta in pulses:
-                beta = np.broadcast_to(beta, self.n_lanes)[group.lanes]
+                alpha, beta = (np.broadcast_to(e, self.n_lanes)[group.lanes] for e in (alpha, beta))
                 sensor_c = sensor_c + (sstep[np.maximum(s - alpha, 0)] - sstep[np.maximum(s - beta, 0)])
             samples[:, group.lanes] = self._convert(sensor_c, s, None if noise is None else noise[:, group.lanes])
             sensor_cs.append(t)
@@ -388,14 +390,25 @@ class BatchTwin(Runs):
         for group, t in zip(self.groups, sensor_cs):
             x = _dot(t.fx[0, 0], group.x) + t.fdd[0, 0][:, None]
             for alpha, beta in pulses:
-                beta = np.broadcast_to(beta, self.n_lanes)[group.lanes]
+                alpha, beta = (np.broadcast_to(e, self.n_lanes)[group.lanes] for e in (alpha, beta))
                 x = x + (t.steps[0][n - alpha] - t.steps[0][n - beta]).T
-            # the main loop may have written the pin for the last tick
-            diff = (lanes.pins.astype(float) - pins_before)[group.lanes]
+            # the main loop may have written the pin for the last tick (a dead time's ring takes that in below)
+            diff = (lanes.pins.astype(float) - pins_before)[group.lanes] if not self._delay else 0.0
             group.x = x + t.io[0, 0, :-1][:, None] * diff
+        if self._delay:
+            lane_ring.cut_last(self._ring, self._ring_state, pins_before & ~lanes.pins)
         self.tick += n
         if reading:
             self._numpy_reading(sensor_cs)
+
+    def _plant_pulses(self, pulses: list[tuple], n: int) -> list[tuple]:
+        """The soft PWM's pulses this period, or with a dead time the ones the plant sees: the ring's,
+        ``delay`` ticks late (``lane_ring``, as ``batch_kernel._plant_pulses``)."""
+        if not self._delay:
+            return pulses
+        for alpha, beta in pulses:
+            lane_ring.push(self._ring, self._ring_state, self.tick + alpha, self.tick + np.asarray(beta))
+        return lane_ring.delayed(self._ring, self._ring_state, self.tick, n, self._delay)
 
     def _numpy_reading(self, tables: list[Tables]) -> None:
         lanes = self.lanes

@@ -34,10 +34,20 @@ computed, comes from libm's ``exp``, which may differ from numpy's (SIMD) ``exp`
 that changes a count only when the noisy value lies within 1e-13 of an integer, never seen in the
 tests (tests/twin/test_batch_paths.py, tests/firmware_port/marlin/test_lanes.py).
 
-``HEATER_TWIN_KERNEL`` picks the implementation: ``numba`` (default when numba is installed,
-``pip install heater-twin[fast]``) or ``numpy``. Without numba, ``BatchTwin(kernel="numba")``
-still runs the loop below as plain Python: slow, but the tests check the same code that way.
-The loop releases the GIL, so ``BatchTwin`` spreads lanes over threads.
+``HEATER_TWIN_KERNEL`` picks the implementation (``BatchTwin(kernel=...)`` the same per batch):
+
+- ``numba`` (the default where numba compiles: a core dependency where PyPI has its wheels, else
+  ``pip install heater-twin[fast]``): this loop, compiled, for every batch;
+- ``numpy`` (the default without numba, or with ``NUMBA_DISABLE_JIT=1``): the numpy lanes where
+  they run (linear plants, with a dead time too (twin/lane_ring.py), and laws that do not read the
+  board: tens of times the compiled loop's CPU), this loop elsewhere (a radiating loss, Marlin's
+  MPC), as plain Python without numba, about a thousand times: the same answers either way
+  (docs/performance.md, ``python -m tools.bench fallback``).
+
+Without numba (or with ``NUMBA_DISABLE_JIT=1``, when numba's decorators return the Python
+functions) ``kernel="numba"`` still runs this loop as plain Python: slow, but the tests check the
+same code that way (tests/twin/test_fallback.py). The loop releases the GIL, so ``BatchTwin``
+spreads lanes over threads.
 """
 
 from __future__ import annotations
@@ -202,8 +212,8 @@ class Scratch(NamedTuple):
 
 
 def default_kernel() -> str:
-    """The kernel ``HEATER_TWIN_KERNEL`` names, else numba when installed; ValueError names a bad value."""
-    kernel = os.environ.get(KERNEL_ENV, "numba" if numba is not None else "numpy")
+    """The kernel ``HEATER_TWIN_KERNEL`` names, else numba where it compiles; ValueError names a bad value."""
+    kernel = os.environ.get(KERNEL_ENV, "numba" if compiled() else "numpy")
     if kernel not in KERNELS:
         raise ValueError(f"{KERNEL_ENV}={kernel!r}: must be one of {', '.join(KERNELS)}")
     if kernel == "numba" and numba is None:
@@ -212,12 +222,14 @@ def default_kernel() -> str:
 
 
 def compiled() -> bool:
-    """Whether the loop below runs as machine code (numba installed)."""
-    return numba is not None
+    """Whether the loop below runs as machine code (numba installed, its JIT not disabled)."""
+    return numba is not None and not numba.config.DISABLE_JIT  # type: ignore[attr-defined]
 
 
 def describe() -> str:
-    return f"numba {numba.__version__}" if numba is not None else "numba not installed"
+    if numba is None:
+        return "numba not installed"
+    return f"numba {numba.__version__}" + ("" if compiled() else " (NUMBA_DISABLE_JIT: plain Python)")
 
 
 # The loop allocates nothing (its scratch arrays come in), so it runs without numba's reference

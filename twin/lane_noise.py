@@ -46,5 +46,6 @@ def seed_streams(seed: int | Sequence[int], n: int) -> tuple[np.ndarray, list[np
 
 
 def draw(generators: Sequence[np.random.Generator], n_samples: int) -> np.ndarray:
-    """The next n_samples normals of every stream, (streams, n_samples)."""
-    return np.array([g.standard_normal(n_samples) for g in generators]).reshape(-1, n_samples)
+    """The next n_samples normals of every stream, (streams, n_samples); a period without a sample (it ends
+    before the ADC's next conversion) draws (streams, 0)."""
+    return np.array([g.standard_normal(n_samples) for g in generators]).reshape(len(generators), n_samples)

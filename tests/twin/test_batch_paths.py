@@ -149,9 +149,7 @@ def test_threads_give_the_same_numbers():
         np.testing.assert_array_equal(runs[0].result().hotend.block_c, other.result().hotend.block_c)
 
 
-def test_the_numpy_lanes_refuse_what_only_the_kernel_runs():
-    with pytest.raises(ValueError, match="dead time and a radiating loss need kernel='numba'"):
-        BatchTwin(make_plant("seed001_fopdt"), [PidGains(1, 1, 1)], kernel="numpy")
+def test_a_batch_refuses_bad_lanes():
     with pytest.raises(ValueError, match="noise_lsb: each lane's must be a finite number in 0..100 LSB"):
         BatchTwin(make_plant("hotend"), [PidGains(1, 1, 1)], noise_lsb=-1.0)
     with pytest.raises(ValueError, match=r"seed: one value, or one per lane \(2\)"):

@@ -7,7 +7,7 @@ default Marlin's fixed-point PID, whose parameters are Kp, Ki, Kd on the 0..255 
 - ``marlin`` (default): the controller on Marlin's board (ADC, soft PWM, thermal protection) in
   lockstep with the plant. Candidates the batch twin runs (twin/batch.py ``BatchTwin.accepts``: the
   fixed-point PID, bang-bang, the fuzzy PI and the fuzzy-PID) run as lanes of one batch, on any plant
-  (dead time and a radiating loss need numba's compiled lanes), others one ``Twin`` each.
+  (a radiating loss needs numba's compiled lanes), others one ``Twin`` each.
 - ``klipper``: Klipper's host PID (twin/klipper_twin.py) as lanes of a ``KlipperBatch`` (with numba;
   else one ``KlipperTwin`` per candidate), PID families only.
 - ``kalico``: the Klipper loop with Kalico's heater (firmware_port/kalico: its PWM rules; its PID on the
@@ -176,13 +176,13 @@ class Problem:
     @property
     def batched(self) -> bool:
         """Whether candidates run as lanes of one batch (else one twin each, as always on the reference
-        engine). Without numba, only the numpy lanes' cases: the Marlin loop on a linear plant without
-        dead time. Kalico's MPC has no lanes."""
+        engine). Without numba, only the numpy lanes' cases: the Marlin loop on a linear plant (with or
+        without dead time). Kalico's MPC has no lanes."""
         if self.loop == "ideal":
             return True
         if self.engine == "reference":
             return False
-        if not batch_kernel.compiled() and (klipper_family(self.loop) or not self.spec.linear or self.spec.delay_ticks):
+        if not batch_kernel.compiled() and (klipper_family(self.loop) or not self.spec.linear):
             return False
         if klipper_family(self.loop):
             return self.controller.pid

@@ -24,6 +24,7 @@ STATS_SUMSQ_BASE = 256  # src/basecmd.c SUMSQ_BASE
 MOVE_COUNT = 1024  # src/basecmd.c move_finalize: the most queue slots alloc_chunks hands out
 MCU_NAME = "heater-twin"
 PORTS = "ABCDEFGHJKL"  # the ATmega2560's GPIO ports, 8 pins each: PA0 = 0, ... (src/avr/gpio.c GPIO())
+DEFAULT_SENSOR = "EPCOS 100K B57560G104F"  # the board's thermistors: config/generic-ramps.cfg, extruder and bed
 ADC_PINS = tuple(f"P{port}{n}" for port in "FK" for n in range(8))  # ADC0..15: PF0-7, PK0-7
 
 COMMANDS = (

@@ -74,8 +74,9 @@ class Lateness:
 
     def line(self) -> str:
         ms = 1000 / d.CLOCK_FREQ
-        return (f"lenient timing: {self.late_events} late events (latest {self.max_late_clocks * ms:.1f} ms), "
-                f"{self.forgiven_deadlines} max_duration misses forgiven (longest {self.max_overdue_clocks * ms:.1f} ms)")
+        return (f"lenient timing: {self.late_events} late events (up to {self.max_late_clocks * ms:.1f} ms late), "
+                f"{self.forgiven_deadlines} max_duration misses forgiven (up to {self.max_overdue_clocks * ms:.1f} ms "
+                "after it); MCU clock")
 
     def changed(self) -> bool:
         """True once per change of the counts (the stats timer logs the line then)."""

@@ -16,10 +16,10 @@ from abc import ABC, abstractmethod
 from protocol.corruption import RxCorruptor
 from protocol.pacing import Pacer
 from protocol.printer import VirtualPrinter
+from protocol.pty import READ_SIZE  # noqa: F401  (one read size for every transport: tcp_server reads it here)
 from protocol.transcript import Transcript
 
 BOOT_DELAY_S = 0.2  # host connects -> board reset, unless its first bytes come sooner (a bootloader: ~1 s)
-READ_SIZE = 4096
 HOST_BUFFER_BYTES = 4096  # output a host may leave unread before Marlin's writes block (Linux N_TTY_BUF_SIZE)
 
 

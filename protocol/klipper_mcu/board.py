@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_port.thermistor import KLIPPER_SENSORS, Divider
-from protocol.klipper_mcu.dictionary import ADC_MAX, CLOCK_FREQ
+from protocol.klipper_mcu.dictionary import ADC_MAX, CLOCK_FREQ, DEFAULT_SENSOR
 from twin.clock import TICK_S, EventQueue
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
 from twin.linear import SENSOR
@@ -29,7 +29,6 @@ from twin.sensor import DETACHED, OPEN, SHORT, SensorChain
 TICK_CLOCKS = round(TICK_S * CLOCK_FREQ)  # 16384 MCU clocks per plant tick
 assert TICK_CLOCKS == TICK_S * CLOCK_FREQ, "the plant tick must be a whole number of MCU clocks"
 RUN_TICKS = 1024  # the longest plant run: an idle MCU (no ADC query) is caught up in such runs
-DEFAULT_SENSOR = "EPCOS 100K B57560G104F"  # config/generic-ramps.cfg, extruder and bed
 PULLUP_OHM = 4700.0  # klippy/extras/thermistor.py default pullup_resistor
 DEFAULT_PLANTS = {"hotend": "hotend_stock", "bed": "bed"}  # twin/plants.py DEFAULT_HOTEND, DEFAULT_BED
 

@@ -111,23 +111,27 @@ class MessageFormat:
             value = values[name]
             if fmt in BUFFER_FORMATS:
                 data = bytes(value)
-                if len(data) > MESSAGE_PAYLOAD_MAX:
-                    raise ProtocolError(f"{self.name}: {name} is {len(data)} bytes, more than a block holds")
+                if len(data) > 0xFF:
+                    raise ProtocolError(f"{self.name}: {name} is {len(data)} bytes, more than a length byte counts")
                 out.append(len(data))
                 out += data
             else:
                 encode_vlq(int(value), out)
         return bytes(out)
 
-    def decode(self, data: bytes | bytearray, pos: int) -> tuple[dict[str, int | bytes], int]:
-        """The parameters of the message whose id is at ``data[pos]``, and the position after it.
+    def decode(self, data: bytes | bytearray, pos: int, end: int | None = None) -> tuple[dict[str, int | bytes], int]:
+        """The parameters that start at ``data[pos]`` (just after the message id), and the position after them.
 
-        Integers come back as uint32, as the MCU's parser gives them (see ``to_signed``)."""
-        pos += 1
+        As src/command.c command_parsef reads them: a parameter must start at or before ``end`` (default
+        the data's end) and a buffer must end by it, while an integer is read on until a byte without the
+        continuation bit, past ``end`` if need be. Integers come back as uint32 (see ``to_signed``)."""
+        end = len(data) if end is None else end
         values: dict[str, int | bytes] = {}
         for name, fmt in self.params:
+            if pos > end:
+                raise ProtocolError(f"{self.name}: {name} starts past the end of the block")
             if fmt in BUFFER_FORMATS:
-                if pos >= len(data) or pos + 1 + data[pos] > len(data):
+                if pos >= len(data) or pos + 1 + data[pos] > end:
                     raise ProtocolError(f"{self.name}: {name} runs past the end of the block")
                 values[name] = bytes(data[pos + 1:pos + 1 + data[pos]])
                 pos += 1 + data[pos]
@@ -151,6 +155,7 @@ class Block(NamedTuple):
 
     sequence: int  # 0..15
     payload: bytes
+    trailer: bytes = b""  # CRC and sync: the MCU's parser may read an integer on into them
 
 
 class BlockReader:
@@ -184,7 +189,8 @@ class BlockReader:
                 self._naked = False
                 block = bytes(self._buffer[:status])
                 del self._buffer[:status]
-                yield Block(block[1] & MESSAGE_SEQ_MASK, block[MESSAGE_HEADER_SIZE:-MESSAGE_TRAILER_SIZE])
+                yield Block(block[1] & MESSAGE_SEQ_MASK, block[MESSAGE_HEADER_SIZE:-MESSAGE_TRAILER_SIZE],
+                            block[-MESSAGE_TRAILER_SIZE:])
                 continue
             if self._buffer[0] == MESSAGE_SYNC:
                 del self._buffer[:1]
@@ -224,15 +230,37 @@ class BlockReader:
 
 def parse_messages(payload: bytes, formats: dict[int, MessageFormat]) -> list[tuple[MessageFormat,
                                                                                    dict[str, int | bytes]]]:
-    """Every message in a block's payload, in order; ProtocolError on an unknown id or a short message."""
+    """Every message in a response block's payload (one-byte ids), in order; ProtocolError on an
+    unknown id or a message cut short."""
     out = []
     pos = 0
     while pos < len(payload):
         fmt = formats.get(payload[pos])
         if fmt is None:
             raise UnknownMessage(f"unknown message id {payload[pos]}")
-        values, pos = fmt.decode(payload, pos)
+        values, pos = fmt.decode(payload, pos + 1)
         out.append((fmt, values))
-    if pos != len(payload):
-        raise ProtocolError("message runs past the end of the block")
     return out
+
+
+def iter_commands(block: Block, formats: dict[int, MessageFormat]) -> Iterator[tuple[MessageFormat,
+                                                                                    dict[str, int | bytes]]]:
+    """The commands of a host block one at a time, as src/command.c command_dispatch reads them (the
+    MCU runs each before it reads the next): a message id of one byte, or two when the first has
+    0x80 set (``(first & 0x7f) << 7 | second``), then its parameters (``MessageFormat.decode``, the
+    trailer readable). UnknownMessage for an id it lacks ("Invalid command"), ProtocolError for a
+    parameter past the end ("Command parser error")."""
+    data = block.payload + block.trailer
+    end = len(block.payload)
+    pos = 0
+    while pos < end:
+        msg_id = data[pos]
+        pos += 1
+        if msg_id & 0x80:
+            msg_id = ((msg_id & 0x7F) << 7) | data[pos]
+            pos += 1
+        fmt = formats.get(msg_id)
+        if fmt is None:
+            raise UnknownMessage(f"unknown command id {msg_id}")
+        values, pos = fmt.decode(data, pos, end)
+        yield fmt, values

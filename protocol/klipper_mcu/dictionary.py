@@ -24,6 +24,7 @@ STATS_SUMSQ_BASE = 256  # src/basecmd.c SUMSQ_BASE
 MOVE_COUNT = 1024  # src/basecmd.c move_finalize: the most queue slots alloc_chunks hands out
 MCU_NAME = "heater-twin"
 PORTS = "ABCDEFGHJKL"  # the ATmega2560's GPIO ports, 8 pins each: PA0 = 0, ... (src/avr/gpio.c GPIO())
+DEFAULT_SENSOR = "EPCOS 100K B57560G104F"  # the board's thermistors: config/generic-ramps.cfg, extruder and bed
 ADC_PINS = tuple(f"P{port}{n}" for port in "FK" for n in range(8))  # ADC0..15: PF0-7, PK0-7
 
 COMMANDS = (
@@ -87,10 +88,13 @@ MOVE_QUEUE_OVERFLOW = "Move queue overflow"
 INVALID_COMMAND = "Invalid command"  # src/command.c
 PARSER_ERROR = "Command parser error"
 NOT_ADC_PIN = "Not a valid ADC pin"  # src/avr/adc.c
+NOT_OUTPUT_PIN = "Not an output pin"  # src/avr/gpio.c
+NOT_PWM_PIN = "Not a valid PWM pin"  # src/avr/hard_pwm.c
 STATIC_STRINGS = (COMMAND_REQUEST, ADC_OUT_OF_RANGE, TIMER_TOO_CLOSE, RESCHEDULED_IN_PAST, MISSED_DIGITAL_OUT,
                   DIGITAL_OUT_EXCEEDS, CYCLE_WHILE_PENDING, UPDATE_WITH_QUEUE, MISSED_PWM, PWM_EXCEEDS,
                   CLEARED_WHEN_NOT_SHUTDOWN, CONFIG_RESET_NOT_SHUTDOWN, OIDS_ALLOCATED, CANT_ASSIGN_OID, INVALID_OID,
-                  ALREADY_FINALIZED, MOVE_QUEUE_OVERFLOW, INVALID_COMMAND, PARSER_ERROR, NOT_ADC_PIN)
+                  ALREADY_FINALIZED, MOVE_QUEUE_OVERFLOW, INVALID_COMMAND, PARSER_ERROR, NOT_ADC_PIN,
+                  NOT_OUTPUT_PIN, NOT_PWM_PIN)
 
 
 def pin_number(name: str) -> int:

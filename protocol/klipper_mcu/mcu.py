@@ -6,12 +6,19 @@ the clock it was scheduled for (``run_until``), so what the pins and the ADC see
 the clocks, never on when the process got to run. Clocks are the world's (see board.py): the
 MCU's own clock is the world clock less the clock of its last boot, sent as 32 bits.
 
-Timing faults: in ``strict`` mode an event the host scheduled in the past shuts the MCU down
-("Timer too close", "Rescheduled timer in the past") and so does a heater pin left without a
-next value past its max_duration ("Missed scheduling of next digital out event"), as on a real
-MCU. Otherwise (lenient) such a late event takes effect as early as the plants allow and a
-missed max_duration is only counted (``late_events``, ``missed_deadlines``): a loaded host
-computer then cannot shut the twin down, while the heater safety is still klippy's to test.
+Timing faults. A pin left on without a next value past its max_duration goes to its default
+value at that clock in every mode, as src/gpiocmds.c's shutdown does. In ``strict`` mode the MCU
+shuts down right there ("Missed scheduling of next digital out event"), and an event the host
+scheduled in the past shuts it down too ("Timer too close", "Rescheduled timer in the past"), as
+on a real MCU. In lenient mode (the default) a late event takes effect as early as the plants
+allow, and an event that comes within ``grace_clocks`` after a missed max_duration is forgiven
+(the pin resumes); no event by then is the same shutdown as strict mode's. Both are counted
+(``Lateness``) and logged, so a loaded host computer cannot stop a run while a host that stops
+updating a heater gets it switched off and the MCU shut down.
+
+Frames that are well formed but carry bad values get what Klipper's firmware gives them: a byte
+or half-word argument truncated (``uint8_t oid = args[0]``), a shutdown with its message, or
+nothing (a response too long for a block is not sent).
 """
 
 from __future__ import annotations
@@ -22,23 +29,29 @@ import logging
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from protocol.klipper_mcu import dictionary as d
-from protocol.klipper_mcu.board import TwinBoard
 from protocol.klipper_mcu.codec import (
     MESSAGE_DEST,
+    MESSAGE_PAYLOAD_MAX,
     MESSAGE_SEQ_MASK,
+    Block,
     BlockReader,
     ProtocolError,
     UnknownMessage,
     frame,
-    parse_messages,
+    iter_commands,
 )
 from protocol.klipper_mcu.dictionary import Dictionary
+
+if TYPE_CHECKING:
+    from protocol.klipper_mcu.board import TwinBoard
 
 LOG = logging.getLogger(__name__)
 STATS_INTERVAL_CLOCKS = 5 * d.CLOCK_FREQ  # src/basecmd.c stats_update: every 5 s
 STATS_TASK_CLOCKS = 100  # the nominal cost the stats report per event handled (the twin has no real one)
+LENIENT_GRACE_CLOCKS = d.CLOCK_FREQ  # default wait for a late event after a missed max_duration (server: wall-based)
 
 
 class Shutdown(Exception):
@@ -47,6 +60,31 @@ class Shutdown(Exception):
     def __init__(self, reason: str):
         super().__init__(reason)
         self.reason = reason
+
+
+@dataclass
+class Lateness:
+    """Lenient mode's forgiven timing faults since the MCU started (``reported``: as last logged)."""
+
+    late_events: int = 0  # events the host scheduled in the past
+    max_late_clocks: int = 0  # the latest of them
+    forgiven_deadlines: int = 0  # missed max_duration deadlines whose next event came within the grace
+    max_overdue_clocks: int = 0  # the longest a pin stayed at its default before that event came
+    reported: tuple[int, int] = (0, 0)
+
+    def line(self) -> str:
+        ms = 1000 / d.CLOCK_FREQ
+        return (f"lenient timing: {self.late_events} late events (up to {self.max_late_clocks * ms:.1f} ms late), "
+                f"{self.forgiven_deadlines} max_duration misses forgiven (up to {self.max_overdue_clocks * ms:.1f} ms "
+                "after it); MCU clock")
+
+    def changed(self) -> bool:
+        """True once per change of the counts (the stats timer logs the line then)."""
+        now = (self.late_events, self.forgiven_deadlines)
+        if now == self.reported:
+            return False
+        self.reported = now
+        return True
 
 
 @dataclass(eq=False)
@@ -76,6 +114,7 @@ class _DigitalOut:
     queue: deque = field(default_factory=deque)  # (world clock, on_ticks)
     end_time: int | None = None  # the max_duration deadline, or the next queued event's clock
     timer: int = 0
+    overdue_since: int | None = None  # lenient: the missed deadline, while waiting out the grace
 
 
 @dataclass(eq=False)
@@ -87,19 +126,21 @@ class _PwmOut:
     queue: deque = field(default_factory=deque)  # (world clock, value)
     end_time: int | None = None
     timer: int = 0
+    overdue_since: int | None = None
 
 
 class KlipperMcu:
     """One MCU: the host's blocks in, response blocks out; timers on world clocks."""
 
-    def __init__(self, board: TwinBoard, dictionary: Dictionary, *, strict: bool = False):
-        self.board, self.dictionary, self.strict = board, dictionary, strict
+    def __init__(self, board: TwinBoard, dictionary: Dictionary, *, strict: bool = False,
+                 grace_clocks: int = LENIENT_GRACE_CLOCKS):
+        self.board, self.dictionary, self.strict, self.grace_clocks = board, dictionary, strict, grace_clocks
         self._identify = dictionary.data()
         self._by_id = dictionary.by_id
         self._output = bytearray()
         self.shutdown_reason: str | None = None  # the reason reported since the last shutdown
-        self.late_events = 0  # lenient mode: events the host scheduled in the past
-        self.missed_deadlines = 0  # lenient mode: max_duration deadlines passed without a next event
+        self.lateness = Lateness()
+        self.boots = 0
         self._handlers: dict[str, Callable[[dict], None]] = {
             name: getattr(self, "_cmd_" + name) for name in dictionary.commands}
         self.boot(0)
@@ -111,6 +152,7 @@ class KlipperMcu:
     def boot(self, clock: int) -> None:
         """Power-on or reset at world clock ``clock``: all state anew, pins low, clock from 0."""
         self.boot_clock = self.now = clock
+        self.boots += 1
         self._reader = BlockReader()
         self._next_sequence = MESSAGE_DEST
         self._timers: list[tuple[int, int, Callable, tuple]] = []
@@ -129,17 +171,16 @@ class KlipperMcu:
     def receive(self, data: bytes, clock: int) -> None:
         """Bytes from the host, arriving at world clock ``clock``: timers due first, then each block."""
         self.run_until(clock)
-        reader = self._reader
-        for block in reader.feed(data):
-            if reader is not self._reader:
-                return  # a reset: the rest of the bytes went to the board that rebooted
+        boots = self.boots
+        for block in self._reader.feed(data):
             if block is None or MESSAGE_DEST | block.sequence != self._next_sequence:
                 self._send_block(b"")  # nak: the sequence we still expect
                 continue
             self._next_sequence = MESSAGE_DEST | ((block.sequence + 1) & MESSAGE_SEQ_MASK)
-            self._dispatch(block.payload)
-            if reader is self._reader:
-                self._send_block(b"")  # ack (none from a board that just rebooted)
+            self._dispatch(block)
+            if boots != self.boots:
+                return  # a reset: the rest of the bytes went to the board that rebooted
+            self._send_block(b"")  # ack (after a shutdown the firmware's nak: the same bytes)
 
     def run_until(self, clock: int) -> None:
         """Run the timers due up to world clock ``clock``, each at its own clock."""
@@ -179,30 +220,36 @@ class KlipperMcu:
         self._output += frame(self._next_sequence, payload)
 
     def _send(self, name: str, **values) -> None:
-        self._send_block(self.dictionary.responses[name].encode(**values))
+        """A response; one that a block cannot hold is not sent (command_encodef's need_space)."""
+        payload = self.dictionary.responses[name].encode(**values)
+        if len(payload) <= MESSAGE_PAYLOAD_MAX:
+            self._send_block(payload)
 
-    def _dispatch(self, payload: bytes) -> None:
+    def _dispatch(self, block: Block) -> None:
+        """Each command as it is read (src/command.c command_dispatch); a shutdown ends the block."""
+        boots = self.boots
         try:
-            messages = parse_messages(payload, self._by_id)
+            for fmt, values in iter_commands(block, self._by_id):
+                if self._shutdown and fmt.name not in d.IN_SHUTDOWN:
+                    self._send("is_shutdown", static_string_id=self._reason_id)
+                    continue
+                self._handlers[fmt.name](values)
+                if boots != self.boots:
+                    return
+        except UnknownMessage as error:
+            LOG.warning("bad block from the host: %s", error)
+            self._enter_shutdown(d.INVALID_COMMAND)
         except ProtocolError as error:
             LOG.warning("bad block from the host: %s", error)
-            self._guarded(self._fail, d.INVALID_COMMAND if isinstance(error, UnknownMessage) else d.PARSER_ERROR)
-            return
-        for fmt, values in messages:
-            if self._shutdown and fmt.name not in d.IN_SHUTDOWN:
-                self._send("is_shutdown", static_string_id=self._reason_id)
-                continue
-            self._guarded(self._handlers[fmt.name], values)
+            self._enter_shutdown(d.PARSER_ERROR)
+        except Shutdown as stop:
+            self._enter_shutdown(stop.reason)
 
     def _guarded(self, action: Callable, *args) -> None:
         try:
             action(*args)
         except Shutdown as stop:
             self._enter_shutdown(stop.reason)
-
-    @staticmethod
-    def _fail(reason: str) -> None:
-        raise Shutdown(reason)
 
     def _enter_shutdown(self, reason: str) -> None:
         """src/sched.c run_shutdown: outputs to their defaults, queues cleared, timers dropped
@@ -211,7 +258,7 @@ class KlipperMcu:
             self._reason_id = self.dictionary.static_string_ids[reason]
             self.shutdown_reason = reason
         self._shutdown = True
-        LOG.info("MCU shutdown at clock %d: %s", self.mcu_clock(self.now), reason)
+        LOG.warning("MCU shutdown at clock %d: %s", self.mcu_clock(self.now), reason)
         self._timers = [t for t in self._timers if t[2] == self._stats]
         heapq.heapify(self._timers)
         for obj in self._oids or ():
@@ -219,14 +266,10 @@ class KlipperMcu:
                 obj.state = 0
                 obj.next_begin += obj.rest_ticks
                 self._add_timer(obj.next_begin, self._analog_event, obj)
-            elif isinstance(obj, _DigitalOut):
+            elif isinstance(obj, _DigitalOut | _PwmOut):
                 obj.queue.clear()
-                obj.end_time = None
-                self.board.drive(obj.pin, self.now, int(obj.default_on), 1)
-            elif isinstance(obj, _PwmOut):
-                obj.queue.clear()
-                obj.end_time = None
-                self.board.drive(obj.pin, self.now, obj.default_value, d.PWM_MAX)
+                obj.end_time = obj.overdue_since = None
+                self._to_default(obj)
         self._moves_used = 0
         self._send("shutdown", clock=self.mcu_clock(self.now), static_string_id=self._reason_id)
 
@@ -246,14 +289,43 @@ class KlipperMcu:
         if clock < self.now:
             if self.strict:
                 raise Shutdown(d.RESCHEDULED_IN_PAST if rescheduled else d.TIMER_TOO_CLOSE)
-            self.late_events += 1
+            self.lateness.late_events += 1
+            self.lateness.max_late_clocks = max(self.lateness.max_late_clocks, self.now - clock)
         self._add_timer(clock, action, owner)
 
-    def _deadline_missed(self, reason: str) -> None:
-        if self.strict:
+    def _to_default(self, out: _DigitalOut | _PwmOut) -> None:
+        if isinstance(out, _DigitalOut):
+            self.board.drive(out.pin, self.now, int(out.default_on), 1)
+        else:
+            self.board.drive(out.pin, self.now, out.default_value, d.PWM_MAX)
+
+    def _deadline_missed(self, out: _DigitalOut | _PwmOut, reason: str) -> None:
+        """max_duration passed with no next value: the pin to its default at once; in strict mode
+        (or with no grace) Klipper's shutdown, in lenient mode that shutdown after the grace unless
+        an event comes first (``_forgive``)."""
+        out.end_time = None
+        if self.strict or self.grace_clocks <= 0:
             raise Shutdown(reason)
-        self.missed_deadlines += 1
-        LOG.warning("lenient MCU: %s at clock %d (ignored)", reason, self.mcu_clock(self.now))
+        self._to_default(out)
+        out.overdue_since = self.now
+        LOG.warning("lenient MCU: %s at clock %d: %s at its default, shutdown unless an event comes within %.0f ms",
+                    reason, self.mcu_clock(self.now), out.pin, self.grace_clocks * 1000 / d.CLOCK_FREQ)
+        self._add_timer(self.now + self.grace_clocks, self._overdue, out, reason)
+
+    def _overdue(self, out: _DigitalOut | _PwmOut, version: int, reason: str) -> None:
+        if version == out.timer:
+            raise Shutdown(reason)
+
+    def _forgive(self, out: _DigitalOut | _PwmOut) -> None:
+        """A late event for a pin waiting out its grace: counted, and the pin runs on."""
+        if out.overdue_since is None:
+            return
+        overdue = self.now - out.overdue_since
+        out.overdue_since = None
+        self.lateness.forgiven_deadlines += 1
+        self.lateness.max_overdue_clocks = max(self.lateness.max_overdue_clocks, overdue)
+        LOG.warning("lenient MCU: %s's next event came %.1f ms after its max_duration (forgiven)",
+                    out.pin, overdue * 1000 / d.CLOCK_FREQ)
 
     def _stats(self) -> None:
         count = self._events_handled
@@ -261,28 +333,32 @@ class KlipperMcu:
         self._send("stats", count=count, sum=count * task, sumsq=count * -(-task * task // d.STATS_SUMSQ_BASE))
         self._events_handled = 0
         self._add_timer(self.now + STATS_INTERVAL_CLOCKS, self._stats, None)
+        if self.lateness.changed():
+            LOG.warning(self.lateness.line())
 
     # -- oids and moves ----------------------------------------------------------------------------
     def _alloc(self, oid: int, obj: object) -> None:
+        oid &= 0xFF  # uint8_t oid
         if self._oids is None or oid >= len(self._oids) or self._oids[oid] is not None or self._finalized:
             raise Shutdown(d.CANT_ASSIGN_OID)
         self._oids[oid] = obj
 
     def _lookup(self, oid: int, kind: type):
+        oid &= 0xFF
         obj = self._oids[oid] if self._oids is not None and oid < len(self._oids) else None
         if not isinstance(obj, kind):
             raise Shutdown(d.INVALID_OID)
         return obj
 
     def _move_alloc(self) -> None:
-        if self._moves_used >= d.MOVE_COUNT:
+        if not self._finalized or self._moves_used >= d.MOVE_COUNT:  # no free list before finalize_config
             raise Shutdown(d.MOVE_QUEUE_OVERFLOW)
         self._moves_used += 1
 
     # -- src/basecmd.c, src/command.c, src/sched.c -----------------------------------------------
     def _cmd_identify(self, args: dict) -> None:
         offset = args["offset"]
-        self._send("identify_response", offset=offset, data=self._identify[offset:offset + args["count"]])
+        self._send("identify_response", offset=offset, data=self._identify[offset:offset + (args["count"] & 0xFF)])
 
     def _cmd_get_uptime(self, args: dict) -> None:
         uptime = self.now - self.boot_clock
@@ -298,7 +374,7 @@ class KlipperMcu:
     def _cmd_allocate_oids(self, args: dict) -> None:
         if self._oids is not None:
             raise Shutdown(d.OIDS_ALLOCATED)
-        self._oids = [None] * args["count"]
+        self._oids = [None] * (args["count"] & 0xFF)
 
     def _cmd_finalize_config(self, args: dict) -> None:
         if self._finalized:
@@ -331,17 +407,18 @@ class KlipperMcu:
 
     # -- src/adccmds.c ---------------------------------------------------------------------------------
     def _cmd_config_analog_in(self, args: dict) -> None:
-        pin = d.pin_name(args["pin"])
+        pin = d.pin_name(args["pin"] & 0xFF)  # gpio_adc_setup(uint8_t pin)
         if pin not in d.ADC_PINS:
             raise Shutdown(d.NOT_ADC_PIN)
-        self._alloc(args["oid"], _AnalogIn(args["oid"], pin))
+        self._alloc(args["oid"], _AnalogIn(args["oid"] & 0xFF, pin))
 
     def _cmd_query_analog_in(self, args: dict) -> None:
         a = self._lookup(args["oid"], _AnalogIn)
         a.timer += 1  # sched_del_timer
         a.next_begin = self.world_clock(args["clock"])
-        a.sample_ticks, a.sample_count, a.rest_ticks = args["sample_ticks"], args["sample_count"], args["rest_ticks"]
-        a.min_value, a.max_value, a.range_check_count = args["min_value"], args["max_value"], args["range_check_count"]
+        a.sample_ticks, a.sample_count, a.rest_ticks = args["sample_ticks"], args["sample_count"] & 0xFF, args["rest_ticks"]
+        a.min_value, a.max_value = args["min_value"] & 0xFFFF, args["max_value"] & 0xFFFF
+        a.range_check_count = args["range_check_count"] & 0xFF
         a.state = a.value = 0
         if a.sample_count:
             self._schedule(a.next_begin, self._analog_event, a)
@@ -351,7 +428,7 @@ class KlipperMcu:
         if version != a.timer:
             return
         sample = self.board.adc(a.pin, self.now)
-        a.value = sample if a.state == 0 else a.value + sample
+        a.value = (sample if a.state == 0 else a.value + sample) & 0xFFFF  # uint16_t value
         a.state += 1
         if a.state < a.sample_count:
             self._add_timer(self.now + a.sample_ticks, self._analog_event, a)
@@ -365,12 +442,16 @@ class KlipperMcu:
                 a.invalid_count = 0
                 raise Shutdown(d.ADC_OUT_OF_RANGE)
         a.next_begin += a.rest_ticks
+        if a.next_begin <= self.now:  # a real MCU falls further behind each group until it gives up
+            if self._shutdown:
+                return  # (it would spin on, sampling: the twin stops instead)
+            raise Shutdown(d.RESCHEDULED_IN_PAST)
         self._add_timer(a.next_begin, self._analog_event, a)
-        self._send("analog_in_state", oid=a.oid, next_clock=self.mcu_clock(a.next_begin), value=a.value & 0xFFFF)
+        self._send("analog_in_state", oid=a.oid, next_clock=self.mcu_clock(a.next_begin), value=a.value)
 
     # -- src/gpiocmds.c -------------------------------------------------------------------------------
     def _cmd_config_digital_out(self, args: dict) -> None:
-        pin = d.pin_name(args["pin"])
+        pin = _output_pin(args["pin"])
         self._alloc(args["oid"], _DigitalOut(args["oid"], pin, bool(args["default_value"]), args["max_duration"]))
         self.board.drive(pin, self.now, int(bool(args["value"])), 1)
 
@@ -388,6 +469,7 @@ class KlipperMcu:
         out.queue.append((clock, value))
         if len(out.queue) > 1:
             return
+        self._forgive(out)
         if out.end_time is not None and out.end_time < clock:
             raise Shutdown(exceeds)
         out.end_time = clock if isinstance(out, _DigitalOut) else None
@@ -402,8 +484,7 @@ class KlipperMcu:
         if version != out.timer:
             return
         if not out.queue:
-            self._deadline_missed(d.MISSED_DIGITAL_OUT)
-            out.end_time = None
+            self._deadline_missed(out, d.MISSED_DIGITAL_OUT)
             return
         _, on_ticks = out.queue.popleft()
         self._moves_used -= 1
@@ -428,7 +509,8 @@ class KlipperMcu:
         out.timer += 1
         if out.queue:
             raise Shutdown(d.UPDATE_WITH_QUEUE)
-        value = bool(args["value"])
+        self._forgive(out)
+        value = bool(args["value"] & 0xFF)
         self.board.drive(out.pin, self.now, int(value), 1)
         out.end_time = None
         if value != out.default_on and out.max_duration:
@@ -436,24 +518,23 @@ class KlipperMcu:
             self._add_timer(out.end_time, self._digital_load, out)
 
     def _cmd_set_digital_out(self, args: dict) -> None:
-        self.board.drive(d.pin_name(args["pin"]), self.now, int(bool(args["value"])), 1)
+        self.board.drive(_output_pin(args["pin"]), self.now, int(bool(args["value"] & 0xFF)), 1)
 
     # -- src/pwmcmds.c ----------------------------------------------------------------------------------
     def _cmd_config_pwm_out(self, args: dict) -> None:
-        pin = d.pin_name(args["pin"])
-        self._alloc(args["oid"], _PwmOut(args["oid"], pin, args["default_value"], args["max_duration"]))
-        self.board.drive(pin, self.now, args["value"], d.PWM_MAX)
+        pin = _output_pin(args["pin"], d.NOT_PWM_PIN)
+        self._alloc(args["oid"], _PwmOut(args["oid"] & 0xFF, pin, args["default_value"] & 0xFFFF, args["max_duration"]))
+        self.board.drive(pin, self.now, args["value"] & 0xFFFF, d.PWM_MAX)
 
     def _cmd_queue_pwm_out(self, args: dict) -> None:
         out = self._lookup(args["oid"], _PwmOut)
-        self._queue(out, args["clock"], args["value"], d.PWM_EXCEEDS, self._pwm_event)
+        self._queue(out, args["clock"], args["value"] & 0xFFFF, d.PWM_EXCEEDS, self._pwm_event)
 
     def _pwm_event(self, out: _PwmOut, version: int) -> None:
         if version != out.timer:
             return
         if not out.queue:  # pwm_end_event
-            self._deadline_missed(d.MISSED_PWM)
-            out.end_time = None
+            self._deadline_missed(out, d.MISSED_PWM)
             return
         _, value = out.queue.popleft()
         self._moves_used -= 1
@@ -470,4 +551,13 @@ class KlipperMcu:
             self._add_timer(out.end_time, self._pwm_event, out)
 
     def _cmd_set_pwm_out(self, args: dict) -> None:
-        self.board.drive(d.pin_name(args["pin"]), self.now, args["value"], d.PWM_MAX)
+        self.board.drive(_output_pin(args["pin"], d.NOT_PWM_PIN), self.now, args["value"] & 0xFFFF, d.PWM_MAX)
+
+
+def _output_pin(number: int, reason: str = d.NOT_OUTPUT_PIN) -> str:
+    """gpio_out_setup(uint8_t pin) (gpio_pwm_setup: ``reason`` "Not a valid PWM pin"): the pin's
+    name, or that shutdown for a number past the board's ports (src/avr/gpio.c, hard_pwm.c)."""
+    number &= 0xFF
+    if number >= len(d.PORTS) * 8:
+        raise Shutdown(reason)
+    return d.pin_name(number)

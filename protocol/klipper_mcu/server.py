@@ -1,47 +1,58 @@
 """The twin MCU on a pseudo-terminal, its clock paced by the wall clock.
 
-The MCU's clock runs at ``speed`` x real time: ``CLOCK_FREQ * speed`` ticks per wall second. The
-loop sleeps until the MCU's next timer or the host's next bytes, then runs the MCU up to the
-clock the wall says it is now; each timer still runs at its own clock (mcu.py). As a USB board,
-the MCU is not reset when a host opens the port (klippy resets it with the ``reset`` command);
-output nobody holds the port for is dropped, as a USB link down loses it.
+The MCU's clock runs at ``speed`` x real time: ``CLOCK_FREQ * speed`` ticks per wall second,
+counted from the moment the pty was made. A reader thread stamps the host's bytes with the wall
+clock as they arrive, and the MCU takes each chunk at its stamp: a stall of the serving loop (or
+of the heavy imports before it starts) is not a late host. The loop sleeps until the MCU's next
+timer or the host's next bytes, then runs the MCU up to the clock the wall says it is now; each
+timer still runs at its own clock (mcu.py). As a USB board, the MCU is not reset when a host
+opens the port (klippy resets it with the ``reset`` command); output nobody holds the port for
+is dropped, as a USB link down loses it.
+
+The pty exists from construction (``path``, ``link``); the MCU comes later, to ``serve_forever``:
+a server can print its port before it imports the twin, and a host that opens it meanwhile has
+its bytes kept, stamped.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import select
+import threading
 import time
+from collections import deque
 from collections.abc import Callable
 
 from protocol.klipper_mcu.dictionary import CLOCK_FREQ
 from protocol.klipper_mcu.mcu import KlipperMcu
-from protocol.pty_server import Pty
-from protocol.server import poll_ms
+from protocol.pty import Pty
 
 MAX_WAIT_S = 0.5  # the loop looks at the wall at least this often, even with no timer pending
+FLUSH_WAIT_S = 0.005  # output the pty did not take yet is retried this often
+READ_POLL_MS = 100  # the reader looks for close() this often
 
 
 class McuServer:
-    """One MCU on a pty (``path``, and ``link`` if given); ``serve_forever`` until interrupted."""
+    """One MCU on a pty (``path``, and ``link`` if given); ``serve_forever(mcu)`` until interrupted."""
 
-    def __init__(self, mcu: KlipperMcu, speed: float = 1.0, *, link: str | None = None,
-                 clock: Callable[[], float] = time.monotonic):
+    def __init__(self, speed: float = 1.0, *, link: str | None = None, clock: Callable[[], float] = time.monotonic):
         if not speed > 0:
             raise ValueError(f"speed must be above 0, not {speed!r}")
-        self.mcu, self.speed, self.clock = mcu, speed, clock
-        self._start_s = clock()
+        self.speed, self.clock = speed, clock
         self._pty = Pty(link)
+        self._start_s = clock()
         self.path, self.link = self._pty.path, self._pty.link
-        self._master = self._pty.master
-        self._watch = self._pty.watch
-        self._poller = select.poll()
-        self._poller.register(self._watch.fd, select.POLLIN)
+        self._arrived = threading.Condition()
+        self._events: deque[tuple[int, bytes | int]] = deque()  # (world clock, bytes or a change of holders)
         self._holders = 0
         self._unsent = bytearray()
+        self._closing = threading.Event()
+        self._reader = threading.Thread(target=self._read_loop, name="twin-mcu-reader", daemon=True)
+        self._reader.start()
 
     def __repr__(self) -> str:
-        return f"McuServer({self.address}, speed {self.speed:g}, {self.mcu!r})"
+        return f"McuServer({self.address}, speed {self.speed:g}, {self._holders} holders)"
 
     @property
     def address(self) -> str:
@@ -51,39 +62,39 @@ class McuServer:
         """The MCU world clock the wall says it is now."""
         return int((self.clock() - self._start_s) * self.speed * CLOCK_FREQ)
 
-    def serve_forever(self) -> None:
+    def serve_forever(self, mcu: KlipperMcu) -> None:
         while True:
-            self.serve_once()
+            self.serve_once(mcu)
 
-    def serve_once(self) -> None:
-        """Run the MCU to now, send its output, then wait for its next timer or the host."""
-        now = self.world_clock()
-        self.mcu.run_until(now)
-        output = self.mcu.take_output()
+    def serve_once(self, mcu: KlipperMcu) -> None:
+        """Wait for the MCU's next timer or the host; then the host's bytes at their stamps, the
+        MCU's timers up to now, and its output to the host."""
+        due = mcu.next_timer()
+        wait_s = MAX_WAIT_S if due is None else (due - self.world_clock()) / (CLOCK_FREQ * self.speed)
+        if self._unsent and self._holders:
+            wait_s = min(wait_s, FLUSH_WAIT_S)
+        with self._arrived:
+            if not self._events and wait_s > 0:
+                self._arrived.wait(min(wait_s, MAX_WAIT_S))
+            events = list(self._events)
+            self._events.clear()
+            now = self.world_clock()  # under the lock: every chunk stamped before now is in events
+        for clock, item in events:
+            if isinstance(item, int):
+                self._holders += item
+                if not self._holders:
+                    self._unsent.clear()
+            else:
+                mcu.receive(item, clock)
+        mcu.run_until(now)
+        output = mcu.take_output()
         if self._holders:
             self._unsent += output
             self._flush()
-        due = self.mcu.next_timer()
-        wait_s = MAX_WAIT_S if due is None else min(MAX_WAIT_S, (due - now) / (CLOCK_FREQ * self.speed))
-        if self._holders:
-            self._poller.modify(self._master, select.POLLIN | (select.POLLOUT if self._unsent else 0))
-        events = dict(self._poller.poll(poll_ms(wait_s)))
-        if self._watch.fd in events:
-            for change in self._watch.changes():
-                self._holders += change
-                if change > 0 and self._holders == 1:
-                    self._poller.register(self._master, select.POLLIN)
-                elif change < 0 and self._holders == 0:
-                    self._read()
-                    self._poller.unregister(self._master)
-                    self._unsent.clear()
-        revents = events.get(self._master, 0) if self._holders else 0
-        if revents & select.POLLOUT:
-            self._flush()
-        if revents & (select.POLLIN | select.POLLHUP | select.POLLERR):
-            self._read()
 
     def close(self) -> None:
+        self._closing.set()
+        self._reader.join()
         self._pty.close()
 
     def __enter__(self) -> McuServer:
@@ -92,17 +103,42 @@ class McuServer:
     def __exit__(self, *exc_info) -> None:
         self.close()
 
-    def _read(self) -> None:
+    def _push(self, item: bytes | int) -> None:
+        with self._arrived:
+            self._events.append((self.world_clock(), item))
+            self._arrived.notify()
+
+    def _read_loop(self) -> None:
+        """The reader thread: who holds the port, and what the host sends, each stamped as it comes."""
+        watch, master = self._pty.watch, self._pty.master
+        poller = select.poll()
+        poller.register(watch.fd, select.POLLIN)
+        holders = 0
+        while not self._closing.is_set():
+            events = dict(poller.poll(READ_POLL_MS))
+            if watch.fd in events:  # first: after a close and a reopen, the data is the new host's
+                for change in watch.changes():
+                    holders += change
+                    if change > 0 and holders == 1:
+                        poller.register(master, select.POLLIN)
+                    elif change < 0 and holders == 0:
+                        self._read_chunks()  # the last bytes it sent are still there
+                        poller.unregister(master)
+                    self._push(change)
+            elif holders and events.get(master, 0) & (select.POLLIN | select.POLLHUP | select.POLLERR):
+                self._read_chunks()
+
+    def _read_chunks(self) -> None:
         for data in self._pty.chunks():
-            self.mcu.receive(data, self.world_clock())
-            self._unsent += self.mcu.take_output()
-            self._flush()
+            self._push(data)
 
     def _flush(self) -> None:
-        if not self._unsent or not self._holders:
-            return
         try:
-            written = os.write(self._master, self._unsent)
+            written = os.write(self._pty.master, self._unsent)
         except BlockingIOError:
-            return
+            return  # the pty is full: retried soon
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                return  # nobody holds the port any more (the reader will say so)
+            raise
         del self._unsent[:written]

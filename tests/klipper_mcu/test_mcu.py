@@ -89,25 +89,41 @@ def test_a_late_event_is_timer_too_close_only_when_strict(strict):
     if strict:
         assert host.named("shutdown") == [{"clock": 2 * S, "static_string_id": reason_id(host, TIMER_TOO_CLOSE)}]
     else:
-        assert not host.named("shutdown") and host.mcu.late_events == 1
+        assert not host.named("shutdown") and host.mcu.lateness.late_events == 1
+        assert host.mcu.lateness.max_late_clocks == S
         host.run(2 * S + TICK_CLOCKS)
         # applied as early as the plants allow: they had not run, so from its own clock
         assert host.board.heaters["hotend"].pin.fractions(S // TICK_CLOCKS + 1, 1)[0] == 1.0
 
 
 @pytest.mark.parametrize("strict", [True, False])
-def test_max_duration(strict):
+def test_a_heater_left_on_goes_off_at_max_duration_in_either_mode(strict):
     host = TestHost(strict=strict)
     host.configure(max_duration_s=5.0)
     host.send(0, f"queue_digital_out oid=1 clock={S} on_ticks={S // 10}")  # full on from 1 s, then nothing
-    host.run(7 * S)
-    if strict:
-        shutdown = host.named("shutdown")
-        assert shutdown == [{"clock": 6 * S, "static_string_id": reason_id(host, "Missed scheduling of next "
-                                                                                  "digital out event")}]
-        assert host.board.heaters["hotend"].pin.fractions(6 * S // TICK_CLOCKS + 1, 10).max() == 0.0
-    else:
-        assert not host.named("shutdown") and host.mcu.missed_deadlines == 1
+    host.run(6 * S + host.mcu.grace_clocks + 1)
+    missed = reason_id(host, "Missed scheduling of next digital out event")
+    shut_at = 6 * S if strict else 6 * S + host.mcu.grace_clocks  # lenient waits for a late event first
+    assert host.named("shutdown") == [{"clock": shut_at, "static_string_id": missed}]
+    pin = host.board.heaters["hotend"].pin
+    assert pin.fractions(6 * S // TICK_CLOCKS - 10, 10).min() == 1.0  # on until max_duration ...
+    assert pin.fractions(6 * S // TICK_CLOCKS + 1, 100).max() == 0.0  # ... and off from there in either mode
+    assert host.mcu.lateness.forgiven_deadlines == 0
+
+
+def test_lenient_forgives_an_event_that_comes_late_after_max_duration():
+    host = TestHost()
+    host.configure(max_duration_s=5.0)
+    host.send(0, f"queue_digital_out oid=1 clock={S} on_ticks={S // 10}")
+    late = 6 * S + host.mcu.grace_clocks // 2  # within the grace; it was meant for 5.9 s
+    host.send(late, f"queue_digital_out oid=1 clock={59 * S // 10} on_ticks={S // 10}")
+    host.run(late + host.mcu.grace_clocks)
+    assert not host.named("shutdown")
+    lateness = host.mcu.lateness
+    assert (lateness.forgiven_deadlines, lateness.max_overdue_clocks, lateness.late_events) == (1, late - 6 * S, 1)
+    pin = host.board.heaters["hotend"].pin
+    assert pin.fractions(late // TICK_CLOCKS + 1, 10).min() == 1.0  # on again
+    assert "1 max_duration misses forgiven" in lateness.line()
 
 
 def test_an_event_beyond_max_duration_shuts_down_in_either_mode():

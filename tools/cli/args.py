@@ -5,52 +5,13 @@ ranges themselves are twin/limits.py's; the one-line parser is tools/entry.py's 
 from __future__ import annotations
 
 import argparse
-import math
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from tools.cli.numbers import finite_float, ranged_float, ranged_int  # noqa: F401  (re-exported to the CLIs)
 from tools.validation.doc_compare import replace_section
 from twin.limits import SEED_MAX, UserError, check_regular_file
-
-
-def finite_float(text: str) -> float:
-    """A finite number (not nan, not inf)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, not {text!r}")
-    return value
-
-
-def ranged_float(low: float, high: float, unit: str) -> Callable[[str], float]:
-    """An argparse type: a finite number within low..high (unit, if any, for the message)."""
-
-    def parse(text: str) -> float:
-        value = finite_float(text)
-        if not low <= value <= high:
-            suffix = f" {unit}" if unit else ""
-            raise argparse.ArgumentTypeError(f"{value:g}{suffix} is outside {low:g}..{high:g}{suffix}")
-        return value
-
-    return parse
-
-
-def ranged_int(low: int, high: int) -> Callable[[str], int]:
-    """An argparse type: a whole number within low..high."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, not {text!r}") from None
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"{value} is outside {low}..{high}")
-        return value
-
-    return parse
 
 
 seed_int = ranged_int(0, SEED_MAX)  # a random seed, as numpy's SeedSequence takes it

@@ -13,49 +13,50 @@ import signal
 import sys
 import textwrap
 
-from firmware_port.thermistor import KLIPPER_SENSORS
-from protocol.build import serial_scenario
-from protocol.klipper_mcu.board import DEFAULT_SENSOR, TwinBoard
-from protocol.klipper_mcu.dictionary import build_dictionary
+from protocol.klipper_mcu.dictionary import CLOCK_FREQ, DEFAULT_SENSOR, build_dictionary
 from protocol.klipper_mcu.mcu import KlipperMcu
-from protocol.klipper_mcu.printer_cfg import printer_cfg
 from protocol.klipper_mcu.server import McuServer
-from tools.cli.args import ranged_float
+from tools.cli.numbers import ranged_float
 from tools.entry import OneLineParser, run_main
 from twin.limits import UserError
-from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import ScenarioError
 
 VERSION = "heater-twin-0.1.0"
 LIBFAKETIME = "/usr/lib/x86_64-linux-gnu/faketime/libfaketimeMT.so.1"  # Debian's libfaketime package
 MAX_SPEED = 50.0  # beyond this klippy cannot configure the MCU at all ("Timer too close" at 50x)
+LENIENT_GRACE_S = 0.5  # lenient mode: wall seconds a late event may come after a missed max_duration
 
 EXAMPLES = """examples:
-  twin-klipper-mcu --link /tmp/twin-mcu > printer.cfg    the port, then the config; klippy: serial /tmp/twin-mcu
-  twin-klipper-mcu --speed 10 --link /tmp/twin-mcu       10 x real time: run klippy under libfaketime at x10
-  twin-klipper-mcu --scenario thermistor_falls_out       the twin's faults, at the scenario's times
+  twin-klipper-mcu --link "$XDG_RUNTIME_DIR/twin-mcu" > printer.cfg   the port, then the config
+  twin-klipper-mcu --speed 10 --link "$XDG_RUNTIME_DIR/twin-mcu"      10 x real time: klippy under libfaketime x10
+  twin-klipper-mcu --scenario thermistor_falls_out                    the twin's faults, at the scenario's times
 """
 
 
 def build_parser() -> OneLineParser:
+    """The options; the plant and sensor names are checked after the twin is imported (``check_names``),
+    so that --help and the port come before that import."""
     parser = OneLineParser(
         prog="twin-klipper-mcu", description=__doc__.split("\n\n")[0].replace("\n", " "),
         epilog=EXAMPLES + "\n" + textwrap.fill(
             "clock: the MCU's clock runs at --speed x real time. Above 1, start klippy under libfaketime at the "
             f"same factor (LD_PRELOAD={LIBFAKETIME} FAKETIME='+0 xS') so that its own timers (verify_heater, "
             "waits, idle timeout) keep pace; past about 10-20 x klippy cannot answer a reading in time. "
-            "--strict shuts the MCU down on an event the host scheduled too late ('Timer too close') or a "
-            "heater left without a next value past max_duration, as a real MCU does; by default such "
-            "lateness is counted and the event applied as early as the plants allow. The scenario's setpoints "
-            "and gains are ignored: klippy sets them. plants: " + ", ".join(PLANT_PRESETS) + ".", width=100))
-    parser.add_argument("--plant", choices=list(PLANT_PRESETS), help="hotend plant preset (default hotend_stock)")
-    parser.add_argument("--bed-plant", choices=list(PLANT_PRESETS), help="bed plant preset (default bed)")
+            "safety: a heater left on past its max_duration (klippy: 5 s) goes off then in every mode. "
+            "--strict also shuts the MCU down then, and on an event the host scheduled too late ('Timer too "
+            "close'), as a real MCU does; by default (lenient) a late event is applied as early as the plants "
+            f"allow, one that comes within {LENIENT_GRACE_S:g} s of wall time after a missed max_duration is "
+            "forgiven, none is the same shutdown; lateness is counted on stderr. The scenario's setpoints "
+            "and gains are ignored: klippy sets them. plants: twin/plants.py's presets (a wrong name lists them).",
+            width=100))
+    parser.add_argument("--plant", metavar="NAME", help="hotend plant preset (default hotend_stock)")
+    parser.add_argument("--bed-plant", metavar="NAME", help="bed plant preset (default bed)")
     parser.add_argument("--no-bed", action="store_true", help="a board with a hotend only")
     parser.add_argument("--scenario", metavar="NAME|FILE", help="scenario preset or TOML file: faults, ambient, "
                         "plant overrides, at world times from the MCU's start")
-    parser.add_argument("--sensor-type", choices=list(KLIPPER_SENSORS), default=DEFAULT_SENSOR, metavar="NAME",
-                        help=f"the thermistors on the board, a Klipper sensor_type: {', '.join(KLIPPER_SENSORS)} "
-                             f"(default {DEFAULT_SENSOR})")
+    parser.add_argument("--sensor-type", default=DEFAULT_SENSOR, metavar="NAME",
+                        help=f"the thermistors on the board, a Klipper sensor_type the twin knows (default {DEFAULT_SENSOR}; "
+                             "a wrong name lists them)")
     parser.add_argument("--noise-lsb", type=ranged_float(0.0, 100.0, "LSB"), default=0.0,
                         help="Gaussian noise of each ADC conversion in LSB (default %(default)s)")
     parser.add_argument("--speed", type=ranged_float(0.01, MAX_SPEED, "x real time"), default=1.0,
@@ -66,25 +67,53 @@ def build_parser() -> OneLineParser:
     return parser
 
 
-def build_board(args: argparse.Namespace) -> TwinBoard:
+def check_names(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """argparse's own one-line error for a plant or sensor name the twin lacks (after its import)."""
+    from firmware_port.thermistor import KLIPPER_SENSORS
+    from twin.plants import PRESETS as PLANT_PRESETS
+
+    for option, value, names in (("--plant", args.plant, PLANT_PRESETS), ("--bed-plant", args.bed_plant, PLANT_PRESETS),
+                                 ("--sensor-type", args.sensor_type, KLIPPER_SENSORS)):
+        if value is not None and value not in names:
+            choices = ", ".join(repr(name) for name in names)
+            parser.error(f"argument {option}: invalid choice: {value!r} (choose from {choices})")
+
+
+def build_board(args: argparse.Namespace):
+    """The twin's board (the heavy import: numpy, the plants, the thermistor tables)."""
+    from protocol.build import serial_scenario
+    from protocol.klipper_mcu.board import TwinBoard
+
     scenario = serial_scenario(args.scenario, args.plant, args.bed_plant)
     heaters = ("hotend",) if args.no_bed else ("hotend", "bed")
     return TwinBoard(scenario, heaters, sensor_type=args.sensor_type, noise_lsb=args.noise_lsb)
 
 
-def run(args: argparse.Namespace) -> int:
-    board = build_board(args)
+def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     if args.print_config:
-        print(printer_cfg(args.link or "/tmp/twin-mcu", board))
+        check_names(parser, args)
+        from protocol.klipper_mcu.printer_cfg import printer_cfg
+
+        print(printer_cfg(args.link or "/tmp/twin-mcu", build_board(args)))
         return 0
-    mcu = KlipperMcu(board, build_dictionary(VERSION), strict=args.strict)
-    with McuServer(mcu, args.speed, link=args.link) as server:
-        print(server.address, flush=True)
+    sys.setswitchinterval(0.001)  # the reader thread stamps bytes within a millisecond of their arrival
+    with McuServer(args.speed, link=args.link) as server:
+        print(server.address, flush=True)  # before the twin's import: the port is there for klippy at once
+        check_names(parser, args)
+        from protocol.klipper_mcu.printer_cfg import printer_cfg
+
+        board = build_board(args)
+        grace_clocks = round(LENIENT_GRACE_S * args.speed * CLOCK_FREQ)
+        mcu = KlipperMcu(board, build_dictionary(VERSION), strict=args.strict, grace_clocks=grace_clocks)
         print(printer_cfg(server.address, board), flush=True)
         mode = "strict" if args.strict else "lenient"
         print(f"twin-klipper-mcu: {server.address}, speed {args.speed:g}, {mode} timing; Ctrl-C stops",
               file=sys.stderr, flush=True)
-        server.serve_forever()
+        try:
+            server.serve_forever(mcu)
+        finally:
+            if not args.strict:
+                print(f"twin-klipper-mcu: {mcu.lateness.line()}", file=sys.stderr, flush=True)
     return 0
 
 
@@ -95,9 +124,10 @@ def _stop(signum: int, frame) -> None:
 def main(argv: list[str] | None = None) -> int:
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, _stop)
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     logging.basicConfig(format="twin-klipper-mcu: %(levelname)s: %(message)s", stream=sys.stderr)
-    return run_main("twin-klipper-mcu", lambda: run(args), errors=(ScenarioError, UserError))
+    return run_main("twin-klipper-mcu", lambda: run(parser, args), errors=(ScenarioError, UserError))
 
 
 if __name__ == "__main__":

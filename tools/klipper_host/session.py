@@ -135,6 +135,16 @@ class KlipperSession:
     def klippy_log(self) -> str:
         return self.log_path.read_text() if self.log_path.exists() else ""
 
+    def mcu_stderr(self) -> str:
+        """What twin-klipper-mcu logged: its start line, shutdowns, lenient lateness."""
+        return (self.workdir / "mcu.err").read_text()
+
+    def kill_klippy(self) -> None:
+        """kill -9 klippy (a host that dies), leaving the MCU running."""
+        klippy = self._processes[1]
+        klippy.kill()
+        klippy.wait()
+
     def close(self) -> None:
         api = getattr(self, "api", None)
         if api is not None:

@@ -35,6 +35,12 @@ def test_beta_divider_matches_marlin_type_11_check_values(temp_c, adc10):
     assert round(DIVIDER.adc_exact(temp_c), 1) == adc10
 
 
+def test_the_stored_table_is_the_one_generate_builds():
+    # firmware_port/thermistor.py keeps B3950_TABLE as constants (start-up time); they must be what the
+    # generator gives for the default divider and tolerance, row for row
+    assert TempTable.generate() == B3950_TABLE
+
+
 def test_table_is_strictly_monotone_and_fits_int16():
     t = B3950_TABLE
     assert all(a < b for a, b in zip(t.raw, t.raw[1:]))

@@ -69,13 +69,12 @@ from twin.engine import FAN_SPEED_MAX, m104_target
 from twin.engine_protocol import LaneHeater, Runs, Trip, each_plant
 from twin.lane_noise import draw, noise_levels, seed_streams
 from twin.lane_tables import MAX_SAMPLES, Tables, bin_tables, block_bin, linear_tables
-from twin.limits import DURATION_MAX_S, TARGET_RANGE_C, check_trace_bytes, checked
+from twin.limits import DURATION_MAX_S, TARGET_RANGE_C, THREADS_ENV, check_trace_bytes, checked
 from twin.linear import BLOCK
 from twin.result import RunResult
 from twin.sensor import SensorChain
 from twin.streaming import ScoreSpec, ScoreTotals
 
-THREADS_ENV = "HEATER_TWIN_THREADS"
 MIN_LANES_PER_THREAD = 4  # fewer lanes than this per thread run on the calling thread
 BIN_MARGIN = 40  # radiating plants: bins (of 0.5 C) built beyond the ones the lanes need, each way
 TARGET_HEADROOM_C = 20.0  # radiating plants: bins built up front to this far above the target (the block leads)

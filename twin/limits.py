@@ -29,6 +29,7 @@ SEED_MAX = 2**63 - 1  # a lane's seed is an int64 (twin/lane_noise.py)
 # A run's records in memory: beyond this a run is refused rather than let grow until the machine
 # swaps; record fewer rows (``record_every_s``, twin-sim --record-every) or none (``record=False``).
 TRACE_MAX_BYTES = 2**31
+THREADS_ENV = "HEATER_TWIN_THREADS"  # how many threads a batch spreads its lanes over (twin/batch.py)
 
 
 class UserError(ValueError):

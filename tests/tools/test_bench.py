@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from tools import bench
+from tools import bench, benchmarks
 
 PAGE = "# page\n\nbefore\n\n<!-- bench twin: begin (how) -->\nold block\n<!-- bench twin: end -->\n\nafter\n"
 
@@ -52,7 +52,7 @@ def test_a_page_without_the_section_is_refused_before_any_work(tmp_path, capsys,
 
 
 def test_twin_tune_runs_the_default_tune_then_every_capture_on_each_heater(hardware_logs):
-    cases = bench.twin_tune_cases(None)
+    cases = benchmarks.twin_tune_cases(None)
     assert cases[0] == (["--plant", "hotend_cartridge", "--target", "210"], 15.0)
     m303 = sorted(hardware_logs.glob("m303_*.txt"))
     klippy = sorted(hardware_logs.glob("klippy_stats_*.csv"))
@@ -61,19 +61,19 @@ def test_twin_tune_runs_the_default_tune_then_every_capture_on_each_heater(hardw
         ["--from-log", str(path), "--heater", heater] for path in klippy for heater in ("extruder", "heater_bed")])
     assert sorted(args for args, _ in cases[1:]) == expected
     assert {target for _, target in cases[1:]} == {30.0}
-    assert bench.twin_tune_cases("m303_bed_*.txt")[1:] == [
+    assert benchmarks.twin_tune_cases("m303_bed_*.txt")[1:] == [
         (["--from-log", str(path)], 30.0) for path in sorted(hardware_logs.glob("m303_bed_*.txt"))]
 
 
 def test_the_verdict_is_twin_tunes_answer_else_its_error(tmp_path):
     answer = tmp_path / "answer.json"
-    assert bench._verdict(answer, "progress\ntwin-tune: error: --from-log x: no such file\n") == \
+    assert benchmarks._verdict(answer, "progress\ntwin-tune: error: --from-log x: no such file\n") == \
         "twin-tune: error: --from-log x: no such file"
     answer.write_text(json.dumps({"verdict": "new gains", "answer": {"kp": 12.3456, "ki": 0.3, "kd": 70.06},
                                   "why": "trips 4 -> 0"}))
-    assert bench._verdict(answer, "") == "new gains Kp 12.35 Ki 0.3 Kd 70.06: trips 4 -> 0"
+    assert benchmarks._verdict(answer, "") == "new gains Kp 12.35 Ki 0.3 Kd 70.06: trips 4 -> 0"
     answer.write_text(json.dumps({"verdict": "keep your gains", "answer": None, "why": "nothing beats them"}))
-    assert bench._verdict(answer, "") == "keep your gains: nothing beats them"
+    assert benchmarks._verdict(answer, "") == "keep your gains: nothing beats them"
 
 
 @pytest.mark.slow
@@ -96,7 +96,7 @@ def test_twin_tune_bench_runs_the_command(hardware_logs, capsys):
 
 
 def test_startup_reports_each_commands_help_and_twin_serials_link(monkeypatch, capsys):
-    monkeypatch.setattr(bench, "STARTUP_COMMANDS", {"twin-sim": "tools.cli.sim", "tools.seeds": "tools.seeds"})
+    monkeypatch.setattr(benchmarks, "STARTUP_COMMANDS", {"twin-sim": "tools.cli.sim", "tools.seeds": "tools.seeds"})
     assert bench.main(["startup", "--runs", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].endswith("python -m tools.bench startup --runs 1")

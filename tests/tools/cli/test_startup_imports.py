@@ -15,10 +15,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[3]
 HEAVY = ("numba", "scipy", "matplotlib", "dask")
 LIGHT = ["tools.cli.sim", "tools.cli.serial", "tools.cli.klipper_mcu", "tools.cli.fit", "tools.cli.compare",
-         "tools.cli.firmware_report", "tools.seeds"]
-# Still heavy at start-up: their parsers read the tuning layer's constants (tools/tuning/evaluate.py imports
-# twin.batch, whose kernel imports numba, and scipy); tools/bench.py imports its cases' libraries at the top.
-STILL_HEAVY = ["tools.cli.tune", "tools.bench"]
+         "tools.cli.firmware_report", "tools.seeds", "tools.bench"]
+# Still heavy at start-up: its parser reads the tuning layer's constants (tools/tuning/evaluate.py imports
+# twin.batch, whose kernel imports numba, and scipy).
+STILL_HEAVY = ["tools.cli.tune"]
 HELP = """
 import json, runpy, sys
 sys.argv = [{module!r}, "--help"]

@@ -110,7 +110,8 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET,
                         help=f"the tune's optimiser evaluations, as twin-tune's --budget (default: {DEFAULT_BUDGET})")
     parser.add_argument("--proof", type=int, default=PROOF_SEEDS, metavar="SEEDS",
-                        help=f"noise seeds of the proof on every plant, as twin-tune's --proof (default: {PROOF_SEEDS})")
+                        help=f"noise seeds of the proof on every plant, as twin-tune's --proof "
+                             f"(default: {PROOF_SEEDS})")
     parser.add_argument("--fit-only", action="store_true",
                         help="the fit alone: no other structures, profiles or replays, no gains (fast)")
     parser.add_argument("--loss", choices=LOSSES, default="linear",
@@ -323,14 +324,16 @@ def _answer(args: argparse.Namespace, log: Log, allowed: Allowed, reason: str | 
         source = allowed_source(log, allowed, _options(args, None))
     except NoModel as exc:
         status, verdict = no_model_lines(exc, exc.printer)
-        _print_wrapped(settings + verdict)
+        _print_wrapped(settings)
+        print("\n".join(verdict))  # as twin-tune prints them
         if status == EXIT_NO_MODEL:
             print(f"twin-fit: {exc}", file=sys.stderr)
         return status
     problem = build_problem(source, args.target)
     _, proof = default_tune(problem, source.printer, args.budget, args.proof, Steps("bar"))
     status, verdict = verdict_lines(problem, proof, source.is_bed, source.printer)
-    _print_wrapped(settings + verdict)
+    _print_wrapped(settings)
+    print("\n".join(verdict))  # as twin-tune prints them
     return status
 
 

@@ -33,8 +33,26 @@ from tools.ident.log_fit import LogFitOptions
 from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
 from firmware_port.firmwares import KALICO_MPC
 from tools.tuning.evaluate import LOOPS, Candidate, Problem
-from tools.tuning.answer import EXIT_ANSWER, EXIT_CODES, EXIT_NO_MODEL, no_model_lines, settings_lines, verdict_lines
-from tools.tuning.problems import BED_TARGET_C, HOTEND_TARGET_C, NoModel, Source, build_problem, log_source, preset_source
+from tools.tuning.answer import (
+    CANNOT_MODEL,
+    EXIT_ANSWER,
+    EXIT_CODES,
+    EXIT_NO_MODEL,
+    no_model_lines,
+    settings_lines,
+    verdict_lines,
+)
+from tools.tuning.gains import Gains
+from tools.tuning.verdict import KEEP
+from tools.tuning.problems import (
+    BED_TARGET_C,
+    HOTEND_TARGET_C,
+    NoModel,
+    Source,
+    build_problem,
+    log_source,
+    preset_source,
+)
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, heater_terms
 from tools.tuning.proof import CROSS_CHECK_S, PROOF_SEEDS, ProofRow
 from tools.tuning.reference import PrinterGains, parse_gains
@@ -330,10 +348,13 @@ def run(args: argparse.Namespace) -> int:
         plant = source(args, steps)
     except NoModel as exc:  # the log reads and fits, but no plant replays it: a verdict without a model
         print("\n".join(exc.allowed.lines()))
-        status, lines = no_model_lines(exc, given_gains(args) or exc.printer)
+        printer = given_gains(args) or exc.printer
+        status, lines = no_model_lines(exc, printer)
         print("\n".join(lines))
         if status == EXIT_NO_MODEL:
             print(f"twin-tune: {exc}", file=sys.stderr)
+        if args.json:
+            write_no_model_json(Path(args.json), exc, printer)
         return status
     printer = yours(args, plant)
     problems = [make_problem(args, plant, loop, name) for name in args.controller.split(",") for loop in loops]
@@ -411,6 +432,7 @@ def write_json(path: Path, outcome: tuple[int, TuneResult, Proven | None], plant
         "answer": gains(answer) if answer is not None and pid else None,
         "commands": [answer.gains.marlin_command(bed=plant.is_bed), "M500"]
         if answer is not None and pid and problem.loop == "marlin" else [],
+        "option": _option(proof, pid, plant.is_bed, problem.loop),
         "members": [{"label": p.label, "delta": p.delta, "replay": p.replay.text() if p.replay else ""}
                     for p in plant.allowed.members] if plant.allowed is not None else
         [{"label": m.label, "delta": 0.0, "replay": ""} for m in problem.ensemble.members] if problem.ensemble else [],
@@ -422,6 +444,28 @@ def write_json(path: Path, outcome: tuple[int, TuneResult, Proven | None], plant
             for r in proof.rows],
         "plot": None if plot is None else str(plot),
     }
+    path.write_text(json.dumps(document, indent=1) + "\n")
+
+
+def _option(proof: Proven | None, pid: bool, is_bed: bool, loop: str) -> dict | None:
+    """Under keep your gains, the closest candidate that never trips: its gains, trade and Marlin commands."""
+    if proof is None or not proof.verdict.trade or not pid or proof.verdict.shown is None:
+        return None
+    row = next(r for r in proof.rows if r.method == proof.verdict.shown)
+    gains = Gains(*(float(v) for v in row.params))
+    return {"method": row.method, "kp": gains.kp, "ki": gains.ki, "kd": gains.kd, "trade": proof.verdict.trade,
+            "commands": [gains.marlin_command(bed=is_bed), "M500"] if loop == "marlin" else []}
+
+
+def write_no_model_json(path: Path, error: NoModel, printer: PrinterGains | None) -> None:
+    """write_json's document where no plant the log allows: keep your gains (or no answer), why, no proof."""
+    current = None if printer is None else {"kp": printer.gains.kp, "ki": printer.gains.ki, "kd": printer.gains.kd,
+                                            "source": printer.source}
+    document: dict[str, object] = {
+                "verdict": KEEP if printer is not None else "none",
+                "why": f"{CANNOT_MODEL}: {error.allowed.why_none()}",
+                "heater": error.allowed.heater, "target_c": None, "loop": None, "current": current, "answer": None,
+                "option": None, "commands": [], "members": [], "proof": [], "plot": None}
     path.write_text(json.dumps(document, indent=1) + "\n")
 
 

@@ -7,9 +7,9 @@ reference.py), the log is read as a user would paste it, every plant it allows i
 allowed.py), the tune runs on its loop at its target against the printer's gains with 1 LSB of ADC noise
 and the default budget, and the proof (10 seeds on every plant) decides: new gains or keep your gains
 (tools/tuning/verdict.py; where no plant both fits the log and replays it, keep your gains: the twin cannot
-model the heater well enough to beat them). Each capture's table gives, per plant, trips, worst hold error, worst overshoot
-and mean duty chatter for the answer (or, where the answer is to keep your gains, the closest candidate)
-and for the printer's own gains, and whether the candidate is within the verdict's bounds there. Every
+model the heater well enough to beat them). Each capture's table gives, per plant, trips, worst hold error,
+worst overshoot and mean duty chatter for the answer (or, where the answer is to keep your gains, the
+closest candidate) and for the printer's own gains, and whether the candidate is within the verdict's bounds there. Every
 row is in-sample: the plants were fitted to the capture they are scored on (docs/tuning.md's cross-
 validation scores tunes out of sample). ``python -m tools.docs.fromlog --doc docs/tuning.md`` rewrites
 the section; ``--only NAME`` runs the captures whose file names contain NAME.

@@ -116,7 +116,7 @@ class Allowed:
         tried = [p for p in self.dropped if ": " not in p.label]  # a profile's label is its structure's, ": ", the end
         profiles = len(self.dropped) - len(tried)
         each = "; ".join(f"{p.label}: {p.dropped}" for p in tried)
-        more = f"; and {profiles} profiles of them, none a member" if profiles else ""
+        more = f"; and none of their {profiles} profiles is a member" if profiles else ""
         return f"no plant both fits it and replays it: {each}{more}"
 
     def lines(self) -> list[str]:

@@ -16,7 +16,8 @@ Of the candidates that beat the reference, the answer is the first (the search's
 holds as well (worst hold within x HOLD_FACTOR + HOLD_SLACK_C of the first's) and overshoots less by more
 than OVERSHOOT_SLACK_C: the objective charges nothing for overshoot below 3 C, a user still sees it. Where a
 change holds worse than the reference, its line names what the worse hold buys. Where nothing beats the
-reference, the closest candidate that never trips is an option, with its trade (``Verdict.trade``).
+reference, the closest candidate that never trips and is not the reference's own parameters is an option,
+with its trade (``Verdict.trade``).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ HOLD_FACTOR = 1.1
 HOLD_SLACK_C = 0.02
 OVERSHOOT_SLACK_C = 0.5
 MIN_GAIN_REL = 0.05
+SAME_REL = 1e-6  # a candidate this close to the reference's parameters is the reference (a search that found it)
 KEEP = "keep your gains"
 NEW = "new gains"
 
@@ -69,6 +71,7 @@ class Verdict:
     why: str
     misses: dict[str, dict[str, list[str]]]  # candidate method -> member -> reasons
     trade: str = ""  # keep: what the closest candidate that never trips would change (gain_line); "" none
+    closest: str | None = None  # keep: the candidate closest to beating the reference, not the reference's gains
 
     @property
     def keep(self) -> bool:
@@ -78,8 +81,8 @@ class Verdict:
     def shown(self) -> str | None:
         """The candidate to show beside the reference: the answer, else the one with the fewest misses, one
         that never trips before one that does."""
-        if self.method is not None or not self.misses:
-            return self.method
+        if self.method is not None or self.closest is not None or not self.misses:
+            return self.method or self.closest
         return min(self.misses, key=lambda m: (_trips(self.misses[m]), sum(len(v) for v in self.misses[m].values())))
 
 
@@ -110,10 +113,12 @@ def judge(rows: list[ProofRow], reference: str, order: Sequence[str], ensemble: 
         method = safest({m: [by[(m, member)] for member in members] for m in passing})
         rows_c = [by[(method, m)] for m in members]
         return Verdict(NEW, method, gain_line(rows_c, ref_rows, plants, ensemble), misses)
-    closest = Verdict(KEEP, None, "", misses).shown
+    other = {m: v for m, v in misses.items() if not np.allclose(by[(m, members[0])].params, ref_rows[0].params,
+                                                                 rtol=SAME_REL, atol=0.0)} or misses
+    closest = Verdict(KEEP, None, "", other).shown
     trade = "" if closest is None or _trips(misses[closest]) else \
         gain_line([by[(closest, m)] for m in members], ref_rows, plants, ensemble)
-    return Verdict(KEEP, None, keep_line(misses, plants), misses, trade)
+    return Verdict(KEEP, None, keep_line(other, plants), misses, trade, closest)
 
 
 def _worst(rows: Sequence[ProofRow], attr: str) -> float:

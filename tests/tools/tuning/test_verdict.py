@@ -2,6 +2,8 @@
 0.02 C, overshoot within +0.5 C, the ensemble's objective 5 % lower), else keep your gains, with the one
 line that says why."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -103,3 +105,13 @@ def test_keep_your_gains_offers_the_closest_candidate_that_never_trips_with_its_
                                     "plants the log allows (worst seed); the worse hold buys overshoot 2.8 -> 0.5 C")
     # only tripping candidates: no option
     assert judge(tripping + yours, "yours", ["de"], ENSEMBLE).trade == ""
+
+
+def test_a_search_that_found_your_gains_is_no_option():
+    yours = [row(m, "yours", cost=300.0) for m in MEMBERS]
+    found = [row(m, "de", cost=300.0) for m in MEMBERS]  # the same parameters (row() gives zeros)
+    other = [ProofRow(r.member, "de #2", np.ones(3), *dataclasses.astuple(r)[3:]) for r in
+             [row(m, "de #2", overshoot=1.0, hold=0.2, cost=290.0) for m in MEMBERS]]
+    verdict = judge(found + other + yours, "yours", ["de", "de #2"], ENSEMBLE)
+    assert verdict.kind == KEEP and verdict.shown == "de #2" and "the closest, de #2," in verdict.why
+    assert verdict.trade.startswith("overshoot 2.0 -> 1.0 C, hold 0.10 -> 0.20 C")

@@ -156,7 +156,10 @@ def report_proof(problem: Problem, proof: Proven, seeds: int) -> None:
     shown = {proof.verdict.shown, proof.yours.method}
     print("\n".join("  " + line for line in proof_table([r for r in proof.rows if r.method in shown], named)))
     for method, missed in proof.verdict.misses.items():
-        if method not in shown:
+        if method not in shown and not missed:
+            print(f"  also proven: {method}: beats {proof.yours.method} too; {proof.verdict.shown} holds as well and "
+                  "overshoots less")
+        elif method not in shown:
             member, why = next(iter(missed.items()))
             print(f"  also proven: {method}: misses on {member}: {'; '.join(why)}")
 

@@ -95,8 +95,8 @@ def verdict_lines(problem: Problem, proof: Proven, is_bed: bool, printer: Printe
         return EXIT_ANSWER, [f"answer: keep {name}: {verdict.why}", *option_lines(problem, proof, is_bed)]
     where = f"they trip on {len(tripped)} of the plants the log allows ({'; '.join(tripped)})"
     if printer is not None:
-        return EXIT_ANSWER, [f"answer: keep {name}: {CANNOT_MODEL}: {where}, which your printer does not show; "
-                             f"{verdict.why}", *option_lines(problem, proof, is_bed)]
+        return EXIT_ANSWER, [f"answer: keep {name}: {CANNOT_MODEL}: on the twin {where}; {verdict.why}",
+                             *option_lines(problem, proof, is_bed)]
     return EXIT_UNSAFE, [f"answer: keep {name}: {verdict.why}, and {where}: no safe answer was found"]
 
 

@@ -14,10 +14,12 @@ import numpy as np
 import pytest
 
 from tools.cli import fit, tune
-from tools.tuning.answer import CANNOT_MODEL, EXIT_ANSWER, EXIT_NO_MODEL, verdict_lines
+from tools.tuning.answer import CANNOT_MODEL, EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE, verdict_lines
 from tools.tuning.ensemble import Ensemble, Member
+from tools.tuning.gains import Gains
 from tools.tuning.problems import build_problem, preset_source
 from tools.tuning.proof import ProofRow
+from tools.tuning.reference import PrinterGains
 from tools.tuning.tuner import Proven
 from tools.tuning.verdict import judge
 
@@ -34,12 +36,10 @@ def _run(capsys, main, *argv: str) -> tuple[int, str, str]:
 
 
 def _answer(out: str) -> list[str]:
-    """The answer's lines: from 'answer: ' to the next line that is neither the option nor indented."""
+    """The answer's lines: from 'answer: ' to twin-tune's table of candidates (twin-fit's end)."""
     lines = out.splitlines()
     start = next(k for k, line in enumerate(lines) if line.startswith("answer: "))
-    end = start + 1
-    while end < len(lines) and (lines[end].startswith(("  ", "option: "))):
-        end += 1
+    end = next((k for k in range(start, len(lines)) if lines[k].startswith("candidates on the ")), len(lines))
     return lines[start:end]
 
 
@@ -135,3 +135,26 @@ def test_twin_fit_and_twin_tune_print_the_same_answer(capsys, hardware_logs):
     answer = _answer(out_tune)
     assert _answer(out_fit) == answer
     assert re.search(r"pid_Kp|M30[14] ", "\n".join(answer))  # gains to paste: the answer's, or the option's
+
+
+def test_gains_that_trip_on_a_plant_are_kept_where_they_are_the_printers_and_unsafe_otherwise():
+    """Where the reference trips on a plant the log allows and nothing beats it: the printer's own gains are
+    kept (exit 0: the twin cannot model the heater well enough to beat them); the firmware's autotune on the
+    twin, where no gains are known, is no safe answer (exit 1)."""
+    problem = build_problem(preset_source("bed", 0), 60.0)
+    members = ("fopdt", "sopdt")
+    ensemble = Ensemble(tuple(Member(m, (), 1.0, k) for k, m in enumerate(members)), "mean_std", kind="plants")
+    ref = [_row("fopdt", "yours", (22.17, 1.36, 241.3), 2.8, 0.155, 0.07, 300.0),
+           ProofRow("sopdt", "yours", np.array([22.17, 1.36, 241.3]), 2, 1, (9.0, 9.0), (100.0, 100.0), (1.0, 1.0),
+                    (0.07, 0.07), (900.0, 900.0))]
+    tripping = [ProofRow(m, "de", np.ones(3), 2, 2, (1.0, 1.0), (100.0, 100.0), (0.1, 0.1), (0.01, 0.01),
+                         (200.0, 200.0)) for m in members]
+    verdict = judge(tripping + ref, "yours", ["de"], ensemble)
+    proof = Proven(verdict, tripping + ref, None, SimpleNamespace(method="yours"), "")  # type: ignore[arg-type]
+    printer = PrinterGains(Gains(22.17, 1.36, 241.3), "the last Kp/Ki/Kd the capture printed")
+    status, lines = verdict_lines(problem, proof, True, printer)
+    assert status == EXIT_ANSWER and lines == [
+        f"answer: keep your gains: {CANNOT_MODEL}: on the twin they trip on 1 of the plants the log allows (sopdt); "
+        "nothing beats them on all plants: the closest, de, misses on fopdt: trips in 2 of 2 runs (and on 1 more)"]
+    status, lines = verdict_lines(problem, proof, True, None)
+    assert status == EXIT_UNSAFE and lines[0].endswith("no safe answer was found")

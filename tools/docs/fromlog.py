@@ -145,8 +145,10 @@ def markdown(outcomes: list[Outcome], budget: int) -> str:
              f"`twin-tune --from-log LOG --noise {NOISE_LSB:g}` tunes it (DE {budget} evaluations, seed {SEED}; the "
              "proof: 10 noise seeds on every plant the log allows). Each table: the answer (new gains), or where the "
              "answer is to keep your gains the closest candidate, against your gains (candidate / yours), per plant; "
-             "within bounds: no trip, hold at most yours x 1.1 + 0.02 C, overshoot at most yours + 0.5 C. Every row "
-             "is in-sample: the plants are fitted to the capture they are scored on.", "",
+             "within bounds: no trip, hold at most yours x 1.1 + 0.02 C, overshoot at most yours + 0.5 C. Where no "
+             "plant both fits a capture and replays it, the answer is keep your gains, with every structure tried "
+             "and why, and no table. Every row is in-sample: the plants are fitted to the capture they are scored "
+             "on.", "",
              f"{len(outcomes)} heaters: new gains on {new}, keep your gains on {keep}, not tuned on "
              f"{len(outcomes) - new - keep}.", ""]
     for o in outcomes:

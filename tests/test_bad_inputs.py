@@ -128,6 +128,8 @@ def _cases() -> list[tuple[str, list[str], str]]:
     add("twin-fit", "--segment", ["99", "-1", "x"], ["{log}"])
     add("twin-fit", "--model", ["bogus"], ["{log}"])
     add("twin-fit", "--heater", ["bogus"], ["{log}"])
+    add("twin-fit", "--budget", ["0", "-1", "x", "2000000"], ["{log}"])
+    add("twin-fit", "--proof", ["0", "-1", "x", "20000"], ["{log}"])
     cases += [("twin-fit", [log], "") for log in ("{fifo}", "{binary}", "{dir}/none.csv", "{dir}")]
     # twin-compare
     add("twin-compare", "--plot", ["/proc/x.png", "{dir}", "x.unknownext", "{missing}"], ["{log}"])

@@ -11,16 +11,15 @@ swing). tools/ident/log_fit.py does the fitting. The output gives each parameter
 and whether the log identifies it, a plausible range with its source for those it does not, the
 residuals; then every plant the log allows (tools/tuning/allowed.py: the structures that fit about as
 well, each open parameter profiled, each plant replaying the log's own numbers) and those it does not;
-a FOPDT equivalent, Marlin's M306 for two_node; and the PID gains twin-tune's tuner would print
-(tools/tuning/problems.py quick_answer: the rules and the firmware's autotune proven on every plant the
-log allows against the printer's own gains: new gains only where one beats them, else "keep your gains"),
-at the relay's target for relay data, else the log's. ``--fit-only``: the fit alone, no gains.
---loss radiating or auto adds a radiation-like loss to two_node/three_node (docs/plants.md).
+a FOPDT equivalent, Marlin's M306 for two_node; and twin-tune's answer, the very lines `twin-tune --from-log
+LOG` prints (tools/tuning/answer.py: its default tune, proven on every plant the log allows against the
+printer's own gains: new gains only where they beat them, else "keep your gains" and why, with the
+closest candidate as an option), at the relay's target for relay data, else the log's. A fit that
+identifies none of its model's lags is reported and is no plant the log allows (its profiles may be).
+``--fit-only``: the fit alone, no gains. --loss radiating or auto adds a radiation-like loss to
+two_node/three_node (docs/plants.md).
 
-Exit status: 0 fitted; 2 the log or the options cannot be used (one line on stderr); 3 the fit is
-degenerate (it identifies none of the model's lags), no plant both fits the log and replays it, or
-nothing proven holds on every plant it allows: the report is printed, but no gains, and one line on
-stderr says why.
+Exit status: as twin-tune's (below); with --fit-only, 3 where the fit is degenerate.
 """
 
 from __future__ import annotations
@@ -35,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from tools.cli.args import ranged_float
-from tools.entry import INTERNAL_STATUS_HELP, OneLineParser, run_main
+from tools.entry import OneLineParser, run_main
 from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.fit import LOSSES, LUMPED_MODELS, MODELS, RADIATING_BOUNDS_M2, RADIATING_EMISSIVITY, RADIATING_PARAM
 from tools.ident.fopdt import CONTROL_DELAY_S, Fopdt, fopdt_equivalent, relay_fopdt, ultimate_point
@@ -47,22 +46,15 @@ from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, Log, LogError, M303Log, StatsLog
 from tools.progress import Steps
+from tools.tuning.exits import EXIT_ANSWER, EXIT_CODES, EXIT_NO_MODEL
+from tools.tuning.proof import PROOF_SEEDS
+from tools.tuning.tuner import DEFAULT_BUDGET
 from twin.limits import AMBIENT_RANGE_C, UserError
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 
 if TYPE_CHECKING:  # the tuning layer (numba, scipy) is imported where gains are computed, not at start-up
-    from tools.tuning.evaluate import Problem
-    from tools.tuning.reference import PrinterGains
-    from tools.tuning.tuner import Proven
+    from tools.tuning.allowed import Allowed
 
-EXIT_DEGENERATE = 3
-EXIT_STATUS = """
-exit status:
-  0  fitted, settings printed
-  2  bad input: an option, or a log that cannot be read or fitted, said in one line
-  3  a degenerate fit, no plant that fits the log replays it, or nothing proven holds on every plant it
-     allows: the report is printed, but no gains, and one line on stderr says why
-""" + INTERNAL_STATUS_HELP + "\n"
 WIDTH = 120  # output lines are wrapped to this
 MARLIN_KU_SCALE = 255.0  # M303 prints Ku = 4 d / (pi a) with the relay's half swing d on 0..255
 STATS_NOTE = ("Klipper Stats: pwm is the last value sent to the MCU, once a second; Klipper holds back a change "
@@ -83,12 +75,14 @@ EXAMPLES = """examples:
   twin-fit pid_results.txt --segment 3                  a PID_CALIBRATE result: Tu and swing, gain held
   twin-fit heattest.csv --model three_node --loss auto  with a radiation-like loss too, if AIC prefers it
 """
+BUDGET_MAX = 1_000_000  # as twin-tune's
+PROOF_MAX = 10_000  # as twin-tune's
 POWER_RANGE_W = (0.1, 5000.0)  # a 0.1 W test heater to a mains bed
 TARGET_RANGE_C = (1.0, 500.0)  # a relay target: above freezing, below any hotend's limit
 
 
 def build_parser() -> OneLineParser:
-    parser = OneLineParser(prog="twin-fit", description=__doc__, epilog=EXAMPLES + EXIT_STATUS)
+    parser = OneLineParser(prog="twin-fit", description=__doc__, epilog=EXAMPLES + EXIT_CODES)
     parser.add_argument("log", metavar="LOG", help="the log file")
     parser.add_argument("--model", choices=MODELS,
                         help="two_node (Marlin's MPC model, gives M306; the default for a trace), three_node (plus "
@@ -115,6 +109,11 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--power-w", type=ranged_float(*POWER_RANGE_W, "W"),
                         help="heater power in W for two_node/three_node (default: assumed "
                         f"{MPC_HEATER_POWER_W:g} W for a hotend, {BED_POWER_W:g} W for a bed)")
+    parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET,
+                        help=f"the tune's optimiser evaluations, as twin-tune's --budget (default: {DEFAULT_BUDGET})")
+    parser.add_argument("--proof", type=int, default=PROOF_SEEDS, metavar="SEEDS",
+                        help=f"noise seeds of the proof on every plant, as twin-tune's --proof "
+                             f"(default: {PROOF_SEEDS})")
     parser.add_argument("--fit-only", action="store_true",
                         help="the fit alone: no other structures, profiles or replays, no gains (fast)")
     parser.add_argument("--loss", choices=LOSSES, default="linear",
@@ -132,6 +131,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--loss {args.loss} needs --model two_node or three_node: {args.model} has no heat-loss term")
     if args.fit_cycles is not None and args.fit_cycles < 1:
         parser.error(f"argument --fit-cycles: {args.fit_cycles}: at least one cycle")
+    if not 1 <= args.budget <= BUDGET_MAX:
+        parser.error(f"argument --budget: {args.budget}: must be within 1 .. {BUDGET_MAX}")
+    if not 1 <= args.proof <= PROOF_MAX:
+        parser.error(f"argument --proof: {args.proof}: must be within 1 .. {PROOF_MAX} seeds")
     return args
 
 
@@ -216,32 +219,6 @@ def _settings_lines(result: FitResult, heater: str, sample_s: float) -> list[str
         lines += ["MPC (the fitted model's own constants; `twin-tune --from-log LOG --controller mpc` proves a tune):",
                   *_mpc_lines(result)]
     return lines
-
-
-def _gains_lines(problem: Problem, answer: Proven, heater: str, printer: PrinterGains | None,
-                 plants: int) -> list[str] | None:
-    """The PID gains twin-tune's tuner would print (tools/tuning/problems.py quick_answer: the rules and the
-    firmware's autotune, proven on every plant the log allows against the printer's gains), "keep your
-    gains", or None where nothing proven holds (the reference itself trips on some plant)."""
-    from tools.tuning.proof import PROOF_SEEDS
-
-    bed = heater == BED
-    where = f"on all {plants} plants the log allows, {PROOF_SEEDS} noise seeds each, on the {problem.loop} loop"
-    if answer.verdict.keep and printer is not None:
-        return [f"keep your gains ({printer.gains}: {printer.source}): {answer.verdict.why}",
-                "  (`twin-tune --from-log LOG` searches further)"]
-    if answer.answer is None:
-        if not all(r.passed for r in answer.rows if r.method == answer.yours.method):
-            return None
-        chosen = answer.yours
-        why = f"{chosen.method} on the twin: nothing tried beats it {where}"
-    else:
-        chosen = answer.answer
-        why = f"{chosen.method}, proven over {PROOF_SEEDS} noise seeds on the {problem.loop} loop: {answer.verdict.why}"
-    gains = chosen.gains
-    if problem.loop == "klipper":
-        return [f"ready to paste ({why}):", "  Klipper:", *("    " + line for line in gains.klipper_section(heater).splitlines())]
-    return [f"ready to paste ({why}):", f"  Marlin:  {gains.marlin_command(bed=bed)}", "  M500"]
 
 
 def _mpc_lines(result: FitResult) -> list[str]:
@@ -329,32 +306,42 @@ def run(args: argparse.Namespace) -> int:
     print(f"twin-fit: {args.log}")
     lines = _log_lines(log, fitted) + _point_lines(fitted.points) + _fit_report(fitted, log)
     print("\n".join(lines + ([] if allowed is None else allowed.lines())))
-    if reason := fitted.degenerate:
-        print(f"twin-fit: {args.log}: degenerate fit, no gains: {reason}", file=sys.stderr)
-        return EXIT_DEGENERATE
-    if allowed is not None and not allowed.members:
-        print(f"twin-fit: {args.log}: no gains: {allowed.why_none()}", file=sys.stderr)
-        return EXIT_DEGENERATE
-    settings = _settings_lines(fitted.result, fitted.heater, fitted.resolution_s) + _log_notes(log, fitted)
+    reason = fitted.degenerate
     if allowed is None:
-        settings.append("gains: not with --fit-only (twin-fit without it proves the rules' on every plant the log "
-                        "allows; twin-tune --from-log searches further)")
-    else:
-        from tools.tuning.problems import allowed_source, build_problem, quick_answer
+        if reason:
+            print(f"twin-fit: {args.log}: degenerate fit, no settings: {reason}", file=sys.stderr)
+            return EXIT_NO_MODEL
+        _print_wrapped(_settings_lines(fitted.result, fitted.heater, fitted.resolution_s) + _log_notes(log, fitted)
+                       + ["gains: not with --fit-only (twin-fit without it prints twin-tune's answer)"])
+        return EXIT_ANSWER
+    return _answer(args, log, allowed, reason)
 
+
+def _answer(args: argparse.Namespace, log: Log, allowed: Allowed, reason: str | None) -> int:
+    """The settings of the best plant the log allows and twin-tune's answer (tools/tuning/answer.py)."""
+    fitted = allowed.best
+    settings = [f"the {allowed.first.result.model} fit is degenerate ({reason}): no plant the log allows; the "
+                f"settings below are the best member's, {fitted.result.model}"] if reason and allowed.members else []
+    if allowed.members:
+        settings += _settings_lines(fitted.result, fitted.heater, fitted.resolution_s) + _log_notes(log, fitted)
+    from tools.tuning.answer import default_tune, no_model_lines, verdict_lines
+    from tools.tuning.problems import NoModel, allowed_source, build_problem
+
+    try:
         source = allowed_source(log, allowed, _options(args, None))
-        problem = build_problem(source, args.target)
-        answer = quick_answer(problem, source.printer)
-        gains = _gains_lines(problem, answer, fitted.heater, source.printer, len(allowed.members))
-        if gains is None:
-            _print_wrapped(settings)
-            print(f"twin-fit: {args.log}: no gains: nothing tried beats {answer.yours.method}, which trips on some "
-                  "plant the log allows; `twin-tune --from-log` searches further and proves what it prints",
-                  file=sys.stderr)
-            return EXIT_DEGENERATE
-        settings += gains
+    except NoModel as exc:
+        status, verdict = no_model_lines(exc, exc.printer)
+        _print_wrapped(settings)
+        print("\n".join(verdict))  # as twin-tune prints them
+        if status == EXIT_NO_MODEL:
+            print(f"twin-fit: {exc}", file=sys.stderr)
+        return status
+    problem = build_problem(source, args.target)
+    _, proof = default_tune(problem, source.printer, args.budget, args.proof, Steps("bar"))
+    status, verdict = verdict_lines(problem, proof, source.is_bed, source.printer)
     _print_wrapped(settings)
-    return 0
+    print("\n".join(verdict))  # as twin-tune prints them
+    return status
 
 
 def _print_wrapped(lines: list[str]) -> None:

@@ -27,7 +27,7 @@ import numpy as np
 from tools.cli.args import check_output, finite_float, output_file, plot_path
 from tools.progress import PROGRESS_MODES, Steps
 from twin.limits import NOISE_MAX_LSB, SEED_MAX, UserError
-from tools.entry import INTERNAL_STATUS_HELP, OneLineParser, run_main
+from tools.entry import OneLineParser, run_main
 from tools.tuning.controllers import controller_names
 from tools.ident.log_fit import LogFitOptions
 from tools.ident.segments import NotFittable
@@ -35,14 +35,25 @@ from tools.logs import LogError
 from tools.tuning.ensemble import DEFAULT_NOISE_LSB, DEFAULT_SPREAD, DEFAULT_STATISTIC, STATISTICS
 from firmware_port.controller import KD_MAX, KI_MAX, KP_MAX
 from firmware_port.firmwares import KALICO_MPC
-from firmware_port.kalico import mpc_options, pid_options, section
-from tools.tuning.evaluate import LOOPS, Candidate, Problem, kalico_mpc_config
-from tools.tuning.problems import BED_TARGET_C, HOTEND_TARGET_C, Source, build_problem, log_source, preset_source
+from tools.tuning.evaluate import LOOPS, Candidate, Problem
+from tools.tuning.answer import CANNOT_MODEL, no_model_lines, settings_lines, verdict_lines
+from tools.tuning.exits import EXIT_ANSWER, EXIT_CODES, EXIT_NO_MODEL
+from tools.tuning.gains import Gains
+from tools.tuning.verdict import KEEP
+from tools.tuning.problems import (
+    BED_TARGET_C,
+    HOTEND_TARGET_C,
+    NoModel,
+    Source,
+    build_problem,
+    log_source,
+    preset_source,
+)
 from tools.tuning.objectives import DEFAULT_OBJECTIVE, OBJECTIVES, heater_terms
 from tools.tuning.proof import CROSS_CHECK_S, PROOF_SEEDS, ProofRow
 from tools.tuning.reference import PrinterGains, parse_gains
 from tools.tuning.proof import table as proof_table
-from tools.tuning.tuner import DEFAULT_BUDGET, YOURS, Proven, TuneResult, methods, proven, tune
+from tools.tuning.tuner import DEFAULT_BUDGET, Proven, TuneResult, methods, proven, tune
 from twin.metrics import step_metrics
 from twin.plants import SPECS
 
@@ -62,12 +73,7 @@ EPILOG = """examples:
 
   twin-tune --from-log m303.txt --current-gains "M301 P22.2 I1.08 D114" --json answer.json
 
-exit status:
-  0  an answer: new gains that beat yours on every plant, or keep your gains (they never trip)
-  1  no safe answer: nothing beats your gains and they trip on some plant (the report says where),
-     or nothing passed the proof where there are no gains to keep
-  2  bad input (an option, a log, a controller), said in one line; nothing is tuned
-""" + INTERNAL_STATUS_HELP + "\n"
+""" + EXIT_CODES
 AUTO = "auto"  # --loop auto: the loop the log's printer runs (Marlin for a preset)
 
 
@@ -101,11 +107,14 @@ def plant_lines(plant: Source) -> list[str]:
     return lines + (plant.allowed.lines() if plant.allowed is not None else [])
 
 
+def given_gains(args: argparse.Namespace) -> PrinterGains | None:
+    """--current-gains, where given."""
+    return PrinterGains(parse_gains(args.current_gains), "--current-gains") if args.current_gains else None
+
+
 def yours(args: argparse.Namespace, plant: Source) -> PrinterGains | None:
     """The printer's gains: --current-gains, else what the log states."""
-    if args.current_gains:
-        return PrinterGains(parse_gains(args.current_gains), "--current-gains")
-    return plant.printer
+    return given_gains(args) or plant.printer
 
 
 # -- output -------------------------------------------------------------------------------------
@@ -131,30 +140,6 @@ def describe(problem: Problem, candidate: Candidate) -> str:
     return str(candidate.gains) if problem.controller.pid else problem.controller.describe(candidate.params)
 
 
-def settings_lines(problem: Problem, best: Candidate, is_bed: bool, proven: bool = True) -> list[str]:
-    """Ready to paste, for the loop that proved it (or marked unproven): Marlin's M301/M304 and
-    Configuration.h, Klipper's section, or Kalico's (its PID or its MPC, as SAVE_CONFIG writes them); for
-    other controllers their parameters."""
-    heater = "heater_bed" if is_bed else "extruder"
-    if problem.loop == "kalico":
-        options = pid_options(*best.params) if problem.controller.pid else \
-            mpc_options(kalico_mpc_config(problem, best.params))
-        return [f"Kalico printer.cfg ({'proven on' if proven else 'UNPROVEN, from'} the Kalico loop):",
-                *("  " + line for line in section(heater, options).splitlines())]
-    if not problem.controller.pid:
-        return [f"{problem.controller.name} parameters (the firmware's units), from the {problem.loop} loop"
-                f"{'' if proven else ', UNPROVEN'}:",
-                *(f"  {p.name} = {v:.6g} {p.unit}".rstrip() for p, v in zip(problem.controller.params, best.params))]
-    gains = best.gains
-    if problem.loop == "klipper":
-        return [f"Klipper printer.cfg ({'proven on' if proven else 'UNPROVEN, from'} the Klipper loop):",
-                *("  " + line for line in gains.klipper_section(heater).splitlines())]
-    where = "proven on the Marlin loop" if proven and problem.loop == "marlin" else \
-        "UNPROVEN, from the Marlin loop" if problem.loop == "marlin" else "from the papers' idealised loop, unproven"
-    return [f"Marlin ({where}; send, then M500 to keep it):", f"  {gains.marlin_command(bed=is_bed)}", "  M500",
-            "Marlin Configuration.h:", *("  " + line for line in gains.marlin_defines(bed=is_bed).splitlines())]
-
-
 def report_proof(problem: Problem, proof: Proven, seeds: int) -> None:
     members = len(problem.members())
     print(f"proof on the batch: {seeds} noise seeds on each of the {members} plants, the candidates beside "
@@ -167,19 +152,16 @@ def report_proof(problem: Problem, proof: Proven, seeds: int) -> None:
     shown = {proof.verdict.shown, proof.yours.method}
     print("\n".join("  " + line for line in proof_table([r for r in proof.rows if r.method in shown], named)))
     for method, missed in proof.verdict.misses.items():
-        if method not in shown:
+        if method not in shown and not missed:
+            print(f"  also proven: {method}: beats {proof.yours.method} too; {proof.verdict.shown} holds as well and "
+                  "overshoots less")
+        elif method not in shown:
             member, why = next(iter(missed.items()))
             print(f"  also proven: {method}: misses on {member}: {'; '.join(why)}")
 
 
-def reference_name(result: TuneResult) -> str:
-    """What the reference to beat is, for the verdict's line."""
-    what = "gains" if result.problem.controller.pid else "parameters"
-    return f"your {what}" if result.yours.method == YOURS else f"{result.yours.method}'s {what}"
-
-
 def report(result: TuneResult, proof: Proven | None, seeds: int, is_bed: bool, printer: PrinterGains | None) -> int:
-    """Print the tune; the exit status (module EPILOG)."""
+    """Print the tune; the exit status (tools/tuning/answer.py)."""
     problem, best = result.problem, result.best
     print(f"twin-tune: {problem.name} at {problem.scenario.target_c:g} C, controller {problem.controller.name}, "
           f"objective {result.objective}, loop {problem.loop}")
@@ -189,24 +171,17 @@ def report(result: TuneResult, proof: Proven | None, seeds: int, is_bed: bool, p
         print(f"your gains: {printer.gains} ({printer.source})")
     print(f"to beat: {result.yours.method}  {describe(problem, result.yours)}  cost {result.yours.cost:.4g}")
     print(f"best of the search: {best.method}  {describe(problem, best)}  cost {best.cost:.4g}")
-    status, answer = 0, None
+    status, answer = EXIT_ANSWER, None
     if proof is not None:
         report_proof(problem, proof, seeds)
         answer = proof.answer
-        if proof.verdict.keep:
-            safe = all(r.passed for r in proof.rows if r.method == proof.yours.method)
-            status = 0 if safe else 1
-            caveat = "" if safe else ", and they trip on some plant: no safe answer was found"
-            print(f"answer: keep {reference_name(result)}: {proof.verdict.why}{caveat}")
-        else:
-            assert answer is not None
-            print(f"answer: new gains ({answer.method}): {proof.verdict.why}")
-            print("\n".join(settings_lines(problem, answer, is_bed)))
+        status, lines = verdict_lines(problem, proof, is_bed, printer)
+        print("\n".join(lines))
     elif problem.loop != "ideal":
         print("not proven (--proof 0): nothing below has been proven; the best of the search, unproven:")
-        print("\n".join(settings_lines(problem, best, is_bed, proven=False)))
+        print("\n".join(settings_lines(problem, best.params, is_bed, proven_=False)))
     else:
-        print("\n".join(settings_lines(problem, best, is_bed, proven=False)))
+        print("\n".join(settings_lines(problem, best.params, is_bed, proven_=False)))
     print(f"candidates on the {problem.loop} loop (best first), then the references; cost = {_statistic(problem)}:")
     shown = result.candidates + result.references
     width = max(len(c.method) for c in shown)
@@ -389,7 +364,18 @@ def run(args: argparse.Namespace) -> int:
     check_args(args)
     steps = Steps(args.progress)
     loops = ("marlin", "klipper") if args.loop == BOTH else (args.loop,)
-    plant = source(args, steps)
+    try:
+        plant = source(args, steps)
+    except NoModel as exc:  # the log reads and fits, but no plant replays it: a verdict without a model
+        print("\n".join(exc.allowed.lines()))
+        printer = given_gains(args) or exc.printer
+        status, lines = no_model_lines(exc, printer)
+        print("\n".join(lines))
+        if status == EXIT_NO_MODEL:
+            print(f"twin-tune: {exc}", file=sys.stderr)
+        if args.json:
+            write_no_model_json(Path(args.json), exc, printer)
+        return status
     printer = yours(args, plant)
     problems = [make_problem(args, plant, loop, name) for name in args.controller.split(",") for loop in loops]
     print("\n".join(plant_lines(plant)))
@@ -466,6 +452,7 @@ def write_json(path: Path, outcome: tuple[int, TuneResult, Proven | None], plant
         "answer": gains(answer) if answer is not None and pid else None,
         "commands": [answer.gains.marlin_command(bed=plant.is_bed), "M500"]
         if answer is not None and pid and problem.loop == "marlin" else [],
+        "option": _option(proof, pid, plant.is_bed, problem.loop),
         "members": [{"label": p.label, "delta": p.delta, "replay": p.replay.text() if p.replay else ""}
                     for p in plant.allowed.members] if plant.allowed is not None else
         [{"label": m.label, "delta": 0.0, "replay": ""} for m in problem.ensemble.members] if problem.ensemble else [],
@@ -477,6 +464,28 @@ def write_json(path: Path, outcome: tuple[int, TuneResult, Proven | None], plant
             for r in proof.rows],
         "plot": None if plot is None else str(plot),
     }
+    path.write_text(json.dumps(document, indent=1) + "\n")
+
+
+def _option(proof: Proven | None, pid: bool, is_bed: bool, loop: str) -> dict | None:
+    """Under keep your gains, the closest candidate that never trips: its gains, trade and Marlin commands."""
+    if proof is None or not proof.verdict.trade or not pid or proof.verdict.shown is None:
+        return None
+    row = next(r for r in proof.rows if r.method == proof.verdict.shown)
+    gains = Gains(*(float(v) for v in row.params))
+    return {"method": row.method, "kp": gains.kp, "ki": gains.ki, "kd": gains.kd, "trade": proof.verdict.trade,
+            "commands": [gains.marlin_command(bed=is_bed), "M500"] if loop == "marlin" else []}
+
+
+def write_no_model_json(path: Path, error: NoModel, printer: PrinterGains | None) -> None:
+    """write_json's document where no plant the log allows: keep your gains (or no answer), why, no proof."""
+    current = None if printer is None else {"kp": printer.gains.kp, "ki": printer.gains.ki, "kd": printer.gains.kd,
+                                            "source": printer.source}
+    document: dict[str, object] = {
+                "verdict": KEEP if printer is not None else "none",
+                "why": f"{CANNOT_MODEL}: {error.allowed.why_none()}",
+                "heater": error.allowed.heater, "target_c": None, "loop": None, "current": current, "answer": None,
+                "option": None, "commands": [], "members": [], "proof": [], "plot": None}
     path.write_text(json.dumps(document, indent=1) + "\n")
 
 

@@ -6,9 +6,10 @@ config dump for each heater with a PID, each entry of the PID_CALIBRATE collecti
 reference.py), the log is read as a user would paste it, every plant it allows is found (tools/tuning/
 allowed.py), the tune runs on its loop at its target against the printer's gains with 1 LSB of ADC noise
 and the default budget, and the proof (10 seeds on every plant) decides: new gains or keep your gains
-(tools/tuning/verdict.py). Each capture's table gives, per plant, trips, worst hold error, worst overshoot
-and mean duty chatter for the answer (or, where the answer is to keep your gains, the closest candidate)
-and for the printer's own gains, and whether the candidate is within the verdict's bounds there. Every
+(tools/tuning/verdict.py; where no plant both fits the log and replays it, keep your gains: the twin cannot
+model the heater well enough to beat them). Each capture's table gives, per plant, trips, worst hold error,
+worst overshoot and mean duty chatter for the answer (or, where the answer is to keep your gains, the
+closest candidate) and for the printer's own gains, and whether the candidate is within the verdict's bounds there. Every
 row is in-sample: the plants were fitted to the capture they are scored on (docs/tuning.md's cross-
 validation scores tunes out of sample). ``python -m tools.docs.fromlog --doc docs/tuning.md`` rewrites
 the section; ``--only NAME`` runs the captures whose file names contain NAME.
@@ -28,7 +29,8 @@ from tools.entry import OneLineParser, run_cli
 from tools.ident.log_fit import LogFitOptions
 from tools.ident.segments import NotFittable
 from tools.logs import Log, LogError, M303Log, StatsLog, hardware_logs_dir, load_log
-from tools.tuning.problems import build_problem, source_of
+from tools.tuning.answer import no_model_lines
+from tools.tuning.problems import NoModel, build_problem, source_of
 from tools.tuning.proof import ProofRow
 from tools.tuning.reference import from_log
 from tools.tuning.tuner import DEFAULT_BUDGET, Proven, proven, tune
@@ -82,6 +84,7 @@ class Outcome:
     case: Case
     text: str  # the answer's line, or why the capture cannot be tuned
     proof: Proven | None = None
+    kept: bool = False  # keep your gains without a proof: no plant the log allows (tools/tuning/answer.py)
 
 
 def run_case(case: Case, budget: int = DEFAULT_BUDGET) -> Outcome:
@@ -91,6 +94,9 @@ def run_case(case: Case, budget: int = DEFAULT_BUDGET) -> Outcome:
     try:
         source = source_of(log, case.path.name, options)
         problem = build_problem(source, noise_lsb=NOISE_LSB)
+    except NoModel as exc:  # the log states the gains (every case does): keep them, and why
+        _, lines = no_model_lines(exc, exc.printer)
+        return Outcome(case, lines[0].replace("answer: keep your gains", "Answer: **keep your gains**", 1), kept=True)
     except (NotFittable, ValueError) as exc:
         return Outcome(case, f"not tuned: {exc}")
     printer = source.printer
@@ -100,7 +106,8 @@ def run_case(case: Case, budget: int = DEFAULT_BUDGET) -> Outcome:
     head = (f"{problem.loop} loop, {problem.scenario.target_c:g} C; yours: {proof.yours.gains} "
             f"({printer.source if printer else 'the firmware autotune'}); {len(plants)} plants: {', '.join(plants)}")
     verdict = proof.verdict
-    answer = f"**keep your gains**: {verdict.why}" if verdict.keep else \
+    option = f"; option: {verdict.shown}: {verdict.trade}" if verdict.trade else ""
+    answer = f"**keep your gains**: {verdict.why}{option}" if verdict.keep else \
         f"**new gains** {proof.answer.gains if proof.answer else ''}: {verdict.why}"
     return Outcome(case, f"{head}. Answer: {answer}", proof)
 
@@ -133,13 +140,15 @@ def table(proof: Proven) -> list[str]:
 
 def markdown(outcomes: list[Outcome], budget: int) -> str:
     new = sum(1 for o in outcomes if o.proof is not None and not o.proof.verdict.keep)
-    keep = sum(1 for o in outcomes if o.proof is not None and o.proof.verdict.keep)
+    keep = sum(1 for o in outcomes if o.kept or (o.proof is not None and o.proof.verdict.keep))
     lines = [f"Written by `{COMMAND}`: every capture in hardware_logs that states the printer's gains, tuned as "
              f"`twin-tune --from-log LOG --noise {NOISE_LSB:g}` tunes it (DE {budget} evaluations, seed {SEED}; the "
              "proof: 10 noise seeds on every plant the log allows). Each table: the answer (new gains), or where the "
              "answer is to keep your gains the closest candidate, against your gains (candidate / yours), per plant; "
-             "within bounds: no trip, hold at most yours x 1.1 + 0.02 C, overshoot at most yours + 0.5 C. Every row "
-             "is in-sample: the plants are fitted to the capture they are scored on.", "",
+             "within bounds: no trip, hold at most yours x 1.1 + 0.02 C, overshoot at most yours + 0.5 C. Where no "
+             "plant both fits a capture and replays it, the answer is keep your gains, with every structure tried "
+             "and why, and no table. Every row is in-sample: the plants are fitted to the capture they are scored "
+             "on.", "",
              f"{len(outcomes)} heaters: new gains on {new}, keep your gains on {keep}, not tuned on "
              f"{len(outcomes) - new - keep}.", ""]
     for o in outcomes:

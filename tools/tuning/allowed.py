@@ -12,7 +12,9 @@ One fit of one structure is one answer to "what plant made this log"; the data u
    count by the best fit's lag-1 autocorrelation rho: a log's residuals are correlated (model error, a
    1 Hz pwm), and counted as n independent samples every small gain in SSE would look decisive. A fit
    is kept when it is within EVIDENCE_MARGIN (6) of the best: relative likelihood exp(-6/2) = 1/20.
-3. Profiles: each parameter a kept fit leaves open (``FitResult.spread()``: not identified, assumed, or
+3. Profiles: a fit that identifies none of its model's lags (``FitResult.degenerate``) is no member: its
+   lags could be anything; it is dropped with that reason, and its profiles stand in for it. Each
+   parameter a kept fit leaves open (``FitResult.spread()``: not identified, assumed, or
    poorly identified) is fixed at each end of its range and the others refitted (``profiles``); an end
    the evidence excludes is tried once more halfway (geometric mean) to the fitted value. A
    profile counts the parameter it holds in k, so holding a parameter earns no credit.
@@ -107,11 +109,15 @@ class Allowed:
         return self.members[0].fitted if self.members else self.first
 
     def why_none(self) -> str:
-        """Why no plant is a member, in one line."""
-        replays = [p for p in self.dropped if p.dropped and p.dropped.startswith("does not replay")]
-        closest = replays[0] if replays else self.dropped[0] if self.dropped else None
-        return "no fit" if closest is None else f"no plant both fits it and replays it; the best fit, " \
-            f"{closest.label}, {closest.dropped}"
+        """Why no plant is a member, in one line: every structure tried and why it is not one, and how many of
+        their profiles were tried."""
+        if not self.dropped:
+            return "no fit"
+        tried = [p for p in self.dropped if ": " not in p.label]  # a profile's label is its structure's, ": ", the end
+        profiles = len(self.dropped) - len(tried)
+        each = "; ".join(f"{p.label}: {p.dropped}" for p in tried)
+        more = f"; and none of their {profiles} profiles is a member" if profiles else ""
+        return f"no plant both fits it and replays it: {each}{more}"
 
     def lines(self) -> list[str]:
         """What twin-fit and twin-tune print: each member and each dropped fit, with its evidence and replay."""
@@ -307,11 +313,20 @@ def _judged(tasks: list[_Task], fits: list[LogFit | str], against: list[FitResul
     return out
 
 
+def degenerate(plant: AllowedPlant) -> AllowedPlant:
+    """The plant dropped where its fit identifies none of its model's lags (module docstring, 3): the lags it
+    leaves open would be any value, so it is no plant the log allows; its profiles hold each of them at a
+    plausible value."""
+    if plant.dropped or not (reason := plant.fitted.degenerate):
+        return plant
+    return dataclasses.replace(plant, dropped=f"degenerate: {reason}")
+
+
 def allowed_plants(log: Log, log_name: str, options: LogFitOptions | None = None,
                    on_step: Callable[[str, int], Callable[[], None]] | None = None) -> Allowed:
     """The plants the log allows (module docstring). ``on_step(what, count)`` returns a callable that is
-    called once per finished task of that step (a progress bar). NotFittable or ValueError where not one
-    structure fits."""
+    called once per finished task of that step (a progress bar). NotFittable or ValueError where the log
+    cannot be fitted at all; where no structure fits, no members (``Allowed.why_none`` says why)."""
     options = options or LogFitOptions()
     first = fit_log(log, options)  # the default fit: the heater, the segment, what kind of evidence
     base = dataclasses.replace(options, heater=first.heater, target_c=options.target_c or first.result.anchor_c)
@@ -324,12 +339,13 @@ def allowed_plants(log: Log, log_name: str, options: LogFitOptions | None = None
     kept = [(t, p) for t, p in zip(tasks, judged) if p is not None and p.dropped is None]
     dropped += [p for p in judged if p is not None and p.dropped]
     if not kept:
-        raise NotFittable(f"{log_name}: no structure fits")
+        return Allowed(log_name, first.heater, first, [], dropped)
     best = min((p for _, p in kept), key=lambda p: p.delta).result
     ends = [_End(t, p.result, name, value, end) for t, p in kept for name, value, end in profile_points(p.result)]
-    profiled = _profiles(log, ends, best, on_step)
-    dropped += [p for p in profiled if p.dropped]
-    candidates = [p for _, p in kept] + [p for p in profiled if p.dropped is None]
+    profiled = [degenerate(p) for p in _profiles(log, ends, best, on_step)]
+    structures_kept = [degenerate(p) for _, p in kept]
+    dropped += [p for p in structures_kept + profiled if p.dropped]
+    candidates = [p for p in structures_kept + profiled if p.dropped is None]
     info = heater_settings(log, first.heater)
     replays = forked_map(lambda p: replay(log, p.fitted, info), candidates,
                          on_done=_step(on_step, "replaying the log on each plant", len(candidates)))

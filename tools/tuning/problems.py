@@ -3,7 +3,7 @@ controller, a loop, and the ensemble the plant's source allows.
 
     source = log_source("klippy.log", LogFitOptions(heater="extruder"))   # or preset_source("hotend")
     problem = build_problem(source, controller="pid")                     # the log's loop and target
-    answer = quick_answer(problem, source.printer)                          # what twin-fit answers
+    result, proof = default_tune(problem, source.printer)                  # tools/tuning/answer.py: the answer
 
 A preset states no spread: its lag and loss terms get ``--spread`` (tools/tuning/ensemble.py). A log
 gives every plant it allows (tools/tuning/allowed.py: the structures that fit about as well as the
@@ -27,7 +27,7 @@ from tools.ident.log_fit import BED, LogFit, LogFitOptions, fit_log
 from tools.ident.plausible import ROOM_C
 from tools.logs import Log, M303Log, PlainLog, StatsLog, load_log
 from tools.tuning.controllers import resolve_controller
-from tools.tuning.allowed import Allowed, AllowedPlant, allowed_plants, heater_settings
+from tools.tuning.allowed import Allowed, AllowedPlant, allowed_plants, degenerate, heater_settings
 from tools.tuning.ensemble import (
     DEFAULT_NOISE_LSB,
     DEFAULT_SPREAD,
@@ -40,8 +40,7 @@ from tools.tuning.ensemble import (
 )
 from tools.tuning.evaluate import AMBIENT_C, Problem, default_scenario, full_power_time_s, heater_of
 from tools.tuning.reference import PrinterGains, from_log
-from tools.tuning.proof import PROOF_SEEDS
-from tools.tuning.tuner import Proven, Step, proven, tune
+from tools.tuning.tuner import Step
 from tools.validation.compare import HeaterInfo, Unusable, heatup_windows, overlaps
 from tools.validation.m303_compare import twin_noise_lsb
 from twin.limits import UserError
@@ -96,13 +95,26 @@ def source_of(log: Log, name: str, options: LogFitOptions | None = None, on_step
     if ensemble:
         return allowed_source(log, allowed_plants(log, name, options, on_step), options)
     fitted = fit_log(log, options)
-    return _with_log(fitted_source(fitted, name), log, fitted, [AllowedPlant(fitted.result.model, fitted, 0.0)], options)
+    plant = degenerate(AllowedPlant(fitted.result.model, fitted, 0.0))
+    if plant.dropped:
+        return allowed_source(log, Allowed(name, fitted.heater, fitted, [], [plant]), options)
+    return _with_log(fitted_source(fitted, name), log, fitted, [plant], options)
+
+
+class NoModel(ValueError):
+    """A log that reads and fits but allows no plant (``Allowed.why_none``): no model to tune on. It carries
+    the plants considered and the gains the log states (None: none), for a verdict without a model."""
+
+    def __init__(self, allowed: Allowed, printer: PrinterGains | None):
+        super().__init__(f"{allowed.log_name}: the twin cannot tune from it: {allowed.why_none()}")
+        self.allowed, self.printer = allowed, printer
 
 
 def allowed_source(log: Log, allowed: Allowed, options: LogFitOptions | None = None) -> Source:
-    """The source of the plants a log allows; ValueError where there are none (``Allowed.why_none``)."""
+    """The source of the plants a log allows; NoModel where there are none."""
     if not allowed.members:
-        raise ValueError(f"{allowed.log_name}: the twin cannot tune from it: {allowed.why_none()}")
+        entry = (options or LogFitOptions()).segment if isinstance(log, list) else None
+        raise NoModel(allowed, from_log(log, allowed.heater, entry))
     best = allowed.best
     source = replace(fitted_source(best, allowed.log_name), allowed=allowed)
     return _with_log(source, log, best, allowed.members, options or LogFitOptions())
@@ -202,11 +214,3 @@ def build_problem(source: Source, target_c: float | None = None, controller: str
         return Problem(source.name, source.spec, scenario, loop, space, ensemble, klipper=source.klipper)
     except ValueError as exc:
         raise UserError(f"--loop {loop}: {exc}") from None
-
-
-def quick_answer(problem: Problem, printer: PrinterGains | None, seeds: int = PROOF_SEEDS) -> Proven:
-    """What twin-fit answers: the tuning rules and the firmware's autotune scored on the problem's ensemble
-    against the printer's gains (else the autotune's), proven and judged as twin-tune judges its search's
-    best (tools/tuning/verdict.py): new gains only where one beats them on every plant."""
-    yours = None if printer is None else np.array([printer.gains.kp, printer.gains.ki, printer.gains.kd])
-    return proven(tune(problem, method="rules", yours=yours), seeds)

@@ -11,6 +11,13 @@ and over the ensemble its heater objective (the mean over seeds, reduced by the 
 at least MIN_GAIN_REL (5 %) lower: a change must buy something a user would notice, beyond the twin's
 own fidelity (docs/validation.md: heat-up times within 10 %), not only be no worse. A member on which the reference itself trips asks only
 that the candidate does not. Duty chatter is reported, not bounded: the objective already charges it.
+
+Of the candidates that beat the reference, the answer is the first (the search's cheapest) unless another
+holds as well (worst hold within x HOLD_FACTOR + HOLD_SLACK_C of the first's) and overshoots less by more
+than OVERSHOOT_SLACK_C: the objective charges nothing for overshoot below 3 C, a user still sees it. Where a
+change holds worse than the reference, its line names what the worse hold buys. Where nothing beats the
+reference, the closest candidate that never trips and is not the reference's own parameters is an option,
+with its trade (``Verdict.trade``).
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ HOLD_FACTOR = 1.1
 HOLD_SLACK_C = 0.02
 OVERSHOOT_SLACK_C = 0.5
 MIN_GAIN_REL = 0.05
+SAME_REL = 1e-6  # a candidate this close to the reference's parameters is the reference (a search that found it)
 KEEP = "keep your gains"
 NEW = "new gains"
 
@@ -62,6 +70,8 @@ class Verdict:
     method: str | None
     why: str
     misses: dict[str, dict[str, list[str]]]  # candidate method -> member -> reasons
+    trade: str = ""  # keep: what the closest candidate that never trips would change (gain_line); "" none
+    closest: str | None = None  # keep: the candidate closest to beating the reference, not the reference's gains
 
     @property
     def keep(self) -> bool:
@@ -69,19 +79,26 @@ class Verdict:
 
     @property
     def shown(self) -> str | None:
-        """The candidate to show beside the reference: the answer, else the one with the fewest misses."""
-        if self.method is not None or not self.misses:
-            return self.method
-        return min(self.misses, key=lambda m: sum(len(v) for v in self.misses[m].values()))
+        """The candidate to show beside the reference: the answer, else the one with the fewest misses, one
+        that never trips before one that does."""
+        if self.method is not None or self.closest is not None or not self.misses:
+            return self.method or self.closest
+        return min(self.misses, key=lambda m: (_trips(self.misses[m]), sum(len(v) for v in self.misses[m].values())))
+
+
+def _trips(missed: dict[str, list[str]]) -> bool:
+    return any(why.startswith("trips") for reasons in missed.values() for why in reasons)
 
 
 def judge(rows: list[ProofRow], reference: str, order: Sequence[str], ensemble: Ensemble | None) -> Verdict:
-    """The first candidate of ``order`` that beats the reference (the method named ``reference``) on every
-    member and on the ensemble's cost, else keep your gains."""
+    """Of the candidates of ``order`` that beat the reference (the method named ``reference``) on every
+    member and on the ensemble's cost, the best safe one (``safest``), else keep your gains, with the closest
+    candidate's trade."""
     by = {(r.method, r.member): r for r in rows}
     members = list(dict.fromkeys(r.member for r in rows))
     ref_rows = [by[(reference, m)] for m in members]
     ref_cost = ensemble_cost(ref_rows, ensemble)
+    plants = ensemble.kind if ensemble else "plants"
     misses: dict[str, dict[str, list[str]]] = {}
     for method in order:
         rows_c = [by[(method, m)] for m in members]
@@ -91,9 +108,34 @@ def judge(rows: list[ProofRow], reference: str, order: Sequence[str], ensemble: 
             missed = {"ensemble": [f"objective {cost:.4g} s, not {MIN_GAIN_REL:.0%} below the reference's "
                                    f"{ref_cost:.4g} s"]}
         misses[method] = missed
-        if not missed:
-            return Verdict(NEW, method, gain_line(rows_c, ref_rows, ensemble.kind if ensemble else "plants"), misses)
-    return Verdict(KEEP, None, keep_line(misses, ensemble.kind if ensemble else "plants"), misses)
+    passing = [m for m in order if not misses[m]]
+    if passing:
+        method = safest({m: [by[(m, member)] for member in members] for m in passing})
+        rows_c = [by[(method, m)] for m in members]
+        return Verdict(NEW, method, gain_line(rows_c, ref_rows, plants, ensemble), misses)
+    other = {m: v for m, v in misses.items() if not np.allclose(by[(m, members[0])].params, ref_rows[0].params,
+                                                                 rtol=SAME_REL, atol=0.0)} or misses
+    closest = Verdict(KEEP, None, "", other).shown
+    trade = "" if closest is None or _trips(misses[closest]) else \
+        gain_line([by[(closest, m)] for m in members], ref_rows, plants, ensemble)
+    return Verdict(KEEP, None, keep_line(other, plants), misses, trade, closest)
+
+
+def _worst(rows: Sequence[ProofRow], attr: str) -> float:
+    return max(getattr(r, attr)[1] for r in rows)
+
+
+def safest(passing: dict[str, list[ProofRow]]) -> str:
+    """Of the candidates that beat the reference (the search's cheapest first), the first, unless another
+    holds as well (worst hold within HOLD_FACTOR and HOLD_SLACK_C of the first's) and overshoots less by more
+    than OVERSHOOT_SLACK_C: then the one of them that overshoots least."""
+    first = next(iter(passing))
+    hold_bound = _worst(passing[first], "hold_error_c") * HOLD_FACTOR + HOLD_SLACK_C
+    alike = [m for m, rows in passing.items() if _worst(rows, "hold_error_c") <= hold_bound]
+    least = min(alike, key=lambda m: _worst(passing[m], "overshoot_c"))
+    if _worst(passing[least], "overshoot_c") < _worst(passing[first], "overshoot_c") - OVERSHOOT_SLACK_C:
+        return least
+    return first
 
 
 def _change(name: str, ours: float, yours: float, unit: str, digits: int = 2) -> str:
@@ -102,23 +144,31 @@ def _change(name: str, ours: float, yours: float, unit: str, digits: int = 2) ->
     return f"{name} {yours:.{digits}f} -> {ours:.{digits}f}{unit}"
 
 
-def gain_line(candidate: Sequence[ProofRow], reference: Sequence[ProofRow], plants: str = "plants") -> str:
-    """What a user gains by changing, worst over members and seeds: overshoot, hold, chatter, trips."""
-    def worst(rows: Sequence[ProofRow], attr: str) -> float:
-        return max(getattr(r, attr)[1] for r in rows)
-
+def gain_line(candidate: Sequence[ProofRow], reference: Sequence[ProofRow], plants: str = "plants",
+              ensemble: Ensemble | None = None) -> str:
+    """What a user gets by changing, worst over members and seeds: overshoot, hold, chatter, trips; where the
+    hold is worse, what that buys (the better terms, and the objective: heat-up time and all)."""
     def mean(rows: Sequence[ProofRow], attr: str) -> float:
         return float(np.mean([getattr(r, attr)[0] for r in rows]))
 
-    parts = [_change("overshoot", worst(candidate, "overshoot_c"), worst(reference, "overshoot_c"), " C", 1),
-             _change("hold", worst(candidate, "hold_error_c"), worst(reference, "hold_error_c"), " C")]
+    overshoot_c, overshoot_r = _worst(candidate, "overshoot_c"), _worst(reference, "overshoot_c")
+    hold_c, hold_r = _worst(candidate, "hold_error_c"), _worst(reference, "hold_error_c")
+    parts = [_change("overshoot", overshoot_c, overshoot_r, " C", 1), _change("hold", hold_c, hold_r, " C")]
+    better = [parts[0]] if overshoot_c < overshoot_r - 0.05 else []
     chatter_c, chatter_r = mean(candidate, "chatter"), mean(reference, "chatter")
     if chatter_r > 0:
         parts.append(f"duty chatter {100.0 * (chatter_c / chatter_r - 1.0):+.0f} %")
+        better += [parts[-1]] if chatter_c < chatter_r else []
     trips = sum(r.trips for r in reference)
     if trips:
         parts.append(f"trips {trips} -> 0")
-    return f"{', '.join(parts)}, on all {len(candidate)} {plants} (worst seed)"
+        better.append(parts[-1])
+    line = f"{', '.join(parts)}, on all {len(candidate)} {plants} (worst seed)"
+    if hold_c >= hold_r + 0.005:  # a worse hold, as printed: say what it buys
+        cost_c, cost_r = ensemble_cost(candidate, ensemble), ensemble_cost(reference, ensemble)
+        better.append(f"objective {cost_r:.4g} -> {cost_c:.4g} s (heat-up time, overshoot beyond 3 C, hold, chatter)")
+        line += f"; the worse hold buys {', '.join(better)}"
+    return line
 
 
 def keep_line(misses: dict[str, dict[str, list[str]]], plants: str = "plants") -> str:

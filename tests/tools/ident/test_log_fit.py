@@ -1,15 +1,16 @@
-"""fit_log (tools/ident/log_fit.py) and twin-fit on every capture: a fit, or a one-line reason and a
-non-zero status; no gains from a degenerate fit; one plant for twin-fit and twin-tune."""
+"""fit_log (tools/ident/log_fit.py) and twin-fit on every capture: an answer, or a one-line reason and a
+non-zero status; a degenerate fit is no plant the answer stands on; one plant for twin-fit and twin-tune."""
 
 import re
 
 import numpy as np
 import pytest
 
-from tools.cli.fit import EXIT_DEGENERATE, main
+from tools.cli.fit import main
 from tools.ident.log_fit import MAX_FIT_SAMPLES, LogFitOptions, fit_log
 from tools.ident.segments import Segment
 from tools.logs import load_log, results_only
+from tools.tuning.exits import EXIT_NO_MODEL
 from tools.tuning.evaluate import full_power_time_s
 from twin.linear import SENSOR
 
@@ -27,15 +28,16 @@ def _twin_fit(capsys, *argv):
 @pytest.mark.slow
 @pytest.mark.each_hardware_log("*", exclude=["README.md"])
 def test_twin_fit_on_every_capture(capsys, hardware_log):
-    """Every capture in hardware_logs: fitted (exit 0, gains printed or "keep your gains" said), or refused
-    with one line on stderr and a non-zero status (a degenerate fit, or no plant that fits the log replays
-    it: 3), never a traceback; a refused one prints no gains."""
-    code, out, err = _twin_fit(capsys, str(hardware_log))
+    """Every capture in hardware_logs: an answer (twin-tune's, here at --budget 90 --proof 2: new gains or
+    "keep your gains" and why; exit 0, or 1 where no gains are known and nothing safe was found), or refused
+    with one line on stderr: 2 a log that cannot be fitted, 3 neither a plant it allows nor gains; never a
+    traceback; a refused one prints no gains."""
+    code, out, err = _twin_fit(capsys, str(hardware_log), "--budget", "90", "--proof", "2")
     assert "Traceback" not in err
-    if code == 0:
-        assert (GAINS_RE.search(out) or re.search(r"^keep your gains \(Kp ", out, re.M)) and err == "", out
+    if code in (0, 1):
+        assert re.search(r"^answer: (new gains \(|keep )", out, re.M) and err == "", out
     else:
-        assert code in (2, EXIT_DEGENERATE) and len(err.strip().splitlines()) == 1 and not GAINS_RE.search(out)
+        assert code in (2, EXIT_NO_MODEL) and len(err.strip().splitlines()) == 1 and not GAINS_RE.search(out)
 
 
 def test_a_log_without_a_heater_step_is_refused(capsys, tmp_path):
@@ -47,13 +49,20 @@ def test_a_log_without_a_heater_step_is_refused(capsys, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_degenerate_fit_prints_no_gains(capsys, hardware_logs):
-    """two_node on the Prusa bed's relay trace identifies neither its capacity nor its sensor lag."""
-    code, out, err = _twin_fit(capsys, str(hardware_logs / PRUSA_BED), "--heater", "heater_bed", "--model",
-                               "two_node")
-    assert code == EXIT_DEGENERATE and not GAINS_RE.search(out)
-    assert err.startswith("twin-fit:") and "degenerate fit, no gains" in err and len(err.splitlines()) == 1
+def test_a_degenerate_fit_is_no_plant_the_answer_stands_on(capsys, hardware_logs):
+    """two_node on the Prusa bed's relay trace identifies neither its capacity nor its sensor lag: reported,
+    never a plant the log allows; the answer comes from the plants it does allow. With --fit-only there is
+    no other plant: no settings, exit 3, one line."""
+    argv = [str(hardware_logs / PRUSA_BED), "--heater", "heater_bed", "--model", "two_node"]
+    code, out, err = _twin_fit(capsys, *argv, "--fit-only")
+    assert code == EXIT_NO_MODEL and not GAINS_RE.search(out)
+    assert err.startswith("twin-fit:") and "degenerate fit, no settings" in err and len(err.splitlines()) == 1
     assert "not identified" in out  # the parameter table says which
+    code, out, err = _twin_fit(capsys, *argv, "--budget", "90", "--proof", "2")
+    assert code == 0, err
+    assert "the two_node fit is degenerate (the data identify none of two_node's lags" in " ".join(out.split())
+    assert re.search(r"^  dropped two_node: ", out, re.M) and not re.search(r"^  member two_node:", out, re.M)
+    assert re.search(r"^answer: (new gains \(|keep your gains)", out, re.M)
 
 
 @pytest.mark.slow

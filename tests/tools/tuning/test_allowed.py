@@ -1,14 +1,15 @@
 """The plants a log allows: Akaike's evidence with scaled and with correlated residuals, profiles to the ends
 of what a fit leaves open, the replay against the log's own numbers; on the Artillery bed's result lines the
-data cannot choose between a first-order fit and a three-node one (both members), and an assumed cartridge
-capacity the hotend capture excludes is dropped with its reason."""
+data cannot choose between a first-order fit and a three-node one (both members, the three-node one as the
+profiles that identify its lags: a degenerate fit is never a member), and an assumed cartridge capacity the
+hotend capture excludes is dropped with its reason; a log that allows no plant says why of every structure."""
 
 import numpy as np
 import pytest
 
 from tools.ident.result import FitResult
 from tools.logs import load_log
-from tools.tuning.allowed import EVIDENCE_MARGIN, allowed_plants, evidence, halfway, profile_points
+from tools.tuning.allowed import EVIDENCE_MARGIN, Allowed, AllowedPlant, allowed_plants, evidence, halfway, profile_points
 
 
 def fit(residuals: np.ndarray, n_params: int, evidence_kind: str = "trace") -> FitResult:
@@ -64,6 +65,9 @@ def test_the_bed_capture_allows_several_structures_and_each_replays_it(hardware_
         assert plant.replay.rows[0][0] == "Tu s"  # the twin's own M303 against the printed cycles
     reasons = {p.label: p.dropped for p in allowed.dropped}
     assert reasons["two_node"].startswith("the evidence excludes it")  # 4x the scatter: no
+    # three_node fits as well but identifies none of its lags: no member; its profiles, which hold one, may be
+    assert reasons["three_node"].startswith("degenerate: the data identify none of three_node's lags")
+    assert all(p.fitted.degenerate is None for p in allowed.members)
     assert all(reasons.values())
     again = allowed_plants(log, "bed")  # the same log, the same plants
     assert [p.label for p in again.members] == [p.label for p in allowed.members]
@@ -77,3 +81,18 @@ def test_a_cartridge_capacity_the_hotend_capture_excludes_is_dropped(hardware_lo
     allowed = allowed_plants(log, "hotend")
     at_8 = [p for p in allowed.dropped + allowed.members if "cartridge_heat_capacity_j_k 8 " in p.label]
     assert at_8 and all(p.dropped for p in at_8), [(p.label, p.dropped) for p in at_8]
+
+
+def test_a_log_that_allows_no_plant_names_every_structure_tried_and_why():
+    def dropped(label: str, why: str) -> AllowedPlant:
+        return AllowedPlant(label, None, 0.0, dropped=why)  # type: ignore[arg-type]  # why_none reads no fit
+
+    allowed = Allowed("bed.txt", "heater_bed", None, [], [  # type: ignore[arg-type]
+        dropped("fopdt", "the evidence excludes it (delta 17.4 > 6)"),
+        dropped("three_node", "degenerate: the data identify none of three_node's lags (...)"),
+        dropped("three_node: ambient_c 35 (end high, fitted 25)", "does not replay the log: ..."),
+        dropped("sopdt", "does not replay the log: Tu s 21.97 / 14.07")])
+    assert allowed.why_none() == (
+        "no plant both fits it and replays it: fopdt: the evidence excludes it (delta 17.4 > 6); three_node: "
+        "degenerate: the data identify none of three_node's lags (...); sopdt: does not replay the log: Tu s 21.97 / "
+        "14.07; and none of their 1 profiles is a member")

@@ -2,6 +2,8 @@
 0.02 C, overshoot within +0.5 C, the ensemble's objective 5 % lower), else keep your gains, with the one
 line that says why."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -59,3 +61,57 @@ def test_a_candidate_that_trips_anywhere_is_never_the_answer(trips):
     tripping = [row("fopdt", "de", cost=100.0), row("three_node", "de", trips=trips, cost=100.0)]
     verdict = judge(tripping + yours, "yours", ["de"], ENSEMBLE)
     assert verdict.kind == KEEP and f"trips in {trips} of 10 runs" in verdict.why
+
+
+def test_of_the_candidates_that_beat_yours_the_one_that_holds_as_well_and_overshoots_least():
+    """The objective charges nothing below 3 C of overshoot: the search's cheapest answer overshot 2.3 C where
+    one that holds as well overshoots 0.7 C. A lower overshoot at a worse hold is no swap."""
+    yours = [row(m, "yours", overshoot=3.0, hold=0.60, cost=300.0) for m in MEMBERS]
+    cheapest = [row(m, "de", overshoot=2.3, hold=0.50, cost=200.0) for m in MEMBERS]
+    calm = [row(m, "de #2", overshoot=0.7, hold=0.54, cost=250.0) for m in MEMBERS]  # 0.54 <= 0.50 x 1.1 + 0.02
+    loose = [row(m, "de #3", overshoot=0.1, hold=0.58, cost=260.0) for m in MEMBERS]  # beats yours, holds worse
+    verdict = judge(cheapest + calm + loose + yours, "yours", ["de", "de #2", "de #3"], ENSEMBLE)
+    assert verdict.kind == NEW and verdict.method == "de #2"
+    # within the overshoot slack (0.5 C) the search's cheapest stays the answer
+    near = [row(m, "de #2", overshoot=1.9, hold=0.50, cost=250.0) for m in MEMBERS]
+    assert judge(cheapest + near + yours, "yours", ["de", "de #2"], ENSEMBLE).method == "de"
+
+
+def test_a_worse_hold_is_never_shown_without_what_it_buys():
+    yours = [row(m, "yours", overshoot=5.0, hold=0.61, chatter=0.04, cost=300.0) for m in MEMBERS]
+    faster = [row(m, "de", overshoot=1.0, hold=0.68, chatter=0.02, cost=250.0) for m in MEMBERS]
+    verdict = judge(faster + yours, "yours", ["de"], ENSEMBLE)
+    assert verdict.kind == NEW
+    assert verdict.why == ("overshoot 5.0 -> 1.0 C, hold 0.61 -> 0.68 C, duty chatter -50 %, on all 2 plants the log "
+                           "allows (worst seed); the worse hold buys overshoot 5.0 -> 1.0 C, duty chatter -50 %, "
+                           "objective 300 -> 250 s (heat-up time, overshoot beyond 3 C, hold, chatter)")
+    # a hold as good or better names nothing
+    assert "buys" not in judge([row(m, "de", hold=0.5, cost=250.0) for m in MEMBERS] + yours, "yours", ["de"],
+                               ENSEMBLE).why
+
+
+def test_keep_your_gains_offers_the_closest_candidate_that_never_trips_with_its_trade():
+    """The bed capture: a runner-up that ties on hold, overshoots 0.5 C instead of 2.8 C and chatters less,
+    missed on one member's hold (0.211 against 0.155 C): the user sees that trade."""
+    yours = [row(m, "yours", overshoot=2.8, hold=0.155, chatter=0.07, cost=300.0) for m in MEMBERS]
+    tripping = [row(m, "de", trips=1, overshoot=0.1, hold=0.05, cost=100.0) for m in MEMBERS]
+    runner_up = [row("fopdt", "de #2", overshoot=0.5, hold=0.15, chatter=0.02, cost=250.0),
+                 row("three_node", "de #2", overshoot=0.5, hold=0.211, chatter=0.02, cost=250.0)]
+    verdict = judge(tripping + runner_up + yours, "yours", ["de", "de #2"], ENSEMBLE)
+    assert verdict.kind == KEEP and verdict.shown == "de #2"
+    assert verdict.why.startswith("nothing beats them on all plants the log allows: the closest, de #2, misses on "
+                                  "three_node: hold 0.211 C > 0.191 C")
+    assert verdict.trade.startswith("overshoot 2.8 -> 0.5 C, hold 0.15 -> 0.21 C, duty chatter -71 %, on all 2 "
+                                    "plants the log allows (worst seed); the worse hold buys overshoot 2.8 -> 0.5 C")
+    # only tripping candidates: no option
+    assert judge(tripping + yours, "yours", ["de"], ENSEMBLE).trade == ""
+
+
+def test_a_search_that_found_your_gains_is_no_option():
+    yours = [row(m, "yours", cost=300.0) for m in MEMBERS]
+    found = [row(m, "de", cost=300.0) for m in MEMBERS]  # the same parameters (row() gives zeros)
+    other = [ProofRow(r.member, "de #2", np.ones(3), *dataclasses.astuple(r)[3:]) for r in
+             [row(m, "de #2", overshoot=1.0, hold=0.2, cost=290.0) for m in MEMBERS]]
+    verdict = judge(found + other + yours, "yours", ["de", "de #2"], ENSEMBLE)
+    assert verdict.kind == KEEP and verdict.shown == "de #2" and "the closest, de #2," in verdict.why
+    assert verdict.trade.startswith("overshoot 2.0 -> 1.0 C, hold 0.10 -> 0.20 C")

@@ -182,7 +182,7 @@ def measure(args: argparse.Namespace) -> list[str]:
     if args.what == "twin-tune":
         sizes = [word for name in ("budget", "proof") if getattr(args, name) is not None
                  for word in (f"--{name}", str(getattr(args, name)))]
-        return b.bench_twin_tune(args.captures, sizes)
+        return b.bench_twin_tune((args.captures,) if args.captures else CAPTURES, sizes)
     if args.what == "scaling":
         return b.bench_scaling(args.seed)
     if args.what == "startup":

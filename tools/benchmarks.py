@@ -34,7 +34,8 @@ from firmware_port.firmwares import param_space
 from tools.ident.log_fit import HEATER_NAMES
 from tools.logs import StatsLog, hardware_logs_dir, load_log
 from tools.tuning.evaluate import CHUNK_LANES, KLIPPER_MAX_TEMP_C, Evaluator, preset_problem
-from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective, score_spec
+from tools.tuning.defaults import DEFAULT_OBJECTIVE
+from tools.tuning.objectives import objective, score_spec
 from tools.tuning.problems import build_problem, preset_source
 from tools.tuning.tuner import DEFAULT_BUDGET, Candidate, tune
 from twin import batch_kernel
@@ -46,7 +47,6 @@ from twin.linear import SENSOR, TICK_S
 from twin.plants import ONION_RADIATING_PARAMS, SPECS, TransferFunction, make_plant, respec
 from twin.scenario import PRESETS, with_overrides
 
-from tools.bench import CAPTURES, ROOT
 
 T = TypeVar("T")
 
@@ -410,11 +410,11 @@ def _heaters(path: Path) -> list[str | None]:
     return [None]
 
 
-def twin_tune_cases(captures: str | None) -> list[tuple[list[str], float]]:
+def twin_tune_cases(patterns: tuple[str, ...]) -> list[tuple[list[str], float]]:
     """twin-tune's arguments and wall target for each case: the default tune, then every capture matching
-    ``captures`` (default: CAPTURES) on each of its heaters."""
+    one of ``patterns`` on each of its heaters."""
     folder = hardware_logs_dir()
-    paths = sorted({path for pattern in ((captures,) if captures else CAPTURES) for path in folder.glob(pattern)})
+    paths = sorted({path for pattern in patterns for path in folder.glob(pattern)})
     cases = [(PRESET_TUNE, float(PRESET_TARGET_S))]
     for path in paths:
         cases += [(["--from-log", str(path), *(["--heater", heater] if heater else [])], float(LOG_TARGET_S))
@@ -448,9 +448,9 @@ def _run_twin_tune(args: list[str]) -> tuple[float, float, int, str]:
         return wall_s, cpu_s, done.returncode, _verdict(answer, done.stderr)
 
 
-def bench_twin_tune(captures: str | None, sizes: list[str]) -> list[str]:
+def bench_twin_tune(patterns: tuple[str, ...], sizes: list[str]) -> list[str]:
     """twin-tune's default tune and --from-log on every capture, each as a user runs it."""
-    cases = twin_tune_cases(captures)
+    cases = twin_tune_cases(patterns)
     for warm_up in WARM_UPS:
         _run_twin_tune(warm_up)
     lines = [f"twin-tune in its own process ({' '.join(['python', *TWIN_TUNE_CLI[1:]])} ARGS{''.join(' ' + s for s in sizes)}"
@@ -641,7 +641,7 @@ def fallback_batch_cpu_s(preset: str, n_lanes: int, duration_s: float, seed: int
 
 def _fallback_process(argv: list[str], fallback: bool) -> tuple[subprocess.CompletedProcess, float, float]:
     """argv in its own process (compiled, or the fallback's environment): the run, wall s, CPU s."""
-    env = {**os.environ, **(FALLBACK_ENV if fallback else {}), "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, **(FALLBACK_ENV if fallback else {}), "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     done, wall_s, _ = _timed_value(lambda: subprocess.run(argv, env=env, capture_output=True, text=True,
                                                            timeout=TWIN_TUNE_TIMEOUT_S))

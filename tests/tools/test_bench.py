@@ -52,7 +52,7 @@ def test_a_page_without_the_section_is_refused_before_any_work(tmp_path, capsys,
 
 
 def test_twin_tune_runs_the_default_tune_then_every_capture_on_each_heater(hardware_logs):
-    cases = benchmarks.twin_tune_cases(None)
+    cases = benchmarks.twin_tune_cases(bench.CAPTURES)
     assert cases[0] == (["--plant", "hotend_cartridge", "--target", "210"], 15.0)
     m303 = sorted(hardware_logs.glob("m303_*.txt"))
     klippy = sorted(hardware_logs.glob("klippy_stats_*.csv"))
@@ -61,7 +61,7 @@ def test_twin_tune_runs_the_default_tune_then_every_capture_on_each_heater(hardw
         ["--from-log", str(path), "--heater", heater] for path in klippy for heater in ("extruder", "heater_bed")])
     assert sorted(args for args, _ in cases[1:]) == expected
     assert {target for _, target in cases[1:]} == {30.0}
-    assert benchmarks.twin_tune_cases("m303_bed_*.txt")[1:] == [
+    assert benchmarks.twin_tune_cases(("m303_bed_*.txt",))[1:] == [
         (["--from-log", str(path)], 30.0) for path in sorted(hardware_logs.glob("m303_bed_*.txt"))]
 
 

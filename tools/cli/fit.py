@@ -46,9 +46,7 @@ from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import MARLIN_POWER_MAX, Log, LogError, M303Log, StatsLog
 from tools.progress import Steps
-from tools.tuning.exits import EXIT_ANSWER, EXIT_CODES, EXIT_NO_MODEL
-from tools.tuning.proof import PROOF_SEEDS
-from tools.tuning.tuner import DEFAULT_BUDGET
+from tools.tuning.defaults import DEFAULT_BUDGET, EXIT_ANSWER, EXIT_CODES, EXIT_NO_MODEL, PROOF_SEEDS
 from twin.limits import AMBIENT_RANGE_C, UserError
 from twin.plants import BED_POWER_W, MPC_HEATER_POWER_W
 

@@ -21,7 +21,8 @@ import numpy as np
 from tools.ident.log_fit import LogFitOptions
 from tools.logs import hardware_logs_dir
 from tools.tuning.evaluate import Problem, score
-from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
+from tools.tuning.defaults import DEFAULT_OBJECTIVE
+from tools.tuning.objectives import objective
 from tools.tuning.problems import build_problem, log_source
 from tools.tuning.tuner import tune
 from tools.validation.doc_compare import publish_section

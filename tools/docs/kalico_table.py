@@ -33,7 +33,8 @@ from tools.ident.log_fit import LogFitOptions
 from tools.logs import hardware_logs_dir
 from tools.tuning.evaluate import Problem, firmware_autotune, score
 from tools.tuning.gains import Gains
-from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
+from tools.tuning.defaults import DEFAULT_OBJECTIVE
+from tools.tuning.objectives import objective
 from tools.tuning.problems import Source, build_problem, log_source, preset_source
 from tools.tuning.proof import PROOF_SEEDS, prove
 from tools.tuning.tuner import DEFAULT_BUDGET, tune

@@ -24,7 +24,8 @@ from tools.cli.args import doc_page
 from tools.entry import OneLineParser, run_cli
 from tools.ident.log_fit import LogFitOptions
 from tools.logs import hardware_logs_dir
-from tools.tuning.evaluate import Candidate, rule_gains, rule_names, score
+from tools.tuning.defaults import rule_names
+from tools.tuning.evaluate import Candidate, rule_gains, score
 from tools.tuning.objectives import heater_cost
 from tools.tuning.evaluate import Problem
 from tools.tuning.problems import build_problem, log_source, preset_source

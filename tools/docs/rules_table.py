@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from tools.entry import OneLineParser, run_cli
-from tools.tuning.evaluate import Candidate, firmware_autotune, preset_problem, rule_gains, rule_names, score
+from tools.tuning.defaults import rule_names
+from tools.tuning.evaluate import Candidate, firmware_autotune, preset_problem, rule_gains, score
 from tools.tuning.objectives import heater_cost, heater_terms
 from twin.metrics import step_metrics
 from twin.limits import UserError

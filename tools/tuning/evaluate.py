@@ -40,8 +40,6 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
 
 from firmware_port.kalico import CONTROL_MPC, KalicoHeaterConfig, MpcConfig
 from firmware_port.klipper import CommandError, HeaterConfig
@@ -53,12 +51,12 @@ from firmware_port.firmwares import KALICO_MPC, param_space
 from firmware_port.marlin.pid import pid_space
 from firmware_port.params import ParamSpace
 from tools.ident.fopdt import CONTROL_DELAY_S
+from tools.tuning.defaults import LOOPS
 from tools.tuning.ensemble import Ensemble, Member
 from tools.tuning.gains import COUNTS_PER_DUTY, Gains
 from tools.tuning.models import model_of
 from tools.tuning.objectives import Run, needs_trace, score_spec
-from tools.tuning.optim import METHODS
-from tools.tuning.rules import RULES, tune
+from tools.tuning.rules import tune
 from tools.validation.compare import HeaterInfo, make_setup
 from twin.batch import BatchTwin
 from twin.engine import Twin
@@ -70,7 +68,6 @@ from twin.plants import SPECS, Lumped, Plant, Spec, TransferFunction
 from twin.scenario import Event
 from twin.streaming import ScoreTotals
 
-LOOPS = ("marlin", "klipper", "kalico", "ideal")
 KLIPPER_FAMILY = ("klipper", "kalico")  # Klipper's host loop, with Klipper's heater or Kalico's
 CHUNK_LANES = 32  # candidates per batch: one dask task
 AMBIENT_C = 25.0
@@ -262,6 +259,7 @@ def _sensor_step(lti: Lti) -> tuple[np.ndarray, np.ndarray]:
     """Open-loop sensor rise at full power: times and values (to 10 time constants of the slowest pole)."""
     slowest_s = 1.0 / np.min(np.abs(np.linalg.eigvals(lti.a).real))
     t = np.linspace(0.0, 10.0 * slowest_s, 4001)
+    import scipy.signal  # here: the tuning layer's import stays light (twin-tune --help)
     system = scipy.signal.StateSpace(lti.a, lti.b[:, None], lti.c[SENSOR][None, :], np.zeros((1, 1)))
     _, y = scipy.signal.step(system, T=t)
     return t, y
@@ -482,6 +480,7 @@ def _ideal_maps(lti: Lti, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
     n, m = lti.a.shape[0], lti.e.shape[1]
     aug = np.zeros((n + 1 + m, n + 1 + m))
     aug[:n, :n], aug[:n, n], aug[:n, n + 1:] = lti.a, lti.b, lti.e
+    import scipy.linalg
     disc = scipy.linalg.expm(aug * dt_s)
     return disc[:n, :n], disc[:n, n], disc[:n, n + 1:]
 
@@ -766,14 +765,6 @@ def rule_gains(problem: Problem, names: list[str]) -> tuple[dict[str, Gains], di
         except ValueError as exc:
             failures[name] = str(exc)
     return gains, failures
-
-
-def rule_names() -> list[str]:
-    return list(RULES)
-
-
-def optimiser_names() -> list[str]:
-    return list(METHODS)
 
 
 def score(problem: Problem, cost: Callable[[Run], np.ndarray], candidates: Mapping[str, np.ndarray | Gains],

@@ -18,7 +18,6 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg
 
 from tools.tuning.models import LinearModel
 
@@ -48,6 +47,7 @@ def closed_loop(model: LinearModel, controller: Callable[[float], float], setpoi
     n = len(model.b)
     aug = np.zeros((n + 1, n + 1))
     aug[:n, :n], aug[:n, n] = model.a, model.b
+    import scipy.linalg
     disc = scipy.linalg.expm(aug * step_s)
     phi, gam = disc[:n, :n], disc[:n, n]
     steps = int(round(duration_s / step_s))

@@ -16,7 +16,6 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.signal
 
 from tools.ident.fopdt import Fopdt, two_point_fopdt
 from twin.linear import SENSOR, Lti, TickModel
@@ -48,6 +47,7 @@ class LinearModel:
 
     def polynomials(self) -> tuple[np.ndarray, np.ndarray]:
         """Numerator and denominator of the rational part, highest power first."""
+        import scipy.signal
         num, den = scipy.signal.ss2tf(self.a, self.b[:, None], self.c[None, :], np.zeros((1, 1)))
         num = num[0]
         # ss2tf leaves rounding residue where the numerator's leading coefficients are zero

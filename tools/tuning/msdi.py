@@ -29,7 +29,6 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-import scipy.optimize
 
 from tools.tuning.gains import Gains
 from tools.tuning.models import LinearModel
@@ -176,6 +175,7 @@ def first_maximum(model: Quasi, j_grid: np.ndarray, curves: np.ndarray, column: 
     if not peaks.size:
         raise ValueError("the gain curve has no maximum over the J range")
     i = int(peaks[0])
+    import scipy.optimize
     best = scipy.optimize.minimize_scalar(lambda j: -gains_at(model, j)[column], bounds=(j_grid[i - 1], j_grid[i + 1]),
                                           method="bounded", options={"xatol": 1e-10 * j_grid[i]})
     return float(best.x)

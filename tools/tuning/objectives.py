@@ -340,7 +340,6 @@ OBJECTIVES: dict[str, tuple[Callable[[Run], np.ndarray], str]] = {
                    "seed 000 DE: 100 OS + 20 Ts + 50 SSE + 0.1 (Kp + Ki + Kd)"),
     "seed002_q": (seed002_q, "seed 002 eq. (17): integral of (0.999 |e| + 0.001 u^2 + 100 |e| overshooting) dt"),
 }
-DEFAULT_OBJECTIVE = "heater"
 
 
 def objective(name: str) -> Callable[[Run], np.ndarray]:

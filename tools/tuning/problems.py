@@ -28,6 +28,7 @@ from tools.ident.plausible import ROOM_C
 from tools.logs import Log, M303Log, PlainLog, StatsLog, load_log
 from tools.tuning.controllers import resolve_controller
 from tools.tuning.allowed import Allowed, AllowedPlant, allowed_plants, degenerate, heater_settings
+from tools.tuning.defaults import BED_TARGET_C, HOTEND_TARGET_C
 from tools.tuning.ensemble import (
     DEFAULT_NOISE_LSB,
     DEFAULT_SPREAD,
@@ -46,7 +47,6 @@ from tools.validation.m303_compare import twin_noise_lsb
 from twin.limits import UserError
 from twin.plants import SPECS, Spec
 
-HOTEND_TARGET_C, BED_TARGET_C = 210.0, 60.0
 REACH_SHARE = 0.8  # a log without a target, whose heater cannot reach the default: 80 % of its demonstrated rise
 
 

@@ -27,11 +27,10 @@ import numpy as np
 from tools.tuning.evaluate import Candidate, Problem, Traces, run_chunk
 from tools.tuning.objectives import HeaterTerms, heater_terms
 from tools.tuning.objectives import Run as ObjectiveRun
+from tools.tuning.defaults import CROSS_CHECK_S, PROOF_SEEDS
 from twin.metrics import LimitCycle, limit_cycles, step_metrics
 
-PROOF_SEEDS = 10
 NOISE_LSB = 1.0  # a member without noise of its own is proven with this much (an M303 capture's readings scatter so)
-CROSS_CHECK_S = 60.0  # the reference engine re-runs this much of one proof run
 KLIPPER_CROSS_CHECK_C = 1e-9  # the Klipper loop's lanes equal KlipperTwin to float rounding
 
 

@@ -36,16 +36,16 @@ from tools.tuning.evaluate import (
     Evaluator,
     Problem,
     firmware_autotune,
-    optimiser_names,
     preset_problem,
     rule_gains,
-    rule_names,
     runs,
     score,
     simulate,
 )
+from tools.tuning.defaults import DEFAULT_BUDGET, methods, optimiser_names, rule_names
 from tools.tuning.ensemble import Ensemble
-from tools.tuning.objectives import DEFAULT_OBJECTIVE, Against, Run, heater_cost, heater_terms, objective
+from tools.tuning.defaults import DEFAULT_OBJECTIVE
+from tools.tuning.objectives import Against, Run, heater_cost, heater_terms, objective
 from tools.tuning.optim import METHODS, WARM_STARTS
 from tools.tuning.proof import CROSS_CHECK_S, PROOF_SEEDS, ProofRow, cross_check, prove
 from tools.tuning.verdict import HOLD_FACTOR, HOLD_SLACK_C, OVERSHOOT_SLACK_C, Verdict, judge
@@ -54,7 +54,6 @@ from twin.limits import UserError
 __all__ = ["Candidate", "Param", "ParamSpace", "Problem", "TuneResult", "preset_problem", "simulate", "tune"]
 
 DEFAULT_OPTIMISER = "de"
-DEFAULT_BUDGET = 900  # optimiser evaluations: 20 generations of DE's default population of 45
 SEARCH_FACTOR = 4.0  # the box: a PID family's 0 .. 4 x the autotune's gains (the best rule's without one); others / 4 .. x 4
 MIN_BOUND = np.array([1.0, 0.05, 1.0])  # so a rule's zero Ki or Kd still leaves room to search
 DEFAULTS = "defaults"  # the reference candidate of the controller's own default parameters
@@ -149,11 +148,6 @@ def plan(method: str, pid: bool) -> tuple[list[str], list[str]]:
             raise UserError(f"--method {method}: tuning rules give PID gains; choose an optimiser, 'auto' or 'all'")
         return [method], []
     raise UserError(f"--method {method!r}: choose one of: {', '.join(methods())}")
-
-
-def methods() -> list[str]:
-    """Every value ``--method`` takes."""
-    return rule_names() + optimiser_names() + ["all", "auto", "rules"]
 
 
 def search_bounds(problem: Problem, start: np.ndarray | None) -> np.ndarray:

@@ -22,8 +22,6 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg
-import scipy.optimize
 
 from tools.entry import OneLineParser, run_cli
 from tools.tuning.models import LinearModel, model_of
@@ -99,6 +97,7 @@ def ultimate_point(model: LinearModel) -> UltimatePoint:
         raise ValueError("no ultimate point: the phase never reaches -180 deg (the loop is stable at any "
                          "proportional gain); add the control loop's delay")
     i = int(below[0])
+    import scipy.optimize
     w_u = scipy.optimize.brentq(lambda x: float(phase_rad(model, np.array([x]))[0]) + math.pi, w[i - 1], w[i],
                                 xtol=1e-14, rtol=1e-12)
     return UltimatePoint(float(1.0 / abs(model.response(np.array([w_u]))[0])), 2.0 * math.pi / w_u)
@@ -137,6 +136,7 @@ def relay_experiment(model: LinearModel, amplitude: float = 1.0, hysteresis_c: f
     n = len(model.b)
     aug = np.zeros((n + 1, n + 1))
     aug[:n, :n], aug[:n, n] = model.a, model.b
+    import scipy.linalg
     disc = scipy.linalg.expm(aug * h)
     phi, gam = disc[:n, :n], disc[:n, n]
     # one step at a time; the dead time is a ring buffer of the last delay_steps outputs

@@ -15,7 +15,7 @@ import pytest
 
 from tools.cli import fit, tune
 from tools.tuning.answer import CANNOT_MODEL, verdict_lines
-from tools.tuning.exits import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
+from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
 from tools.tuning.ensemble import Ensemble, Member
 from tools.tuning.gains import Gains
 from tools.tuning.problems import build_problem, preset_source

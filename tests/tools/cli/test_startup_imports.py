@@ -15,10 +15,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[3]
 HEAVY = ("numba", "scipy", "matplotlib", "dask")
 LIGHT = ["tools.cli.sim", "tools.cli.serial", "tools.cli.klipper_mcu", "tools.cli.fit", "tools.cli.compare",
-         "tools.cli.firmware_report", "tools.seeds", "tools.bench"]
-# Still heavy at start-up: its parser reads the tuning layer's constants (tools/tuning/evaluate.py imports
-# twin.batch, whose kernel imports numba, and scipy).
-STILL_HEAVY = ["tools.cli.tune"]
+         "tools.cli.firmware_report", "tools.seeds", "tools.bench", "tools.cli.tune"]
 HELP = """
 import json, runpy, sys
 sys.argv = [{module!r}, "--help"]
@@ -44,15 +41,8 @@ def test_help_imports_no_heavy_library(module):
     assert result["loaded"] == []
 
 
-@pytest.mark.parametrize("module", STILL_HEAVY)
-@pytest.mark.xfail(strict=True, reason="the parser needs the tuning layer, which imports numba and scipy at "
-                                       "import (not this CLI's files); strict: passes once fixed")
-def test_help_of_the_tuning_commands_imports_no_heavy_library(module):
-    assert _help_imports(module)["loaded"] == []
-
-
 def test_the_check_sees_a_heavy_import():
-    loaded = _help_imports("tools.tuning.ultimate")  # a python -m command whose module imports scipy at the top
+    loaded = _help_imports("tools.validation.plant_check")  # a python -m command whose module imports scipy at the top
     assert "scipy" in loaded["loaded"]
 
 

@@ -11,7 +11,8 @@ from distributed import Client, LocalCluster
 
 from tools.cli.tune import main
 from tools.docs import rules_table as table
-from tools.tuning.evaluate import preset_problem, rule_names
+from tools.tuning.defaults import rule_names
+from tools.tuning.evaluate import preset_problem
 from tools.tuning.tuner import tune
 
 ROW = re.compile(r"^ [ *](\S+(?: C8| #\d+)?)\s+Kp \S+ Ki \S+ Kd \S+\s+cost\s+(\S+)", re.M)

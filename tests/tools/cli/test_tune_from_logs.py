@@ -11,7 +11,7 @@ import pytest
 
 from tools.cli import fit as fit_cli
 from tools.cli import tune as tune_cli
-from tools.tuning.exits import EXIT_NO_MODEL
+from tools.tuning.defaults import EXIT_NO_MODEL
 
 
 @pytest.mark.slow

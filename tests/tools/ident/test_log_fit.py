@@ -10,7 +10,7 @@ from tools.cli.fit import main
 from tools.ident.log_fit import MAX_FIT_SAMPLES, LogFitOptions, fit_log
 from tools.ident.segments import Segment
 from tools.logs import load_log, results_only
-from tools.tuning.exits import EXIT_NO_MODEL
+from tools.tuning.defaults import EXIT_NO_MODEL
 from tools.tuning.evaluate import full_power_time_s
 from twin.linear import SENSOR
 

@@ -11,7 +11,8 @@ import pytest
 
 from tools.docs.kalico_table import BEGIN, COMMAND, END, IN_SAMPLE, Row, entries, markdown, proven_rows
 from tools.tuning.evaluate import score
-from tools.tuning.objectives import DEFAULT_OBJECTIVE, objective
+from tools.tuning.defaults import DEFAULT_OBJECTIVE
+from tools.tuning.objectives import objective
 from tools.tuning.problems import build_problem, preset_source
 from tools.tuning.proof import prove
 from twin.scenario import Event

@@ -18,8 +18,6 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from scipy.optimize import differential_evolution
-from scipy.stats import qmc
 
 from tools.tuning.optim.result import BatchObjective, Ledger, OptimResult, check_bounds
 
@@ -50,6 +48,8 @@ def minimize(
     if budget < 2 * size:
         raise ValueError(f"budget {budget} is below two generations of DE ({2 * size} evaluations)")
     ledger = Ledger("de", objective, budget, low.size)
+    from scipy.optimize import differential_evolution
+    from scipy.stats import qmc
     start = qmc.scale(qmc.LatinHypercube(d=low.size, rng=rng).random(size), low, high)
     if starts is not None:
         known = np.clip(np.atleast_2d(np.asarray(starts, float)), low, high)[:size // 3]

@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize as scipy_minimize
 
 from tools.tuning.optim.result import BatchObjective, Ledger, OptimResult, check_bounds
 
@@ -50,6 +49,8 @@ def minimize(
 
     def scalar(x: np.ndarray) -> float:
         return float(ledger(x[None, :])[0])
+
+    from scipy.optimize import minimize as scipy_minimize
 
     improved = True
     while improved and ledger.remaining > low.size + 1:

@@ -76,6 +76,7 @@ from firmware_port.marlin.lanes import (
 )
 from firmware_port.thermistor import TEMP_FRAC_BITS
 from twin.numba_cache import cached_njit
+from twin.streaming import HEAT, LAST_HEAT, SCORED  # frozen in: the objective's row flags
 
 try:
     import numba
@@ -108,7 +109,6 @@ FIRMWARE = _int64_record("target_c raw_max raw_min mintemp_q5 maxtemp_q5 runaway
 PLAN = _int64_record("n_ticks first_sample reading pwm_count millis kind tick row score_flags z_first first_wrap "
                      "last_phase e_position_steps")
 PROBED = -(1 << 62)  # ``need_bin`` of a lane the probe stopped (not a bin: no block is that cold)
-SCORED, HEAT, LAST_HEAT = 1, 2, 4  # ``score_flags`` bits of a reading row: after the skipped rows, in the heat-up, its last
 # The heater objective's inputs per lane, streamed: floats ``score_f`` and integers ``score_i``.
 MAX_BEYOND, ABS_ERROR_SUM, DUTY_STEP_SUM, PREV_DUTY = range(4)
 HOLDING, REACHED, FIRST_ROW, HOLD_ROWS = range(4)

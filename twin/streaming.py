@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twin.batch_kernel import HEAT, LAST_HEAT, SCORED
+SCORED, HEAT, LAST_HEAT = 1, 2, 4  # ``score_flags`` bits of a reading row: after the skipped rows, in the heat-up, its last
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,10 @@
 OctoPrint's), at a lower priority so that the server and a print stay responsive.
 
 Its contract (docs/octoprint.md): ``--progress lines`` prints ``progress: <step> <done>/<total>`` on
-stderr, anything else there is a message, and on failure the last line is the one-line error; exit 0
-is an answer in ``--json``'s file, 1 no answer could be proven, 2 bad input.
+stderr, anything else there is a message, and on failure the last line is the one-line error. Its exit
+status (tools/tuning/defaults.py): 0 a verdict in ``--json``'s file (new gains, or keep your gains, also where
+the twin cannot model the heater), 1 no safe answer, 2 a capture it cannot use, 3 neither a model nor the
+printer's gains, 70 an internal error (a bug, its traceback in a file the line names).
 """
 
 from __future__ import annotations
@@ -19,10 +21,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from octoprint_heater_twin.console import Gains
+from tools.entry import EXIT_INTERNAL, EXIT_USAGE
+from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
 
 PROGRESS_RE = re.compile(r"^progress: (.+) (\d+)/(\d+)$")
 NICENESS = 10  # below OctoPrint's own priority; a tune takes minutes on a Raspberry Pi
-EXIT_ANSWER, EXIT_UNPROVEN, EXIT_BAD_INPUT = 0, 1, 2
+# what the tab says for each status but an answer, before twin-tune's own last line
+FAILURES = {EXIT_UNSAFE: "No safe answer: nothing the twin tried beats the firmware's autotune, which trips on some "
+                         "plant the capture allows",
+            EXIT_USAGE: "The twin cannot use this capture",
+            EXIT_NO_MODEL: "No verdict: the twin cannot model this heater and the printer's gains are not known (the "
+                           "tab reads them with M503 before the autotune; check that the printer answers M503)",
+            EXIT_INTERNAL: "twin-tune hit an internal error (a bug, not your capture): please report it"}
 CAPTURE, ANSWER, PLOT, REPORT = "capture.txt", "answer.json", "plot.png", "twin-tune.txt"  # a run's files
 NO_MATPLOTLIB = ("No plot: matplotlib is not installed in OctoPrint's environment (install the plugin with its "
                  "octoprint extra, or pip install matplotlib there)")
@@ -92,12 +102,15 @@ def run(run_dir: Path, heater: str, current: Gains | None, on_progress: Callable
                     on_message(line)
     except OSError as exc:
         return Outcome(None, f"twin-tune could not start: {exc.strerror or exc} ({args[0]})")
-    answer_path = run_dir / ANSWER
-    if proc.returncode == EXIT_ANSWER:
+    return outcome(proc.returncode, last, run_dir / ANSWER, plot)
+
+
+def outcome(status: int, last: str, answer_path: Path, plot: bool) -> Outcome:
+    """What twin-tune's exit ``status`` (and its ``last`` stderr line) means for the tab."""
+    if status == EXIT_ANSWER:
         try:
             return Outcome(json.loads(answer_path.read_text()), None, None if plot else NO_MATPLOTLIB)
         except (OSError, ValueError) as exc:
             return Outcome(None, f"twin-tune's answer {answer_path} is unreadable: {exc}")
-    if proc.returncode == EXIT_UNPROVEN:
-        return Outcome(None, last or "twin-tune: no answer could be proven")
-    return Outcome(None, last or f"twin-tune stopped with status {proc.returncode}")
+    said = FAILURES.get(status, f"twin-tune stopped with status {status}")
+    return Outcome(None, f"{said}: {last}" if last else said)

@@ -1,0 +1,46 @@
+"""What the tab says for each of twin-tune's exit codes (octoprint_heater_twin/tuner.py ``outcome``): an answer, or
+a message that names what happened, never a bare status, and a bug never dressed as the user's capture. Needs no
+OctoPrint: the tuner module runs twin-tune as a process and reads its status."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from octoprint_heater_twin.tuner import NO_MATPLOTLIB, outcome
+from tools.entry import EXIT_INTERNAL, EXIT_USAGE
+from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
+
+
+def test_an_answer_is_the_json_and_says_why_it_has_no_plot(tmp_path):
+    path = tmp_path / "answer.json"
+    path.write_text(json.dumps({"verdict": "keep your gains", "answer": None, "target_c": None}))
+    got = outcome(EXIT_ANSWER, "", path, plot=False)
+    assert got.answer == {"verdict": "keep your gains", "answer": None, "target_c": None}
+    assert got.error is None and got.no_plot == NO_MATPLOTLIB
+
+
+def test_an_unreadable_answer_is_said(tmp_path):
+    got = outcome(EXIT_ANSWER, "", tmp_path / "missing.json", plot=True)
+    assert got.answer is None and "unreadable" in str(got.error)
+
+
+@pytest.mark.parametrize("status, words", [
+    (EXIT_UNSAFE, "No safe answer"),
+    (EXIT_USAGE, "cannot use this capture"),
+    (EXIT_NO_MODEL, "printer's gains are not known"),
+    (EXIT_INTERNAL, "internal error (a bug, not your capture)"),
+    (9, "stopped with status 9"),
+])
+def test_each_failure_is_named_before_twin_tunes_own_line(tmp_path, status, words):
+    last = "twin-tune: error: something it said"
+    got = outcome(status, last, tmp_path / "answer.json", plot=True)
+    assert got.answer is None
+    assert words in str(got.error) and str(got.error).endswith(last)
+    alone = str(outcome(status, "", tmp_path / "answer.json", plot=True).error)  # no line of its own: the message
+    assert words in alone and not alone.endswith(":")
+
+
+def test_the_codes_are_distinct():
+    assert len({EXIT_ANSWER, EXIT_UNSAFE, EXIT_USAGE, EXIT_NO_MODEL, EXIT_INTERNAL}) == 5

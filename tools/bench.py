@@ -1,6 +1,6 @@
 """Benchmarks (not tests): ``python -m tools.bench WHAT``; ratios measured in one run.
 
-WHAT is twin, tune, twin-tune, protocol, scaling or startup. Each prints the command and the machine (CPUs, model,
+WHAT is twin, tune, twin-tune, protocol, scaling, startup or fallback. Each prints the command and the machine (CPUs, model,
 load, date, commit) before its lines; ``--doc FILE`` also rewrites FILE's section between
 ``<!-- bench WHAT: begin`` and ``<!-- bench WHAT: end -->`` (docs/performance.md), checked before any work.
 

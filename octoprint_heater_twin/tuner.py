@@ -21,11 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from octoprint_heater_twin.console import Gains
-from tools.entry import EXIT_INTERNAL, EXIT_USAGE
-from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
 
 PROGRESS_RE = re.compile(r"^progress: (.+) (\d+)/(\d+)$")
 NICENESS = 10  # below OctoPrint's own priority; a tune takes minutes on a Raspberry Pi
+# twin-tune's exit codes (tools/tuning/defaults.py, tools/entry.py: the plugin imports none of the project, which
+# runs in its own process; tests/octoprint_plugin/test_tuner_outcome.py checks that these are the same)
+EXIT_ANSWER, EXIT_UNSAFE, EXIT_USAGE, EXIT_NO_MODEL, EXIT_INTERNAL = 0, 1, 2, 3, 70
 # what the tab says for each status but an answer, before twin-tune's own last line
 FAILURES = {EXIT_UNSAFE: "No safe answer: nothing the twin tried beats the firmware's autotune, which trips on some "
                          "plant the capture allows",

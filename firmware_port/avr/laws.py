@@ -27,6 +27,10 @@ OP_STEP, OP_RESET, OP_INIT = 0, 1, 2  # harness/harness.h
 Fields = tuple[tuple[str, str], ...]  # (name, numpy format), in C struct order
 
 
+class UnknownBuild(ValueError):
+    """A controller the user asked to run on the AVR that has no C build: their input, not a bug."""
+
+
 class Law:
     """A law as the harness runs it; subclasses say what the C is and how the Python port steps."""
 
@@ -326,4 +330,4 @@ def law_for(controller: Any) -> ControllerLaw:
         if law.mirrors(controller):
             return law
     names = sorted({law.port_type.__name__ for law in laws})
-    raise ValueError(f"{type(controller).__name__} has no AVR build (controllers with one: {', '.join(names)})")
+    raise UnknownBuild(f"{type(controller).__name__} has no AVR build (controllers with one: {', '.join(names)})")

@@ -8,9 +8,12 @@ import json
 
 import pytest
 
+from octoprint_heater_twin import tuner
 from octoprint_heater_twin.tuner import NO_MATPLOTLIB, outcome
-from tools.entry import EXIT_INTERNAL, EXIT_USAGE
+from tools import entry
+from tools.tuning import defaults
 from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
+from tools.entry import EXIT_INTERNAL, EXIT_USAGE
 
 
 def test_an_answer_is_the_json_and_says_why_it_has_no_plot(tmp_path):
@@ -42,5 +45,7 @@ def test_each_failure_is_named_before_twin_tunes_own_line(tmp_path, status, word
     assert words in alone and not alone.endswith(":")
 
 
-def test_the_codes_are_distinct():
-    assert len({EXIT_ANSWER, EXIT_UNSAFE, EXIT_USAGE, EXIT_NO_MODEL, EXIT_INTERNAL}) == 5
+def test_the_plugins_codes_are_twin_tunes():
+    assert (tuner.EXIT_ANSWER, tuner.EXIT_UNSAFE, tuner.EXIT_NO_MODEL) == \
+        (defaults.EXIT_ANSWER, defaults.EXIT_UNSAFE, defaults.EXIT_NO_MODEL)
+    assert (tuner.EXIT_USAGE, tuner.EXIT_INTERNAL) == (entry.EXIT_USAGE, entry.EXIT_INTERNAL)

@@ -317,10 +317,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _answer(args: argparse.Namespace, log: Log, allowed: Allowed, reason: str | None) -> int:
     """The settings of the best plant the log allows and twin-tune's answer (tools/tuning/answer.py)."""
-    fitted = allowed.best
+    fitted = allowed.best if reason else allowed.first  # the fit the options ask for, unless it is degenerate
     settings = [f"the {allowed.first.result.model} fit is degenerate ({reason}): no plant the log allows; the "
                 f"settings below are the best member's, {fitted.result.model}"] if reason and allowed.members else []
-    if allowed.members:
+    if not reason or allowed.members:
         settings += _settings_lines(fitted.result, fitted.heater, fitted.resolution_s) + _log_notes(log, fitted)
     from tools.tuning.answer import default_tune, no_model_lines, verdict_lines
     from tools.tuning.problems import NoModel, allowed_source, build_problem

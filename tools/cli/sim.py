@@ -291,7 +291,9 @@ def _write(path: str, text: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    return run_main("twin-sim", lambda: run(args), errors=(ScenarioError, UserError))
+    from firmware_port.avr.laws import UnknownBuild  # light: numpy and the firmware port, no toolchain
+
+    return run_main("twin-sim", lambda: run(args), errors=(ScenarioError, UserError, UnknownBuild))
 
 
 if __name__ == "__main__":

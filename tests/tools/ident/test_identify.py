@@ -223,7 +223,8 @@ def test_twin_fit_klipper_stats_bed_and_extruder(capsys, hardware_logs):
     assert code == 0, err
     assert "power_w 220 W assumed" in out and "the pwm Klipper last sent" in " ".join(out.split())
     assert _rmse(out) < 1.0
-    assert "  Klipper:\n    [heater_bed]\n    control: pid\n" in out or "keep your gains (Kp 54.03" in out
+    # twin-tune's answer, as twin-tune prints it: the [heater_bed] section to paste, or keep your gains
+    assert "\n  [heater_bed]\n  control: pid\n" in out or "keep your gains (Kp 54.03" in out
     assert "M306 P" not in out and "M304" not in out  # a klippy.log: Klipper's section, from the Klipper loop
     assert "the log's own gains: pid_Kp 54.027" in out
     code, out, err = twin_fit(capsys, str(hardware_logs / ENDER5), "--model", "fopdt", "--segment", "0")

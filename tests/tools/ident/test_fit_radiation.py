@@ -145,7 +145,7 @@ def test_twin_fit_loss_auto_keeps_radiating_on_the_onionheater_pulse(capsys, har
     assert re.search(r"^  radiating_area_m2\s+\S+\s+\+- \S+\s+(poorly |not )?identified$", out, re.M)
     assert re.search(rf"RMSE {re.escape(f'{radiating_rmse:.2f}')} C, max \|residual\|", out)  # the kept fit's
     assert "M306 has no radiation term" in out and "M306 P" not in out  # Marlin's MPC is linear
-    assert re.search(r"^    pid_Kp: [\d.]+$", out, re.M)
+    assert re.search(r"^\s+pid_Kp: [\d.]+$", out, re.M)
 
 
 def test_twin_fit_loss_on_a_transfer_function_is_one_line(capsys, hardware_logs):

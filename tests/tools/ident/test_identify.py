@@ -212,8 +212,8 @@ def test_twin_fit_onionheater_two_node(capsys, hardware_logs):
     assert re.search(r"^  Marlin:  M306 P40\.00 C[\d.]+ R[\d.]+ A[\d.]+ F[\d.]+$", out, re.M)
     # a Klipper heattest: the Klipper loop's gains, proven on the plants the log allows
     assert re.search(r"proven on the klipper loop|^keep your gains", out, re.M | re.I)  # twin-tune's answer
-    assert re.search(r"^  Klipper:\n    \[extruder\]\n    control: pid\n    pid_Kp: [\d.]+\n    pid_Ki: [\d.]+\n"
-                     r"    pid_Kd: [\d.]+$", out, re.M) and "M301" not in out
+    assert re.search(r"^Klipper printer.cfg \(proven on the Klipper loop\):\n  \[extruder\]\n  control: pid\n  pid_Kp: [\d.]+\n"
+                     r"  pid_Ki: [\d.]+\n  pid_Kd: [\d.]+$", out, re.M) and "M301" not in out
 
 
 @pytest.mark.slow  # 57 s of CPU: twin-fit on two heaters of a capture

@@ -29,7 +29,7 @@ class Pty:
         os.set_blocking(self.master, False)
         self.link: str | None = None
         try:
-            self.watch = _OpenWatch(self.path)
+            self.watch = OpenWatch(self.path)
         except OSError:
             os.close(self.master)
             raise
@@ -70,7 +70,7 @@ class Pty:
             self.master = -1
 
 
-class _OpenWatch:
+class OpenWatch:
     """Open and close events of one file, from Linux's inotify (via libc: no stdlib binding)."""
 
     IN_OPEN, IN_CLOSE_WRITE, IN_CLOSE_NOWRITE = 0x20, 0x08, 0x10  # <sys/inotify.h>

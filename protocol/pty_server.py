@@ -9,7 +9,7 @@ import select
 from protocol.corruption import RxCorruptor
 from protocol.pacing import Pacer
 from protocol.printer import VirtualPrinter
-from protocol.pty import Pty, _OpenWatch
+from protocol.pty import Pty, OpenWatch
 from protocol.server import Server, poll_ms
 from protocol.transcript import Transcript
 
@@ -28,7 +28,7 @@ class PtyServer(Server):
         self._pty = Pty(link)
         self.path, self.link = self._pty.path, self._pty.link
         self._master = self._pty.master
-        self._watch: _OpenWatch | None = self._pty.watch
+        self._watch: OpenWatch | None = self._pty.watch
         self._poller = select.poll()
         self._poller.register(self._pty.watch.fd, select.POLLIN)
         self._holders = 0  # open file descriptions of the slave: hosts (usually one)

@@ -19,9 +19,8 @@ import numpy as np
 
 from firmware_port.kalico import mpc_options, pid_options, section
 from tools.tuning.evaluate import Problem, kalico_mpc_config
-from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
+from tools.tuning.defaults import DEFAULT_OBJECTIVE, EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
 from tools.tuning.gains import Gains
-from tools.tuning.defaults import DEFAULT_OBJECTIVE
 from tools.tuning.problems import NoModel
 from tools.tuning.proof import CROSS_CHECK_S, PROOF_SEEDS
 from tools.tuning.reference import PrinterGains

@@ -42,9 +42,8 @@ from tools.tuning.evaluate import (
     score,
     simulate,
 )
-from tools.tuning.defaults import DEFAULT_BUDGET, methods, optimiser_names, rule_names
+from tools.tuning.defaults import DEFAULT_BUDGET, DEFAULT_OBJECTIVE, methods, optimiser_names, rule_names
 from tools.tuning.ensemble import Ensemble
-from tools.tuning.defaults import DEFAULT_OBJECTIVE
 from tools.tuning.objectives import Against, Run, heater_cost, heater_terms, objective
 from tools.tuning.optim import METHODS, WARM_STARTS
 from tools.tuning.proof import CROSS_CHECK_S, PROOF_SEEDS, ProofRow, cross_check, prove

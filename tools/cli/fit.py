@@ -316,7 +316,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _answer(args: argparse.Namespace, log: Log, allowed: Allowed, reason: str | None) -> int:
-    """The settings of the best plant the log allows and twin-tune's answer (tools/tuning/answer.py)."""
+    """The settings of the fit the options ask for (of the best plant the log allows where that fit is
+    degenerate) and twin-tune's answer (tools/tuning/answer.py)."""
     fitted = allowed.best if reason else allowed.first  # the fit the options ask for, unless it is degenerate
     settings = [f"the {allowed.first.result.model} fit is degenerate ({reason}): no plant the log allows; the "
                 f"settings below are the best member's, {fitted.result.model}"] if reason and allowed.members else []

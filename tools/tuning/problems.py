@@ -73,7 +73,7 @@ class Source:
 
 
 def preset_source(name: str, spread: float = DEFAULT_SPREAD) -> Source:
-    """A twin/plants.py preset, its lag and loss terms spread +-``spread``; ValueError names a bad preset."""
+    """A twin/plants.py preset, its lag and loss terms spread +-``spread``; UserError names a bad preset."""
     if name not in SPECS:
         raise UserError(f"--plant {name!r}: valid presets: {', '.join(SPECS)}")
     spec = SPECS[name]

@@ -77,6 +77,7 @@ class OpenWatch:
     EVENT = struct.Struct("iIII")  # struct inotify_event: wd, mask, cookie, len (+ name, empty here)
 
     def __init__(self, path: str):
+        self.path = path
         libc = ctypes.CDLL(None, use_errno=True)
         if not hasattr(libc, "inotify_init1"):
             raise OSError(errno.ENOSYS, "the pty transport needs Linux (inotify); use --tcp")
@@ -88,6 +89,9 @@ class OpenWatch:
             err = ctypes.get_errno()
             os.close(self.fd)
             raise OSError(err, "inotify_add_watch: " + os.strerror(err), path)
+
+    def __repr__(self) -> str:
+        return f"OpenWatch({self.path}, fd {self.fd})"
 
     def changes(self) -> list[int]:
         """+1 per open and -1 per close since the last call, in the order they happened."""

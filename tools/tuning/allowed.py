@@ -75,14 +75,15 @@ class Replay:
 
 @dataclass(frozen=True)
 class AllowedPlant:
-    """One fit considered: its label, the fit, its evidence against the best, its replay, and why it is
-    not a member (None: it is)."""
+    """One fit considered: its label, the fit, its evidence against the best, its replay, why it is
+    not a member (None: it is), and how many parameters it holds (0: a structure's own fit, 1: a profile)."""
 
     label: str
     fitted: LogFit
     delta: float
     replay: Replay | None = None
     dropped: str | None = None
+    held: int = 0
 
     @property
     def result(self) -> FitResult:
@@ -113,7 +114,7 @@ class Allowed:
         their profiles were tried."""
         if not self.dropped:
             return "no fit"
-        tried = [p for p in self.dropped if ": " not in p.label]  # a profile's label is its structure's, ": ", the end
+        tried = [p for p in self.dropped if not p.held]
         profiles = len(self.dropped) - len(tried)
         each = "; ".join(f"{p.label}: {p.dropped}" for p in tried)
         more = f"; and none of their {profiles} profiles is a member" if profiles else ""
@@ -309,7 +310,7 @@ def _judged(tasks: list[_Task], fits: list[LogFit | str], against: list[FitResul
         fitted = fits[k]
         assert isinstance(fitted, LogFit)
         out[k] = AllowedPlant(tasks[k].label, fitted, float(d), dropped=None if d <= EVIDENCE_MARGIN else
-                              f"the evidence excludes it (delta {d:.1f} > {EVIDENCE_MARGIN:g})")
+                              f"the evidence excludes it (delta {d:.1f} > {EVIDENCE_MARGIN:g})", held=tasks[k].held)
     return out
 
 
@@ -334,7 +335,7 @@ def allowed_plants(log: Log, log_name: str, options: LogFitOptions | None = None
              for m, loss in structures(log, first)]
     fits = forked_map(_fit(log), tasks, on_done=_step(on_step, "fitting the structures", len(tasks)))
     judged = _judged(tasks, fits, [])
-    dropped = [AllowedPlant(t.label, first, math.inf, dropped=f"does not fit: {f}")
+    dropped = [AllowedPlant(t.label, first, math.inf, dropped=f"does not fit: {f}", held=t.held)
                for t, f in zip(tasks, fits) if isinstance(f, str)]
     kept = [(t, p) for t, p in zip(tasks, judged) if p is not None and p.dropped is None]
     dropped += [p for p in judged if p is not None and p.dropped]

@@ -84,13 +84,13 @@ def test_a_cartridge_capacity_the_hotend_capture_excludes_is_dropped(hardware_lo
 
 
 def test_a_log_that_allows_no_plant_names_every_structure_tried_and_why():
-    def dropped(label: str, why: str) -> AllowedPlant:
-        return AllowedPlant(label, None, 0.0, dropped=why)  # type: ignore[arg-type]  # why_none reads no fit
+    def dropped(label: str, why: str, held: int = 0) -> AllowedPlant:
+        return AllowedPlant(label, None, 0.0, dropped=why, held=held)  # type: ignore[arg-type]  # reads no fit
 
     allowed = Allowed("bed.txt", "heater_bed", None, [], [  # type: ignore[arg-type]
         dropped("fopdt", "the evidence excludes it (delta 17.4 > 6)"),
         dropped("three_node", "degenerate: the data identify none of three_node's lags (...)"),
-        dropped("three_node: ambient_c 35 (end high, fitted 25)", "does not replay the log: ..."),
+        dropped("three_node: ambient_c 35 (end high, fitted 25)", "does not replay the log: ...", held=1),
         dropped("sopdt", "does not replay the log: Tu s 21.97 / 14.07")])
     assert allowed.why_none() == (
         "no plant both fits it and replays it: fopdt: the evidence excludes it (delta 17.4 > 6); three_node: "

@@ -15,7 +15,7 @@ from tools.progress import Steps
 from tools.ident.log_fit import LogFitOptions
 from firmware_port.firmwares import KALICO_MPC
 from tools.tuning.evaluate import Candidate, Problem
-from tools.tuning.answer import CANNOT_MODEL, no_model_lines, settings_lines, verdict_lines
+from tools.tuning.answer import CANNOT_MODEL, no_model_lines, printer_params, settings_lines, verdict_lines
 from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, LOOP_AUTO, LOOP_BOTH
 from tools.tuning.gains import Gains
 from tools.tuning.verdict import KEEP
@@ -235,9 +235,8 @@ def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client, p
              steps: Steps, plot: Path | None) -> tuple[int, TuneResult, Proven | None]:
     """Tune, prove, report and plot one problem: (the exit status, tools/tuning/defaults.py; the tune; its proof)."""
     started = time.perf_counter()
-    mine = None if printer is None or not problem.controller.pid else \
-        np.array([printer.gains.kp, printer.gains.ki, printer.gains.kd])
-    result = tune(problem, args.objective, args.method, args.budget, args.seed, client, yours=mine, on_step=steps)
+    result = tune(problem, args.objective, args.method, args.budget, args.seed, client,
+                  yours=printer_params(problem, printer), on_step=steps)
     for note in result.notes:
         print(f"twin-tune: {note}", file=sys.stderr)
     proof = proven(result, args.proof, cross_check_s=args.cross_check, on_step=steps) \

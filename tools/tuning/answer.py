@@ -33,10 +33,17 @@ def default_tune(problem: Problem, printer: PrinterGains | None, budget: int = D
                  seeds: int = PROOF_SEEDS, on_step: Step | None = None) -> tuple[TuneResult, Proven]:
     """twin-tune's default tune of the problem against the printer's gains, and its proof: what twin-fit
     prints too."""
-    yours = None if printer is None or not problem.controller.pid else \
-        np.array([printer.gains.kp, printer.gains.ki, printer.gains.kd])
-    result = tune(problem, DEFAULT_OBJECTIVE, "auto", budget, 0, yours=yours, on_step=on_step)
+    result = tune(problem, DEFAULT_OBJECTIVE, "auto", budget, 0, yours=printer_params(problem, printer),
+                  on_step=on_step)
     return result, proven(result, seeds, cross_check_s=CROSS_CHECK_S, on_step=on_step)
+
+
+def printer_params(problem: Problem, printer: PrinterGains | None) -> np.ndarray | None:
+    """The printer's gains as the problem's parameters (Kp, Ki, Kd), the set to beat; None where there are
+    none or the controller is no PID."""
+    if printer is None or not problem.controller.pid:
+        return None
+    return np.array([printer.gains.kp, printer.gains.ki, printer.gains.kd])
 
 
 def settings_lines(problem: Problem, params: np.ndarray, is_bed: bool, proven_: bool = True) -> list[str]:

@@ -393,7 +393,8 @@ def bench_protocol(n_requests: int, n_lines: int) -> list[str]:
 # -- twin-tune: the command as a user runs it -------------------------------------------------------
 TWIN_TUNE_CLI = [sys.executable, "-m", "tools.cli.tune"]
 PRESET_TUNE = ["--plant", TUNE_PRESET, "--target", f"{TUNE_TARGET_C}"]
-PRESET_TARGET_S, LOG_TARGET_S = 15, 30  # wall-time targets of the default tune and of a log's
+SIM_CLI = [sys.executable, "-m", "tools.cli.sim", "--no-plot"]  # the default job: the unit of the targets
+PRESET_TARGET, LOG_TARGET = 4.0, 10.0  # wall time of the default tune and of a log's, at most this many sim runs
 MPC_TUNE = [*PRESET_TUNE, "--controller", "mpc"]  # the robust MPC tune of the same preset (ensemble, noise, proof)
 MPC_RATIO_TARGET = 3.0  # its wall time, at most this many times the default (PID) tune's
 CHEAP = ["--budget", "90", "--proof", "1"]
@@ -411,13 +412,13 @@ def _heaters(path: Path) -> list[str | None]:
 
 
 def twin_tune_cases(patterns: tuple[str, ...]) -> list[tuple[list[str], float]]:
-    """twin-tune's arguments and wall target for each case: the default tune, then every capture matching
-    one of ``patterns`` on each of its heaters."""
+    """twin-tune's arguments and wall target (in default twin-sim runs) for each case: the default tune,
+    then every capture matching one of ``patterns`` on each of its heaters."""
     folder = hardware_logs_dir()
     paths = sorted({path for pattern in patterns for path in folder.glob(pattern)})
-    cases = [(PRESET_TUNE, float(PRESET_TARGET_S))]
+    cases = [(PRESET_TUNE, PRESET_TARGET)]
     for path in paths:
-        cases += [(["--from-log", str(path), *(["--heater", heater] if heater else [])], float(LOG_TARGET_S))
+        cases += [(["--from-log", str(path), *(["--heater", heater] if heater else [])], LOG_TARGET)
                   for heater in _heaters(path)]
     return cases
 
@@ -432,39 +433,63 @@ def _verdict(answer: Path, stderr: str) -> str:
     return f"{document['verdict']}{said}: {document['why']}"
 
 
+def _run_process(argv: list[str], env: dict[str, str] | None = None
+                 ) -> tuple[float, float, subprocess.CompletedProcess | None]:
+    """One command in its own process: wall s, CPU s (the process and its threads), its outcome (None: it
+    was stopped after TWIN_TUNE_TIMEOUT_S)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    try:
+        done, wall_s, _ = _timed_value(lambda: subprocess.run(argv, env=env, capture_output=True, text=True,
+                                                               timeout=TWIN_TUNE_TIMEOUT_S))
+    except subprocess.TimeoutExpired:
+        return TWIN_TUNE_TIMEOUT_S, float("nan"), None
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall_s, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, done
+
+
 def _run_twin_tune(args: list[str]) -> tuple[float, float, int, str]:
     """One twin-tune in its own process: wall s, CPU s (the process and its threads), exit status, verdict."""
     with tempfile.TemporaryDirectory(prefix="bench-twin-tune") as folder:
         answer = Path(folder) / "answer.json"
-        argv = [*TWIN_TUNE_CLI, *args, "--plot", "none", "--json", str(answer)]
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        try:
-            done, wall_s, _ = _timed_value(lambda: subprocess.run(argv, capture_output=True, text=True,
-                                                                   timeout=TWIN_TUNE_TIMEOUT_S))
-        except subprocess.TimeoutExpired:
-            return TWIN_TUNE_TIMEOUT_S, float("nan"), -1, f"stopped after {TWIN_TUNE_TIMEOUT_S} s"
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        cpu_s = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+        wall_s, cpu_s, done = _run_process([*TWIN_TUNE_CLI, *args, "--plot", "none", "--json", str(answer)])
+        if done is None:
+            return wall_s, cpu_s, -1, f"stopped after {TWIN_TUNE_TIMEOUT_S} s"
         return wall_s, cpu_s, done.returncode, _verdict(answer, done.stderr)
 
 
+def _run_sim() -> tuple[float, float]:
+    """The default job, ``twin-sim --no-plot``, in its own process: wall s, CPU s."""
+    with tempfile.TemporaryDirectory(prefix="bench-twin-sim") as folder:
+        wall_s, cpu_s, done = _run_process([*SIM_CLI, "--out", folder])
+        if done is None or done.returncode != 0:
+            raise RuntimeError(f"twin-sim --no-plot failed: {done.stderr if done else 'stopped'}")
+        return wall_s, cpu_s
+
+
 def bench_twin_tune(patterns: tuple[str, ...], sizes: list[str]) -> list[str]:
-    """twin-tune's default tune and --from-log on every capture, each as a user runs it."""
+    """twin-tune's default tune and --from-log on every capture, each as a user runs it, in units of one
+    default twin-sim run (timed first, the median of three, in the same run)."""
     cases = twin_tune_cases(patterns)
     for warm_up in WARM_UPS:
         _run_twin_tune(warm_up)
-    lines = [f"twin-tune in its own process ({' '.join(['python', *TWIN_TUNE_CLI[1:]])} ARGS{''.join(' ' + s for s in sizes)}"
-             " --plot none --json FILE), after untimed warm-ups; wall time (target), CPU time (the process "
-             "and its threads), exit status, verdict:"]
-    for k, (args, target_s) in enumerate(cases):
+    _run_sim()
+    sims = sorted(_run_sim() for _ in range(3))
+    sim_s, sim_cpu_s = sims[1]
+    lines = [f"one default job ({' '.join(['python', *SIM_CLI[1:]])}), the unit below: {sim_s:.2f} s wall, "
+             f"{sim_cpu_s:.2f} s CPU (the median of 3)",
+             f"twin-tune in its own process ({' '.join(['python', *TWIN_TUNE_CLI[1:]])} ARGS"
+             f"{''.join(' ' + s for s in sizes)} --plot none --json FILE), after untimed warm-ups; wall time in "
+             "default jobs (target), wall and CPU time (the process and its threads), exit status, verdict:"]
+    for k, (args, target) in enumerate(cases):
         wall_s, cpu_s, status, verdict = _run_twin_tune(args + sizes)
         shown = " ".join(Path(a).name if i and args[i - 1] == "--from-log" else a for i, a in enumerate(args))
-        lines.append(f"  twin-tune {shown}: {wall_s:.1f} s wall (target <= {target_s:g} s), {cpu_s:.1f} s CPU, "
-                     f"exit {status}: {verdict}")
+        lines.append(f"  twin-tune {shown}: {wall_s / sim_s:.1f} x (target <= {target:g} x), {wall_s:.1f} s wall, "
+                     f"{cpu_s:.1f} s CPU, exit {status}: {verdict}")
         if k == 0:  # the default tune's MPC twin, timed against it
             mpc_s, mpc_cpu_s, mpc_status, mpc_verdict = _run_twin_tune(MPC_TUNE + sizes)
-            lines.append(f"  twin-tune {' '.join(MPC_TUNE)}: {mpc_s:.1f} s wall, {mpc_s / wall_s:.2f} x the PID tune's "
-                         f"(target <= {MPC_RATIO_TARGET:g} x), {mpc_cpu_s:.1f} s CPU, exit {mpc_status}: {mpc_verdict}")
+            lines.append(f"  twin-tune {' '.join(MPC_TUNE)}: {mpc_s / wall_s:.2f} x the PID tune's (target <= "
+                         f"{MPC_RATIO_TARGET:g} x), {mpc_s:.1f} s wall, {mpc_cpu_s:.1f} s CPU, exit {mpc_status}: "
+                         f"{mpc_verdict}")
     return lines
 
 
@@ -642,11 +667,10 @@ def fallback_batch_cpu_s(preset: str, n_lanes: int, duration_s: float, seed: int
 def _fallback_process(argv: list[str], fallback: bool) -> tuple[subprocess.CompletedProcess, float, float]:
     """argv in its own process (compiled, or the fallback's environment): the run, wall s, CPU s."""
     env = {**os.environ, **(FALLBACK_ENV if fallback else {}), "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    done, wall_s, _ = _timed_value(lambda: subprocess.run(argv, env=env, capture_output=True, text=True,
-                                                           timeout=TWIN_TUNE_TIMEOUT_S))
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return done, wall_s, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    wall_s, cpu_s, done = _run_process(argv, env)
+    if done is None:
+        raise RuntimeError(f"{' '.join(argv)}: stopped after {TWIN_TUNE_TIMEOUT_S} s")
+    return done, wall_s, cpu_s
 
 
 def bench_fallback(n_lanes: int, duration_s: float, seed: int, sizes: list[str]) -> list[str]:

@@ -53,16 +53,16 @@ def test_a_page_without_the_section_is_refused_before_any_work(tmp_path, capsys,
 
 def test_twin_tune_runs_the_default_tune_then_every_capture_on_each_heater(hardware_logs):
     cases = benchmarks.twin_tune_cases(bench.CAPTURES)
-    assert cases[0] == (["--plant", "hotend_cartridge", "--target", "210"], 15.0)
+    assert cases[0] == (["--plant", "hotend_cartridge", "--target", "210"], 4.0)
     m303 = sorted(hardware_logs.glob("m303_*.txt"))
     klippy = sorted(hardware_logs.glob("klippy_stats_*.csv"))
     assert m303 and klippy
     expected = sorted([["--from-log", str(path)] for path in m303] + [
         ["--from-log", str(path), "--heater", heater] for path in klippy for heater in ("extruder", "heater_bed")])
     assert sorted(args for args, _ in cases[1:]) == expected
-    assert {target for _, target in cases[1:]} == {30.0}
+    assert {target for _, target in cases[1:]} == {10.0}
     assert benchmarks.twin_tune_cases(("m303_bed_*.txt",))[1:] == [
-        (["--from-log", str(path)], 30.0) for path in sorted(hardware_logs.glob("m303_bed_*.txt"))]
+        (["--from-log", str(path)], 10.0) for path in sorted(hardware_logs.glob("m303_bed_*.txt"))]
 
 
 def test_the_verdict_is_twin_tunes_answer_else_its_error(tmp_path):

@@ -503,16 +503,6 @@ class KlipperTwin(Runs):
                 action(*args)
         self.time_s = t_s
 
-    def plant_temps_c(self, name: str) -> tuple[float, float]:
-        """True (sensor, block) temperatures now."""
-        channel = self._channel(name)
-        n = tick_near(self.time_s) - channel.plant_tick
-        if n <= 0:
-            temps = channel.plant.temps_c()
-        else:
-            temps = channel.plant.outputs(channel.heater_input(channel.plant_tick, n), (n,))[0]
-        return float(temps[SENSOR]), float(temps[BLOCK])
-
     def pid_calibrate(self, name: str, target_c: float,
                       timeout_s: float = PID_CALIBRATE_TIMEOUT_S) -> PidCalibrateResult:
         """PID_CALIBRATE HEATER=<name> TARGET=<target_c>: run the relay test until it finishes.

@@ -1,4 +1,4 @@
-"""tools.logs against every captured hardware log (numbers from ../shared/hardware_logs/README.md),
+"""tools.logs against every captured hardware log (numbers from the README.md of the hardware logs),
 against malformed input, raw klippy.log lines and the twin's own Klipper Stats output.
 
 The captures come from the hardware_logs fixture (tests/conftest.py): without them these tests skip locally

@@ -10,7 +10,6 @@ Q-format: a value ``x`` stored as ``Qm.f`` is the integer ``round(x * 2**f)``.
 
 from __future__ import annotations
 
-INT8_MIN, INT8_MAX = -(1 << 7), (1 << 7) - 1
 INT16_MIN, INT16_MAX = -(1 << 15), (1 << 15) - 1
 INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
 UINT8_MAX = (1 << 8) - 1

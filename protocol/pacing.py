@@ -2,8 +2,8 @@
 
 Speed N runs the clock at N x wall time; ``max`` runs it free while a command executes (M109,
 M190, M303, G4, M400) and, with an idle speed of 0, stops it while the printer waits for the host
-(DESIGN.md, the clock). The transports and the ``twin://`` handler call ``Pacer.advance()``
-between serving their host.
+(that for deterministic tests: a real printer's clock never stops). The transports and the
+``twin://`` handler call ``Pacer.advance()`` between serving their host.
 """
 
 from __future__ import annotations

@@ -117,15 +117,23 @@ class TcpServer(Server):
         if self._client is not None:
             self._poller.modify(self._client, select.POLLIN | (select.POLLOUT if self._unsent else 0))
         for fd, revents in self._poller.poll(poll_ms(wait_s)):
-            if fd == self._listener.fileno():
-                self._accept()
-            elif fd in self._pending:
-                self._hear_pending(self._pending[fd])
-            elif self._client is not None and fd == self._client.fileno():  # not a client replaced meanwhile
-                if revents & select.POLLOUT:
-                    self._flush()
-                if revents & (select.POLLIN | select.POLLHUP | select.POLLERR):
-                    self._read()
+            self._serve(fd, revents)
+        self._expire_pending()
+
+    def _serve(self, fd: int, revents: int) -> None:
+        """One ready descriptor: the listener accepts, a pending host is heard, the client written and read."""
+        if fd == self._listener.fileno():
+            self._accept()
+        elif fd in self._pending:
+            self._hear_pending(self._pending[fd])
+        elif self._client is not None and fd == self._client.fileno():  # not a client replaced meanwhile
+            if revents & select.POLLOUT:
+                self._flush()
+            if revents & (select.POLLIN | select.POLLHUP | select.POLLERR):
+                self._read()
+
+    def _expire_pending(self) -> None:
+        """Hosts past their deadline: a refused one is closed, one that sent no secret is refused."""
         for pending in [p for p in self._pending.values() if p.deadline_s <= time.monotonic()]:
             if pending.refused:
                 self._forget(pending).close()

@@ -618,7 +618,7 @@ STARTUP_COMMANDS = {"twin-sim": "tools.cli.sim", "twin-serial": "tools.cli.seria
                     "twin-compare": "tools.cli.compare", "twin-tune": "tools.cli.tune",
                     "twin-firmware-report": "tools.cli.firmware_report", "tools.bench": "tools.bench",
                     "tools.seeds": "tools.seeds"}
-STARTUP_HELP_CPU_S = 0.5  # the targets (issue 37): --help, and twin-serial's link
+STARTUP_HELP_CPU_S = 0.5  # the start-up targets: --help, and twin-serial's link
 STARTUP_LINK_CPU_S = 1.0
 
 

@@ -58,6 +58,7 @@ import inspect
 import os
 import types
 from collections.abc import Callable
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -75,7 +76,7 @@ from firmware_port.marlin.lanes import (
     WATCH_TRIP,
 )
 from firmware_port.thermistor import TEMP_FRAC_BITS
-from twin.numba_cache import cached_njit
+from twin.numba_cache import cached_njit, law_cache_folder
 from twin.streaming import HEAT, LAST_HEAT, SCORED  # frozen in: the objective's row flags
 
 try:
@@ -240,9 +241,10 @@ def describe() -> str:
 NUMBA_OPTIONS = {"_nrt": False, "error_model": "numpy"}
 
 
-def jit(fn):
-    """A kernel: compiled, cached (twin/numba_cache.py), releasing the GIL (BatchTwin runs lanes on threads)."""
-    return cached_njit(fn, nogil=True, **NUMBA_OPTIONS) if numba is not None else fn
+def jit(fn, folder: Path | None = None):
+    """A kernel: compiled, cached (twin/numba_cache.py; in ``folder`` if given), releasing the GIL (BatchTwin
+    runs lanes on threads)."""
+    return cached_njit(fn, folder, nogil=True, **NUMBA_OPTIONS) if numba is not None else fn
 
 
 def inline(fn):
@@ -669,7 +671,7 @@ def never_tuned(p, s, temp_q5, target_c):
 @functools.cache
 def law_kernel(law: LaneLaw) -> Callable[..., None]:
     """The batch's loop with ``law``'s step compiled in: one compiled function per law (numba caches
-    each on disk, keyed by the law's source, ``law_source``)."""
+    each on disk, keyed by the law's source, ``law_source``, in the user's cache folder: law_cache_folder)."""
     step, tuned = jitable(law.step), jitable(law.tuned or never_tuned)
     source = law_source(law)
 
@@ -730,7 +732,8 @@ def law_kernel(law: LaneLaw) -> Callable[..., None]:
             for i in range(xl.shape[0]):
                 lanes.x[i, k] = xl[i]
 
-    return jit(run_lanes)
+    folder = law_cache_folder(f"{law.step.__module__}.{law.name}", source, law.step) if numba is not None else None
+    return jit(run_lanes, folder)
 
 
 def jitable(fn: Callable) -> Callable:

@@ -66,14 +66,16 @@ from firmware_port.klipper import (
     VerifyHeater,
     invert_calibration,
 )
-from firmware_port.klipper.heater import REPORT_TIME, SAMPLE_COUNT, SAMPLE_TIME
+from firmware_port.klipper.heater import CONTROL_PID, PID_PARAM_BASE, REPORT_TIME, SAMPLE_COUNT, SAMPLE_TIME
+from firmware_port.controller import PidGains
+from firmware_port.firmwares import STOCK_BED_GAINS, STOCK_HOTEND_GAINS
 from firmware_port.thermistor import KLIPPER_SENSORS, SteinhartHart
 from twin.clock import TICK_S, EventQueue, tick_near
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
 from twin.engine_protocol import LaneHeater, Runs, Trip
 from twin.limits import DURATION_MAX_S, NOISE_MAX_LSB, PHYSICAL_RANGE_C, check_trace_bytes, checked, checked_seed
 from twin.linear import BLOCK, SENSOR
-from twin.plants import make_plant
+from twin.plants import DEFAULT_HOTEND, make_plant
 from twin.result import KLIPPER_NAMES, RunResult
 
 # klippy/extras/adc_temperature.py and klippy/mcu.py
@@ -210,6 +212,13 @@ def kalico_bed_setup(plant=None, **config) -> HeaterSetup:
     """``bed_setup`` on Kalico (control: watermark unless config says otherwise)."""
     return _setup(KalicoHeaterConfig, "heater_bed", BED_MAX_C, make_plant("bed") if plant is None else plant,
                   {"control": "watermark", **config})
+
+
+def _control(control: str, gains: PidGains) -> dict:
+    """A section's ``control:`` and, for a control that takes them, its pid_Kp/Ki/Kd (M301's scale)."""
+    if control not in CONTROLS_WITH_GAINS:
+        return {"control": control}
+    return {"control": control, "pid_kp": gains.kp, "pid_ki": gains.ki, "pid_kd": gains.kd}
 
 
 class SoftPwm:
@@ -364,6 +373,28 @@ class _LogList(logging.Handler):
         self.twin.log.append((self.twin.time_s, record.getMessage()))
 
 
+class KlipperHandle(LaneHeater):
+    """A Klipper heater as a user sees it: the engine protocol's handle, and ``gains`` as on a ``Twin``'s."""
+
+    def __init__(self, twin: KlipperTwin, name: str):
+        heater = twin.heater(name)
+        super().__init__(KLIPPER_HEATERS.get(name, name), lambda: heater.target_temp,
+                         lambda value: twin.set_target(name, value), lambda: [heater.control])
+        self._twin, self._heater = twin, heater
+
+    @property
+    def gains(self) -> PidGains:
+        """PID gains on the 0..255 scale (pid_Kp/Ki/Kd, M301's); ValueError for a control without gains."""
+        return self._twin.gains(self._heater.short_name)
+
+    @gains.setter
+    def gains(self, gains: PidGains) -> None:
+        self._twin.set_gains(self._heater.short_name, gains)
+
+    def __repr__(self) -> str:
+        return f"KlipperHandle({self.name!r}, target_c={self.target_c:g}, control={self._heater.control!r})"
+
+
 class KlipperTwin(Runs):
     """A Klipper printer's heaters on one clock: host control, MCU ADC and soft PWM, plants; one lane of the
     engine protocol (twin/engine_protocol.py), its heaters named as in the result ("hotend" for the extruder)."""
@@ -397,6 +428,22 @@ class KlipperTwin(Runs):
             if channel.verify is not None:
                 self._push(0.0, PRIO_VERIFY, self._verify, channel)
         self._push(0.0, PRIO_STATS, self._stats, 0)
+
+    @classmethod
+    def create(cls, firmware: str = CONTROL_PID, hotend: str | None = None, bed: str | None = None, *,
+               ambient_c: float = 25.0, kalico: bool = False, **options) -> KlipperTwin:
+        """A Klipper printer from ``Twin.create``'s arguments: the same plant presets (the hotend by default
+        twin.plants.DEFAULT_HOTEND, no bed unless named) and, for a control with gains, the stock printer's
+        (firmware_port/firmwares.py STOCK_*_GAINS, as pid_Kp/Ki/Kd). ``firmware`` is the heaters' ``control:``
+        (pid or watermark; Kalico's also pid_v), ``kalico`` runs Kalico's host code, ``options`` go to
+        ``KlipperTwin`` (mcu, seed)."""
+        config = KalicoHeaterConfig if kalico else HeaterConfig
+        heaters = [_setup(config, "extruder", EXTRUDER_MAX_C, make_plant(hotend or DEFAULT_HOTEND, ambient_c=ambient_c),
+                          _control(firmware, STOCK_HOTEND_GAINS))]
+        if bed is not None:
+            heaters.append(_setup(config, "heater_bed", BED_MAX_C, make_plant(bed, ambient_c=ambient_c),
+                                  _control(firmware, STOCK_BED_GAINS)))
+        return cls(heaters, **options)
 
     # -- the outside world ----------------------------------------------------------------------
     def heater(self, name: str) -> KlipperHeater:
@@ -445,14 +492,27 @@ class KlipperTwin(Runs):
             self.schedule(at_s, apply)
 
     @property
-    def handles(self) -> dict[str, LaneHeater]:
-        """Every heater's handle by its name in the result: its target (SET_HEATER_TEMPERATURE), its control."""
-        return {handle.name: handle for handle in map(self._handle, self.channels)}
+    def handles(self) -> dict[str, KlipperHandle]:
+        """Every heater's handle by its name in the result: its target (SET_HEATER_TEMPERATURE), its control,
+        its gains."""
+        handles = (KlipperHandle(self, name) for name in self.channels)
+        return {handle.name: handle for handle in handles}
 
-    def _handle(self, name: str) -> LaneHeater:
+    def gains(self, name: str) -> PidGains:
+        """A heater's PID gains on the 0..255 scale (pid_Kp/Ki/Kd); ValueError for a control without gains."""
+        control = self.heater(name).control
+        if not all(hasattr(control, gain) for gain in ("kp", "ki", "kd")):
+            raise ValueError(f"heater {name}: {type(control).__name__} has no PID gains")
+        return PidGains(*(getattr(control, gain) * PID_PARAM_BASE for gain in ("kp", "ki", "kd")))
+
+    def set_gains(self, name: str, gains: PidGains) -> None:
+        """New PID gains for a heater whose ``control:`` takes them: a fresh control from its section with these
+        as pid_Kp/Ki/Kd, the target kept (as M301 changes a Marlin PID's gains while it heats)."""
         heater = self.heater(name)
-        return LaneHeater(KLIPPER_HEATERS.get(name, name), lambda: heater.target_temp,
-                          lambda value: self.set_target(name, value), lambda: [heater.control])
+        if heater.config.control not in CONTROLS_WITH_GAINS:
+            raise ValueError(f"heater {name}: control {heater.config.control} has no PID gains")
+        heater.control = heater.new_control(dataclasses.replace(heater.config, **_control(heater.config.control,
+                                                                                          gains)))
 
     def trips(self) -> list[Trip]:
         """What shut the printer down, if anything did: the heater and the shutdown's reason."""
@@ -502,16 +562,6 @@ class KlipperTwin(Runs):
                 self.time_s = time_s
                 action(*args)
         self.time_s = t_s
-
-    def plant_temps_c(self, name: str) -> tuple[float, float]:
-        """True (sensor, block) temperatures now."""
-        channel = self._channel(name)
-        n = tick_near(self.time_s) - channel.plant_tick
-        if n <= 0:
-            temps = channel.plant.temps_c()
-        else:
-            temps = channel.plant.outputs(channel.heater_input(channel.plant_tick, n), (n,))[0]
-        return float(temps[SENSOR]), float(temps[BLOCK])
 
     def pid_calibrate(self, name: str, target_c: float,
                       timeout_s: float = PID_CALIBRATE_TIMEOUT_S) -> PidCalibrateResult:

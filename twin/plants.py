@@ -20,7 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import ClassVar, NamedTuple, Protocol
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -280,34 +280,6 @@ def respec(spec: Spec, changes: Mapping[str, float]) -> Spec:
     if isinstance(spec, Lumped):
         return dataclasses.replace(spec, **changes)
     return dataclasses.replace(spec, **changes)
-
-
-class PlantSpec(Protocol):
-    """What the engines and the tuners ask of a plant spec; ``Lumped`` and ``TransferFunction`` follow it.
-    (Each also has ``conditions`` and ``lti``, whose operating-point key is its own.)"""
-
-    @property
-    def linear(self) -> bool:
-        """No radiating loss: one exact model per operating condition."""
-
-    @property
-    def delay_ticks(self) -> int:
-        """Dead time on the tick grid."""
-
-    @property
-    def delay_s(self) -> float: ...
-
-    @property
-    def world_inputs(self) -> bool:
-        """The part fan and filament flow act on it (else a disturbance is a load at its input)."""
-
-    @property
-    def input_full_scale(self) -> float:
-        """The plant input at duty 1 (W for a heater, the paper's unit for a transfer function)."""
-
-    def rest_lti(self, ambient_c: float) -> Lti: ...
-
-    def initial_state(self, ambient_c: float, start_c: float) -> np.ndarray: ...
 
 
 class Plant(LinearPlant):

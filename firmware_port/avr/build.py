@@ -117,10 +117,6 @@ class ElfInfo:
         """What goes to flash: the code and constants, and the initial values of .data."""
         return self.sections.get(".text", 0) + self.sections.get(".data", 0)
 
-    @property
-    def static_ram_bytes(self) -> int:
-        return self.sections.get(".data", 0) + self.sections.get(".bss", 0)
-
     def sram(self, name: str) -> tuple[int, int]:
         """The data-space address and size of an SRAM symbol (KeyError if the ELF has none)."""
         address, size = self.symbols[name]

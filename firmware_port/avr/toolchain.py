@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
+from firmware_port.user_cache import user_cache_dir
+
 MCU = "atmega328p"
 F_CPU_HZ = 16_000_000  # the ATmega328P of an Arduino-class printer board, Marlin's 16 MHz
 # The Debian/Ubuntu packages (apt-get install -y --no-install-recommends ...); the shim also needs a
@@ -94,8 +96,7 @@ def cache_dir() -> Path:
     override = os.environ.get("HEATER_TWIN_AVR_CACHE")
     if override:
         return Path(override)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "heater-twin" / "avr"
+    return user_cache_dir() / "avr"
 
 
 class BuildError(RuntimeError):

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from firmware_port.kalico.heater import KalicoHeater
+from firmware_port.kalico.heater import HEATER_BED, KalicoHeater
 from firmware_port.kalico.mpc import ControlMPC, MpcConfig
 from firmware_port.kalico.printer import Printer
 from firmware_port.klipper.heater import CommandError, KlipperHeater, PwmEvent
@@ -174,7 +174,7 @@ class MpcCalibrate:
         if not isinstance(heater.control, ControlMPC):
             raise CommandError(f"The value '{heater.name}' is not valid for HEATER")  # MPC_CALIBRATE's mux
         if target_c is None:
-            target_c = CALIBRATE_TARGET_BED_C if heater.name == "heater_bed" else CALIBRATE_TARGET_C
+            target_c = CALIBRATE_TARGET_BED_C if heater.name == HEATER_BED else CALIBRATE_TARGET_C
         if target_c < CALIBRATE_MIN_TARGET_C:
             raise CommandError(f"Error on 'MPC_CALIBRATE': TARGET must have minimum of {CALIBRATE_MIN_TARGET_C}")
         if not ambient_max_measure_time_s > 0.0:

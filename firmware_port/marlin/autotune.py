@@ -8,7 +8,8 @@ heating watch inside it; the 20 min timeout; the finish.
 
 Sources: MarlinFirmware/Marlin bugfix-2.1.x (000b347) Marlin/src/module/temperature.cpp
 `PID_autotune` and Marlin/src/core/language.h (STR_PID_*, STR_BIAS ...); for the "1.1" option
-the spring-2017 1.1.x Marlin/temperature.cpp (the firmware of issue #6316).
+the spring-2017 1.1.x Marlin/temperature.cpp (the firmware that printed the capture
+m303_hotend_C1_degenerate_marlin6316.txt).
 
 Units: temperatures celsius_q5 (1/32 degC), targets whole degC, times millis(). Marlin keeps
 the temperatures in float; a celsius_q5 value converts to float32 exactly, so comparisons and

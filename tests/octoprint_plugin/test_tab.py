@@ -222,7 +222,7 @@ def test_the_tab_tunes_the_printer_and_the_printer_holds_the_answer(octoprint, b
     tab.click("heater_twin_start")
     verdict = tab.answer(after_run=first)
     tab.shot("second-run", "tab_plugin_heater_twin")
-    # The second run: "keep your gains", or new gains with the one line why (the second capture may allow
+    # The second run: "keep your gains", or new gains with the one line why (the second capture may allow
     # other plants than the first); either way against the gains the printer now holds.
     assert verdict in ("Keep your gains", "New gains") and tab.text("heater_twin_why"), verdict
     yours = [float(tab.text(f"heater_twin_current_{k}")) for k in ("kp", "ki", "kd")]

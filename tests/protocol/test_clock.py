@@ -91,7 +91,7 @@ def test_parse_idle_speed():
 
 
 def test_default_twin_serial_heats_and_reports_while_the_host_only_reads(tmp_path):
-    """The issue's acceptance: M155 S1 and M104 S200, then only reading."""
+    """A host that sets M155 S1 and M104 S200, then only reading."""
     with twin_serial(tmp_path=tmp_path) as (_, path):
         with serial.Serial(path, 250000, timeout=1) as port:
             expect(port, "M304", timeout_s=LIVENESS_S)  # the end of the banner

@@ -28,7 +28,7 @@ def test_a_later_write_queues_behind_what_is_in_flight():
 
 
 def test_m110_then_pipelined_numbered_lines_are_all_accepted():
-    """The issue's host: M110 N0 and 30 numbered lines in one write, no waiting. On a real wire
+    """A pipelining host: M110 N0 and 30 numbered lines in one write, no waiting. On a real wire
     M110 has run before N1 has arrived; so here: 31 oks, no line-number error, nothing lost."""
     printer = build_printer()
     printer.take_output()

@@ -6,7 +6,7 @@ The capture is the Kingroon KP3S extruder's Klipper Stats log (the hardware_logs
 the logs the test skips locally and fails in CI). Tolerance 10 %: Marlin's method is approximate (R read
 from the sensor's lag at one sample, A and F from 20 s windows whose stored-heat term sees the
 reading step by one ADC count); it lands within 4 % on the two-node ``hotend`` preset, and the
-issue's bound for that preset is 10 %. Where a plant's sensor is much slower or faster than
+bound for that preset is 10 %. Where a plant's sensor is much slower or faster than
 this one's (R 0.04 or 1.7 /s in other captures), the same method misses by 20..50 %
 (docs/firmware.md): that is Marlin's, not the loop's.
 """

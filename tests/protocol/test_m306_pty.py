@@ -33,7 +33,7 @@ PLANT = {  # what the four lines name, and the plant's value of each
     "MPC_AMBIENT_XFER_COEFF_FAN255": MPC_AMBIENT_XFER_FAN255_W_K,
 }
 # Marlin's method is approximate (the sensor's lag read from one sample, A and F from 20 s windows
-# whose stored-heat term sees the reading step one ADC count): the bound, 10 %.
+# whose stored-heat term sees the reading step one ADC count): the bound, 10 %.
 TOLERANCE = 0.10
 
 

@@ -1,5 +1,5 @@
 """A real OctoPrint prints through the default twin, twice in a row, the bed still warm for the
-second print (issue 23: the second print used to kill the printer with "Heating failed").
+second print (a second print on a warm bed used to kill the printer with "Heating failed").
 
 OctoPrint (the ``octoprint`` extra; .ci/run installs it) runs headless on 127.0.0.1 with a
 throwaway basedir and a global API key written into its config.yaml; twin-serial serves the
@@ -20,9 +20,9 @@ pytestmark = pytest.mark.slow
 PRINT_TIMEOUT_S = 1800  # hang guards (tests/helpers/octoprint_server.py)
 COOL_TIMEOUT_S = 900
 IDLE_SPEED = 50  # the printer's clock while it waits for OctoPrint: the bed cools between prints in seconds
-WARM_BED_C = 37  # the second print's bed (the issue's was 36 C): Marlin's example bed gains trip the watch here
+WARM_BED_C = 37  # the second print's bed (the reported one was 36 C): Marlin's example bed gains trip the watch here
 PRINT_NAME = "stock.gcode"
-# The issue's file: heat both, home, wait for both, a few moves, then the end code a slicer writes.
+# The print file: heat both, home, wait for both, a few moves, then the end code a slicer writes.
 PRINT_FILE = "\n".join([
     "M140 S60", "M104 S210", "G28", "M190 S60", "M109 S210", "G92 E0",
     "G1 Z0.3 F600", "G1 X50 Y50 F6000", "G1 X100 E5 F1200", "G1 Y100 E10", "G1 X50 E15", "G1 Y50 E20",

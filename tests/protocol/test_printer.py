@@ -241,7 +241,7 @@ def test_m104_for_a_missing_extruder():
     assert send(make_printer(), "M104 T1 S200") == ["echo:M104 Invalid extruder 1", "ok"]
 
 
-# -- values beyond Marlin's widths, errors inside commands (issue 13, sections 2 and 4) -------------
+# -- values beyond Marlin's widths, errors inside commands ---------------------------------------------
 HUGE = "9" * 41  # beyond float32: strtod gives inf
 
 

@@ -95,7 +95,7 @@ def test_a_host_that_never_reads_stalls_the_printer_not_the_memory():
 
 def test_moves_at_ever_new_feeds_keep_the_model_cache_bounded():
     """Each feed rate is a new filament flow, so a new plant discretisation (about 1 MB); the
-    issue's 20 000-move stream is ``N_MOVES=20000`` (five minutes here), CI runs 2 000."""
+    full 20 000-move stream is ``N_MOVES=20000`` (five minutes here), CI runs 2 000."""
     printer = build_printer(with_bed=False)
     plant = printer.twin.plants[0]
     rng = np.random.default_rng(5)

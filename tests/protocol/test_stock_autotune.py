@@ -12,7 +12,7 @@ from firmware_port.firmwares import STOCK_BED_GAINS, STOCK_HOTEND_GAINS
 from protocol.build import build_printer
 from tools.logs.m303 import parse_m303
 
-TYPICAL_TU_S = (10.0, 25.0)  # where most hotend captures' periods lie (issue 23; computed below)
+TYPICAL_TU_S = (10.0, 25.0)  # where most hotend captures' periods lie (computed below)
 DEFINE = re.compile(r"#define DEFAULT_(?:bed)?K([pid]) (\S+)")
 RELAY = re.compile(r" bias: \d+ d: \d+ min: (\S+) max: (\S+) Ku: \S+ Tu: (\S+)")
 

@@ -9,7 +9,8 @@ import pytest
 import twin
 from firmware_port.marlin.pid import PidFixed, PidGains
 from protocol.printer import VirtualPrinter
-from twin import BatchTwin, RunResult, Twin, make_plant
+from firmware_port.firmwares import STOCK_HOTEND_GAINS
+from twin import BatchTwin, KlipperTwin, RunResult, Twin, make_plant
 from twin.build import build_twin
 from twin.scenario import parse_scenario
 from twin.trace import Trace
@@ -22,13 +23,16 @@ def readme_python_blocks() -> list[str]:
     return re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
 
 
-def test_readme_example_runs(tmp_path, monkeypatch, capsys):
-    """The README's Python block, executed as written (in a scratch directory for its plot)."""
+@pytest.mark.parametrize("engine", ["Twin", "KlipperTwin"])
+def test_readme_example_runs(engine, tmp_path, monkeypatch, capsys):
+    """The README's Python block, executed as written (in a scratch directory for its plot), and on Klipper
+    with the one name the README says to change."""
     blocks = readme_python_blocks()
     assert blocks, "README.md has no ```python block"
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
-    exec(compile(blocks[0], "README.md", "exec"), namespace)
+    exec(compile(re.sub(r"\bTwin\b", engine, blocks[0]), "README.md", "exec"), namespace)
+    assert type(namespace["t"]).__name__ == engine
     result = namespace["result"]
     assert isinstance(result, RunResult)
     assert result.hotend.metrics().reached
@@ -48,6 +52,36 @@ def test_heater_handles_set_target_and_gains():
     assert tw.hotend.target_c == 260 and tw.bed.gains == GAINS
     with pytest.raises(ValueError, match="no PID gains"):
         Twin.create("bangbang").hotend.gains = GAINS
+
+
+def test_marlin_and_klipper_twins_build_from_the_same_arguments():
+    """Switching firmware is one name: Twin.create and KlipperTwin.create take the same arguments, put the
+    same plants behind the same handles, start from the stock printer's gains, take new gains the same way
+    (the README's notebook lines) and heat both heaters to their targets."""
+    marlin, klipper = (cls.create("pid", hotend="hotend_cartridge", bed="bed", ambient_c=22.0)
+                       for cls in (Twin, KlipperTwin))
+    assert [(p.preset, p.ambient_c) for p in marlin.plants] == \
+        [(c.plant.preset, c.plant.ambient_c) for c in klipper.channels.values()] == [("hotend_cartridge", 22.0),
+                                                                                  ("bed", 22.0)]
+    for engine in (marlin, klipper):
+        assert engine.hotend.gains == pytest.approx(STOCK_HOTEND_GAINS)
+        engine.hotend.target_c = 210
+        engine.handles["bed"].target_c = 60
+        engine.hotend.gains = GAINS
+        assert engine.hotend.gains == pytest.approx(GAINS)
+        result = engine.run(600)
+        assert sorted(result.heaters) == ["bed", "hotend"]
+        assert result.hotend.metrics().reached and result.heaters["bed"].metrics().reached
+    assert "Kp=15, Ki=0.875, Kd=80.25" in repr(klipper.hotend)  # the heater runs the new gains
+
+
+def test_klipper_twin_create_refuses_what_its_config_would():
+    with pytest.raises(ValueError, match="control must be one of watermark, pid"):
+        KlipperTwin.create("bangbang")
+    watermark = KlipperTwin.create("watermark", kalico=True)
+    assert type(watermark.heater("extruder")).__name__ == "KalicoHeater"
+    with pytest.raises(ValueError, match="has no PID gains"):
+        watermark.hotend.gains = GAINS
 
 
 SERIAL = parse_scenario('duration_s = 86400\nname = "serial"\n', "serial")

@@ -274,7 +274,7 @@ def test_bed_steady_duty_matches_the_logged_hold():
 
 @pytest.mark.usefixtures("hardware_logs")
 def test_radiating_cartridge_hotend_fits_the_pulse_and_predicts_the_held_out_trace():
-    """The AIC-chosen radiating fit against issue 14's measured figures: the pulse it was fitted to
+    """The AIC-chosen radiating fit against the figures measured when it was fitted: the pulse it was fitted to
     within 0.43 C RMSE (linear fit: 1.89 C) and the author's separate trace within 1.58 C (linear:
     2.07 C); measured 0.43 and 1.53 C, the margins cover another BLAS kernel's last digits."""
     for name, bound_c in (("heattest_200", 0.435), ("sample_trace", 1.58)):

@@ -1,5 +1,5 @@
 """The default twin is a stock printer: it holds its targets with its own gains and passes Marlin's
-heating watch from any start temperature (issue 23: a second print must not kill it)."""
+heating watch from any start temperature (a second print on a warm bed must not kill it)."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from twin.plants import DEFAULT_BED, DEFAULT_HOTEND
 from twin.scenario import parse_scenario, with_overrides
 
 HOLD_FROM_S = 180.0  # the heat-up and the classic Ziegler-Nichols overshoot are over well before (about 125 s)
-HOLD_TOLERANCE_C = 1.0  # the issue's acceptance: within 1 C of 210 C
+HOLD_TOLERANCE_C = 1.0  # the acceptance: within 1 C of 210 C
 BED_TARGET_C = 60
-# Bed start temperatures: cold, the issue's 36 C and 45 C (a second print), and up to just below
+# Bed start temperatures: cold, a reported 36 C and 45 C (a second print), and up to just below
 # where Marlin arms the watch at all (target - TEMP_BED_HYSTERESIS - 1 - WATCH_BED_TEMP_INCREASE = 54 C).
 BED_STARTS_C = (25.0, 36.0, 45.0, 50.0, 53.0, 58.0)
 BED_HEAT_S = 600.0
@@ -63,7 +63,7 @@ def test_the_default_bed_passes_the_heating_watch_from_any_start(start_c, firmwa
 
 def test_marlins_example_bed_gains_trip_the_watch_from_a_warm_bed():
     """Why the stock gains: Marlin's example bed gains (10/0.023/305.4, tuned for another bed) crawl
-    the last degrees on this one, so from 36 C the watch (+2 C per 60 s) fires, as the issue saw."""
+    the last degrees on this one, so from 36 C the watch (+2 C per 60 s) fires, as a user reported."""
     twin = _bed_from(36.0, BED_GAINS)
     twin.run(BED_HEAT_S)
     assert twin.board.halted

@@ -35,7 +35,7 @@ from tools.entry import EXIT_STATUS_HELP, EXIT_USAGE, OneLineParser, run_main
 from twin.limits import UserError
 
 CALLS_MAX = 100_000  # --sequences, --steps: each law runs sequences x steps calls
-# Gain sets to measure: Marlin's defaults and M303 results from ../shared/hardware_logs.
+# Gain sets to measure: Marlin's defaults and M303 results from the captured hardware logs.
 PID_CASES = {
     "Marlin hotend default 22.20/1.08/114.00": PidGains(22.2, 1.08, 114.0),
     "Marlin bed default 10.00/0.023/305.40": PidGains(10.0, 0.023, 305.4),

@@ -8,7 +8,7 @@ Per seed: a protection trip, the mean |duty change| per reading while holding (`
 mean |target - reading| while holding (``hold error``), "holding" being the readings from
 ``--hold-from`` seconds to the end (no disturbance: the plain hold a print starts from). A gain set
 passes when no seed trips and every seed keeps chatter <= ``--max-chatter`` and the hold error
-<= ``--max-hold`` (defaults 0.03 and 1 C: the robust-tuning issue's acceptance). Exit status 0 when
+<= ``--max-hold`` (defaults 0.03 and 1 C: what a robust tune must hold). Exit status 0 when
 every gain set passes, 1 otherwise.
 """
 

@@ -27,7 +27,7 @@ from twin.limits import AMBIENT_RANGE_C, DURATION_MAX_S, INITIAL_RANGE_C, NOISE_
 from twin.plants import DEFAULT_BED, DEFAULT_HOTEND
 from twin.plants import PRESETS as PLANT_PRESETS
 from twin.scenario import PRESETS as SCENARIO_PRESETS
-from twin.scenario import ScenarioError, scenario_for, with_overrides
+from twin.scenario import Scenario, ScenarioError, scenario_for, with_overrides
 from tools.entry import INTERNAL_STATUS_HELP, OneLineParser, run_main
 
 PROGRESS_STEP_S = 10.0  # virtual seconds between progress bar updates
@@ -202,7 +202,8 @@ def gains_line(twin) -> str:
     return "gains: " + ("; ".join(parts) if parts else "none (no PID in this firmware)")
 
 
-def run(args: argparse.Namespace) -> int:
+def _scenario(args: argparse.Namespace) -> Scenario:
+    """The scenario ``--scenario`` names with the command line's plants, targets, gains and other overrides."""
     scenario = scenario_for(args.scenario)
     plant = {heater: dict(params) for heater, params in scenario.plant.items()}
     for heater, preset, items, option in (
@@ -217,10 +218,14 @@ def run(args: argparse.Namespace) -> int:
     initial = {k: v for k, v in (("hotend", args.initial), ("bed", args.bed_initial)) if v is not None}
     gains = {k: v for k, v in (("hotend", parse_gains(args.gains, "--gains")),
                                ("bed", parse_gains(args.bed_gains, "--bed-gains"))) if v is not None}
-    scenario = with_overrides(
+    return with_overrides(
         scenario, duration_s=args.duration, ambient_c=args.ambient, initial_c=initial or None,
         targets=targets or None, seed=args.seed, plant=plant, gains=gains or None,
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    scenario = _scenario(args)
     if args.record_every > scenario.duration_s:
         raise UserError(f"--record-every {args.record_every:g}: must be 0..duration_s ({scenario.duration_s:g}) seconds")
     stem = run_name(scenario.name, args)

@@ -49,7 +49,7 @@ PLANT = "hotend_cartridge"
 TARGET_C = 210
 M303_CYCLES = 8
 HOLD_FROM_S = 300.0  # heat_hold runs 600 s: the second half is the hold
-HOLD_BAND_C = 1.0  # the "holds within 1 C"
+HOLD_BAND_C = 1.0  # an MPC tune "holds within 1 C"
 NOISES_LSB = (0.0, 1.0)
 CAPTURES = ("klippy_stats_pdegrazia_kingroon_kp3s_a.csv", "klipper_heattest_onionheater_heattest_200.csv",
             "klippy_stats_icodextrin_ender5_creality427.csv")

@@ -1,6 +1,6 @@
 """The optimisers' table of docs/tuning.md: DE, PSO and OCALO against the best rule and M303.
 
-Issue 11's acceptance: on ``hotend_cartridge`` and on plants fitted from the captured hardware
+The claim checked: on ``hotend_cartridge`` and on plants fitted from the captured hardware
 logs, a search on the firmware twin finds gains at least as good as the best classical rule on the
 heater objective, and better than the firmware's own autotune (Marlin M303 C8). Each plant is
 built as twin-tune builds it (a preset, or ``--from-log`` fitted as twin-fit does), nominal and

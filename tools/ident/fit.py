@@ -227,13 +227,3 @@ def fit_losses(model: str, t_s, temp_c, duty, ambient_c: float | None = None, *,
                           start={**linear.params, RADIATING_PARAM: RADIATING_START_M2, **(start or {})}, **options)
     fits = {"linear": linear, "radiating": radiating}
     return LossChoice(fits, min(fits, key=lambda name: aic(fits[name])))
-
-
-
-def best_fit(models: Sequence[str], seg: Segment, ambient_c: float | None, power_w: float | None) -> FitResult:
-    """The model of lowest AIC among ``models`` fitted to one segment (power_w for the lumped ones)."""
-    fits = [fit_model(m, seg.t_s, seg.temp_c, seg.duty, ambient_c, observed=seg.observed,
-                      power_w=power_w if m in ("two_node", "three_node") else None) for m in models]
-    return min(fits, key=aic)
-
-

@@ -67,8 +67,8 @@ def _idle_reading(temps: dict[str, tuple[float, float]], text: str, heater: str)
 
 def _powered_heater(text: str) -> str | None:
     """On a status line showing both heaters' power, the one heater powered ("T" or "B"), else None.
-    M303 switches every other heater off when it starts (disable_all_heaters, shared/reference/
-    marlin_heater.md section 3), so during a run the powered one is the tuned one."""
+    M303 switches every other heater off when it starts (PID_autotune calls disable_all_heaters in Marlin's
+    temperature.cpp), so during a run the powered one is the tuned one."""
     powers = dict(POWER_FIELD_RE.findall(text))
     if not {"@", "B@"} <= powers.keys() or not all(p.isdigit() for p in (powers["@"], powers["B@"])):
         return None

@@ -74,7 +74,7 @@ from tools.seeds.report import (
 )
 from tools.tuning.gains import Gains
 from twin.engine import Twin
-from twin.metrics import StepMetrics, step_metrics
+from twin.metrics import StepMetrics
 from twin.plants import SPECS
 
 # Seed 000, section 4 ("Manual and Automated PID Tuning") simulation parameters.
@@ -174,12 +174,6 @@ def loop_evidence(kp: float, ki: float, kd: float, *, normalise: bool) -> dict[s
         "seed_slope_at_end_c_s": float((y[-1] - y[-2]) / (t[-1] - t[-2])),
         "correct_max_pole_real": float(np.max(np.real(correct.poles))),
     }
-
-
-def correct_metrics(kp: float, ki: float, kd: float, horizon_s: float = 600.0) -> StepMetrics:
-    """The project's step metrics of the correct loop for the same gains (0 -> SETPOINT_C)."""
-    t, y = step_response(correct_closed_loop(kp, ki, kd), np.linspace(0.0, horizon_s, 6001))
-    return step_metrics(t, y, SETPOINT_C, band_c=SETTLING_BAND * SETPOINT_C)
 
 
 # -- the seed's cost functions ------------------------------------------------------------------

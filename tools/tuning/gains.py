@@ -4,8 +4,8 @@ Marlin (M301/M304, ``DEFAULT_Kp``...) and Klipper (``pid_Kp``...) print gains on
 output counts of 0..255 per degC, Ki per second, Kd in seconds (Marlin's ``PID_MAX`` = 255;
 Klipper's klippy/extras/heaters.py divides its config gains by ``PID_PARAM_BASE`` = 255 to get a
 0..1 duty). A model-based rule works in heater duty 0..1 per degC: ``Gains.from_duty`` and
-``Gains.duty`` convert. Marlin stores Ki and Kd per control sample (scaled by ``PID_dT``):
-``marlin_internal`` shows that scale, which users never type.
+``Gains.duty`` convert. Marlin stores Ki and Kd per control sample (scaled by ``PID_dT``), a scale
+users never type: ``Gains.firmware`` hands the gains to the firmware's PID, which applies it.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ import math
 from dataclasses import dataclass
 
 from firmware_port.klipper.heater import PID_PARAM_BASE
-from firmware_port.marlin.constants import PID_DT_S
 from firmware_port.marlin.pid import PidGains
 
 COUNTS_PER_DUTY = PID_PARAM_BASE  # 255: Klipper's PID_PARAM_BASE, Marlin's PID_MAX
@@ -49,10 +48,6 @@ class Gains:
         """Standard (ISA) form Kp (1 + 1/(Ti s) + Td s) to parallel; ti_s = inf means no integral."""
         return cls(kp, 0.0 if math.isinf(ti_s) else kp / ti_s, kp * td_s)
 
-    @classmethod
-    def from_firmware(cls, gains: PidGains) -> Gains:
-        return cls(gains.kp, gains.ki, gains.kd)
-
     @property
     def duty(self) -> tuple[float, float, float]:
         """(kp, ki, kd) in heater duty 0..1 per degC: the scale of a plant model's input."""
@@ -67,11 +62,6 @@ class Gains:
     def td_s(self) -> float:
         """Derivative time Kd/Kp."""
         return self.kd / self.kp if self.kp else 0.0
-
-    def marlin_internal(self) -> tuple[float, float, float]:
-        """(Kp, Ki * PID_dT, Kd / PID_dT): what Marlin's PID stores per control sample."""
-        dt_s = float(PID_DT_S)
-        return (self.kp, self.ki * dt_s, self.kd / dt_s)
 
     def firmware(self) -> PidGains:
         """The firmware's gains (ValueError if outside the range the fixed-point PID supports)."""

@@ -27,7 +27,7 @@ The relay floor: Marlin's half-cycles last at least 5 s, so Tu cannot fall below
 Where the log's or the twin's Tu lies within FLOOR_MARGIN_REL of it, the period says more about
 the 5 s rule than about the plant: the row is flagged and the swing alone decides it.
 
-Goals: Tu within 10 % and swing within 25 % (issue 14's, for a plant with a trace); a plant
+Goals: Tu within 10 % and swing within 25 % (for a plant fitted to a trace); a plant
 fitted to the printed results alone, 15 % and 30 %.
 """
 
@@ -62,7 +62,7 @@ DEFAULT_CYCLES = 5  # Marlin's M303 C default
 CYCLE_RE_KEY = {"extruder": "T", "heater_bed": "B"}
 MAX_RUN_S = 3600.0  # a twin M303 that has not finished by then will not (Marlin's own timeout is 20 min a cycle)
 RUN_STEP_S = 10.0  # the twin runs this much virtual time between progress reports
-GOALS = {"trace": (0.10, 0.25), "results": (0.15, 0.30)}  # (Tu, swing): issue 14 with a trace; issue 19 without
+GOALS = {"trace": (0.10, 0.25), "results": (0.15, 0.30)}  # (Tu, swing): fitted to a trace; to the result lines alone
 GOAL_TU_REL, GOAL_SWING_REL = GOALS["trace"]
 MIN_TWIN_CYCLES = 8  # the twin's M303 cycles at least: Marlin prints Tu from the third, so six or more
 NOISE_SEED = 0  # the twin's ADC noise draws

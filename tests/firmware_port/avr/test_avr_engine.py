@@ -52,7 +52,7 @@ def test_trace_equals_the_fast_engine(firmware, avr_toolchain) -> None:
 
 
 def test_twin_sim_engine_avr_writes_the_fast_engines_trace(capsys, tmp_path, avr_toolchain) -> None:
-    """The acceptance command, on 120 s instead of 600 (the full run is in the report of issue 21)."""
+    """The acceptance command, on 120 s instead of 600 (the full 600 s run is the same command)."""
     csv = {}
     for engine in ("fast", "avr"):
         path = tmp_path / f"{engine}.csv"

@@ -90,7 +90,7 @@ def test_the_report_and_the_constants_found_on_marlins_own_model(tuned):
                          (found.sensor_responsiveness_per_s, spec.sensor_responsiveness_per_s),
                          (found.ambient_xfer_w_k, spec.ambient_xfer_w_k),
                          (found.fan_ambient_xfer_w_k, spec.fan_ambient_xfer_w_k)):
-        assert abs(value - plant) <= 0.10 * plant  # Marlin's method is approximate: the 10 %
+        assert abs(value - plant) <= 0.10 * plant  # Marlin's method is approximate: a 10 % bound
     assert found.heater_power_w == 40.0 and found.filament_heat_capacity_j_k_mm == pytest.approx(0.0056)
     assert tune.succeeded and twin.board.autotune is None
     reports = [line for line in lines if line.startswith(" T:")]

@@ -1,4 +1,4 @@
-"""One answer per capture (issue 38): a verdict wherever the printer's gains are known (exit 0), exit 3 only
+"""One answer per capture: a verdict wherever the printer's gains are known (exit 0), exit 3 only
 with neither a model nor gains; the bed capture a degenerate fit once got refused on now gets a verdict;
 under "keep your gains" the closest candidate is an option with its command; twin-fit prints twin-tune's
 very answer lines."""

@@ -1,4 +1,4 @@
-"""Edges of the command lines (issue 37, item 7): what a killed command printed stays printed; a user's
+"""Edges of the command lines: what a killed command printed stays printed; a user's
 ``--controller module:NAME`` is checked before it is imported and leaves sys.path as it was."""
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ from tools.cli.hold_check import main
 
 @pytest.mark.slow
 def test_quiet_gains_pass_and_a_noisy_derivative_fails(capsys):
-    """Kp 10 Ki 0.3 Kd 50 hold hotend_cartridge at 210 C (the robust-tuning issue's example); Kd 1000
+    """Kp 10 Ki 0.3 Kd 50 hold hotend_cartridge at 210 C (a robust tune's example); Kd 1000
     turns one LSB of noise into a duty change of several counts per reading."""
     code = main(["--gains", "10,0.3,50", "--gains", "10,0.3,1000", "--seeds", "2", "--duration", "600"])
     lines = capsys.readouterr().out.splitlines()

@@ -1,4 +1,4 @@
-"""tools.logs against every captured hardware log (numbers from ../shared/hardware_logs/README.md),
+"""tools.logs against every captured hardware log (numbers from the README.md of the hardware logs),
 against malformed input, raw klippy.log lines and the twin's own Klipper Stats output.
 
 The captures come from the hardware_logs fixture (tests/conftest.py): without them these tests skip locally
@@ -221,7 +221,7 @@ def test_pid_calibrate_results(capture):
         r = by_line[line_no]
         assert r.tu_s == pytest.approx(tu_s, rel=2e-3) and r.tu_from_kd_s == pytest.approx(tu_s, rel=2e-3)
         assert r.peak_to_peak_c == pytest.approx(p_p_c, abs=0.05)
-    stock = by_line[31]  # PR 7243 "hotend from": "the two Tu do not agree"
+    stock = by_line[31]  # [5]'s "hotend from" (a stock PID_CALIBRATE): "the two Tu do not agree"
     assert (stock.tu_s, stock.tu_from_kd_s) == (pytest.approx(13.6, abs=0.05), pytest.approx(6.66, abs=0.01))
     assert (by_line[51].max_power, by_line[58].max_power) == (0.8, 0.6)
     assert by_line[7].heater == "heater_bed" and "issues/603" in by_line[7].source

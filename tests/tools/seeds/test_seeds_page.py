@@ -48,7 +48,7 @@ def test_every_section_judges_its_numbers_and_says_where_they_come_from(committe
 
 
 def test_the_page_says_what_contradicts_the_papers(committed):
-    """The findings the page must state in words (the issue's list), whatever the digits."""
+    """The findings the page must state in words, whatever the digits."""
     assert "does not move before" in committed["001"]  # settling before the dead time
     assert "The paper's claim 'fuzzy-PID settles faster than the PID'" in committed["001"]
     assert "the opposite of the paper's claim" in committed["001"]

@@ -75,7 +75,7 @@ def test_the_bed_capture_allows_several_structures_and_each_replays_it(hardware_
 
 @pytest.mark.slow
 def test_a_cartridge_capacity_the_hotend_capture_excludes_is_dropped(hardware_logs):
-    """The issue's case: at 8 J/K a three-node hotend's relay period is far off the capture's; the profile
+    """At 8 J/K a three-node hotend's relay period is far off the capture's; the profile
     there is dropped (by the evidence, or by the twin's M303 missing the printed Tu), never a member."""
     log = load_log(hardware_logs / "m303_hotend_artillery_genius_pro_S210_configs641_partial.txt")
     allowed = allowed_plants(log, "hotend")

@@ -33,7 +33,7 @@ def test_the_sections_verdicts_follow_from_its_numbers():
             continue
         low, high = (float(x) for x in hold.split(".."))
         assert verdict == ("yes" if max(abs(low), abs(high)) <= HOLD_BAND_C else "no")
-    for noise in ("0", "1"):  # the first criterion, as the doc states it: every MPC row below PID's
+    for noise in ("0", "1"):  # the report's first criterion, as the doc states it: every MPC row below PID's
         pid = [float(value) for n, firmware, value, _, _ in rows if n == noise and firmware == "PID"]
         mpc = [float(value) for n, firmware, value, _, _ in rows if n == noise and firmware == "MPC"]
         assert len(pid) == 1 and len(mpc) == 2 and max(mpc) < pid[0]

@@ -1,7 +1,7 @@
 """Out of sample, first class: the twin's M303 on a plant fitted to the first cycles of a capture,
 against the later ones (tools/validation/m303_compare.py, twin-compare --fit-cycles / --plant).
 
-The acceptance of issue 19 is here: the Ender 3 V3 SE and Prusa bed captures, fitted on the first
+The acceptance: the Ender 3 V3 SE and Prusa bed captures, fitted on the first
 half of their printed cycles, predict the rest (Tu 10 %, swing 25 %); from their result lines alone
 (a copy in tmp_path with the status lines deleted), Tu 15 %, swing 30 %. A Tu on Marlin's 10 s
 relay floor is not judged (the swing decides): the protocol in docs/validation.md section 4."""
@@ -46,7 +46,7 @@ def _check_prediction(r: m303_compare.M303Comparison, goals: tuple[float, float]
 @pytest.mark.slow
 @pytest.mark.parametrize("capture, heater", ACCEPTANCE)
 def test_later_cycles_predicted_from_the_first_half(capture, heater, hardware_logs):
-    """The capture as posted, its first half fitted: the issue's goals (Tu 10 %, swing 25 %) met.
+    """The capture as posted, its first half fitted: the goals (Tu 10 %, swing 25 %) met.
     The Prusa bed excerpt prints 2 cycles, so its first half is one cycle, and its 6 status lines
     before that cycle's bias line all come before the first reconstructed switch (a burn-in, not
     compared): that fit has the printed cycle alone, and its row is judged on the results' goals,

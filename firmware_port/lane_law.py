@@ -43,6 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from firmware_port.law_check import check_law
+
 
 # What a law that reads the board (``BoardInputs``) sees at each reading: the heater's soft-PWM amount
 # before the update, the part fan (M106, 0..255), the E stepper's position (int32 steps).
@@ -156,8 +158,13 @@ class LaneLaw:
 LAWS: dict[type, LaneLaw] = {}
 
 
-def register(law: LaneLaw) -> LaneLaw:
-    """Make ``law`` the lane law of its controller class (a later registration replaces it)."""
+def register(law: LaneLaw, *, check: bool = True) -> LaneLaw:
+    """Make ``law`` the lane law of its controller class (a later registration replaces it), once it is checked
+    (firmware_port/law_check.py: compiled once on a tiny input; a mistake is a LawError in one paragraph).
+    The library's own laws pass ``check=False``: their tests check them, and checking them at import would
+    load numba for every command."""
+    if check:
+        check_law(law, BOARD_INPUTS)
     LAWS[law.controller] = law
     return law
 

@@ -24,7 +24,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from firmware_port.law_jit import NUMBA_OPTIONS, functions_reached, jitable
+from firmware_port.law_jit import NUMBA_OPTIONS, functions_reached, jitable, source_hash
 from firmware_port.user_error import UserError
 
 # The tiny input: zero parameters and state, a reading of 190 C (Q5), 10 C below its target.
@@ -69,7 +69,7 @@ def _paragraph(law: Any, fault: _Fault, functions: list[Callable]) -> str:
     path, line = where
     shown = os.path.relpath(path) if not os.path.relpath(path).startswith("..") else path
     code = linecache.getline(path, line).strip()
-    more = f" {SUBSET}; the full message is in this error's details." if fault.details else ""
+    more = f" {SUBSET}; the full message is the LawError's details." if fault.details else ""
     return (f"lane law {law.name!r} ({law.controller.__name__}): {fault.what}, at {shown} line {line}"
             f"{': ' + code if code else ''}.{more}")
 
@@ -132,14 +132,15 @@ def _numba() -> Any:
     return None if numba.config.DISABLE_JIT else numba  # type: ignore[attr-defined]
 
 
-def _probe(fn: Callable, kind: str) -> Callable:
-    """``fn`` called as the batch loop calls it, on lane 0 of the records."""
+def _probe(fn: Callable, kind: str, source: int) -> Callable:
+    """``fn`` called as the batch loop calls it, on lane 0 of the records. ``source`` (never 0, so numba prunes
+    the other branch) puts the law's source hash in numba's cache key: an edited law compiles afresh."""
     if kind == "step":
         def probe(p, s, board, temp_q5, target_c):
-            return fn(p[0], s[0], temp_q5, target_c, board[0])
+            return fn(p[0], s[0], temp_q5, target_c, board[0]) if source else 0
     else:
         def probe(p, s, board, temp_q5, target_c):
-            return fn(p[0], s[0], temp_q5, target_c)
+            return fn(p[0], s[0], temp_q5, target_c) if source else 0
     return probe
 
 
@@ -148,7 +149,11 @@ def _compile(numba: Any, fn: Callable, kind: str, args: tuple, functions: list[C
     from numba.core.errors import NumbaError
 
     jitable(fn)
-    dispatcher = numba.njit(**NUMBA_OPTIONS)(_probe(fn, kind))
+    probe = _probe(fn, kind, source_hash(*functions))
+    try:  # cached where numba finds a folder for it: a law checked before loads in a few milliseconds
+        dispatcher = numba.njit(cache=True, **NUMBA_OPTIONS)(probe)
+    except RuntimeError:  # numba's "no locator available": compiled afresh each time
+        dispatcher = numba.njit(**NUMBA_OPTIONS)(probe)
     try:
         dispatcher.compile(tuple(numba.typeof(a) for a in (*args, TEMP_Q5, TARGET_C)))
     except KeyError as exc:  # numba's typing of a record field the record lacks
@@ -164,7 +169,7 @@ def _run(fn: Callable, kind: str, args: tuple, functions: list[Callable]) -> obj
     try:
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            return _probe(fn, kind)(*args, TEMP_Q5, TARGET_C)
+            return _probe(fn, kind, source=1)(*args, TEMP_Q5, TARGET_C)  # plain Python keys no cache
     except ArithmeticError:
         return UNCHECKED
     except Exception as exc:

@@ -9,8 +9,12 @@ when a law is compiled, and without numba a law stays the Python it is.
 
 from __future__ import annotations
 
+import hashlib
+import inspect
 import types
 from collections.abc import Callable
+
+import numpy as np
 
 # The loop allocates nothing (its scratch arrays come in), so it runs without numba's reference
 # counting: passing arrays to the inlined helpers would otherwise cost an atomic increment and
@@ -61,3 +65,32 @@ def functions_reached(*fns: Callable) -> list[Callable]:
             found.append(fn)
             todo.extend(v for v in globals_read(fn).values() if isinstance(v, types.FunctionType))
     return found
+
+
+def source_hash(*fns: Callable) -> int:
+    """A hash of what compiled code made of ``fns`` is made of: their source, that of every plain function they
+    call, and the module-level constants those read; positive, non-zero, under 2**56 (a closure variable in
+    numba's cache key, so that an edited law compiles afresh)."""
+    parts: list[str] = []
+    seen: set[Callable] = set()
+
+    def walk(fn: Callable) -> None:
+        if fn in seen:
+            return
+        seen.add(fn)
+        try:
+            parts.append(inspect.getsource(fn))
+        except OSError:  # defined where no source is kept (an interactive session): its bytecode
+            parts.append(fn.__code__.co_code.hex())
+        for name, value in sorted(globals_read(fn).items()):
+            if isinstance(value, types.FunctionType):
+                walk(value)
+            elif isinstance(value, np.ndarray):
+                parts.append(f"{name}={value.dtype}{value.shape}{value.tobytes().hex()}")
+            elif not isinstance(value, types.ModuleType):
+                parts.append(f"{name}={value!r}")
+
+    for fn in fns:
+        walk(fn)
+    digest = hashlib.sha256("\n".join(parts).encode()).digest()
+    return int.from_bytes(digest[:7], "little") | 1

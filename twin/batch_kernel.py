@@ -53,17 +53,14 @@ spreads lanes over threads.
 from __future__ import annotations
 
 import functools
-import hashlib
-import inspect
 import os
-import types
 from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 
 from firmware_port.lane_law import LaneLaw
-from firmware_port.law_jit import NUMBA_OPTIONS, globals_read, jitable
+from firmware_port.law_jit import NUMBA_OPTIONS, jitable, source_hash
 from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, TICKS_PER_READING  # frozen in: constant divisors
 from firmware_port.marlin.lanes import (
     FIRST_HEATING,
@@ -726,29 +723,6 @@ def law_kernel(law: LaneLaw) -> Callable[..., None]:
 
 
 def law_source(law: LaneLaw) -> int:
-    """A hash of what the law's compiled step is made of: the source of its step, its ``tuned`` and every
-    plain function they call, and the module-level constants those read. numba keys a cached function by
-    its own file only; this key makes an edited law compile afresh."""
-    parts: list[str] = []
-    seen: set[Callable] = set()
-
-    def walk(fn: Callable) -> None:
-        if fn in seen:
-            return
-        seen.add(fn)
-        try:
-            parts.append(inspect.getsource(fn))
-        except OSError:  # defined where no source is kept (an interactive session): its bytecode
-            parts.append(fn.__code__.co_code.hex())
-        for name, value in sorted(globals_read(fn).items()):
-            if isinstance(value, types.FunctionType):
-                walk(value)
-            elif isinstance(value, np.ndarray):
-                parts.append(f"{name}={value.dtype}{value.shape}{value.tobytes().hex()}")
-            elif not isinstance(value, types.ModuleType):
-                parts.append(f"{name}={value!r}")
-
-    walk(law.step)
-    walk(law.tuned or never_tuned)
-    digest = hashlib.sha256("\n".join(parts).encode()).digest()
-    return int.from_bytes(digest[:7], "little") | 1  # positive, non-zero
+    """A hash of what the law's compiled step is made of (``source_hash`` of its step and its ``tuned``). numba
+    keys a cached function by its own file only; this key makes an edited law compile afresh."""
+    return source_hash(law.step, law.tuned or never_tuned)

@@ -98,7 +98,7 @@ def _refused(name: str, step, params=PARAMS, details: bool = True) -> LawError:
     assert isinstance(error, UserError) and "\n" not in str(error), str(error)
     assert str(error).startswith(f"lane law {name!r} (UserPi): ")
     if details:  # numba's (or Python's) full message, kept out of the one paragraph
-        assert error.details and error.__cause__ is not None and "full message is in this error's details" in str(error)
+        assert error.details and error.__cause__ is not None and "full message is the LawError's details" in str(error)
     return error
 
 

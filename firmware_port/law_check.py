@@ -69,9 +69,9 @@ def _paragraph(law: Any, fault: _Fault, functions: list[Callable]) -> str:
     path, line = where
     shown = os.path.relpath(path) if not os.path.relpath(path).startswith("..") else path
     code = linecache.getline(path, line).strip()
+    at = f", at {shown} line {line}{': ' + code if code else ''}" if line else ""
     more = f" {SUBSET}; the full message is the LawError's details." if fault.details else ""
-    return (f"lane law {law.name!r} ({law.controller.__name__}): {fault.what}, at {shown} line {line}"
-            f"{': ' + code if code else ''}.{more}")
+    return f"lane law {law.name!r} ({law.controller.__name__}): {fault.what}{at}.{more}"
 
 
 # -- the record fields a class must have -------------------------------------------------------------------------
@@ -92,16 +92,16 @@ def _check_fields(law: Any) -> None:
 
 def _attributes_set(cls: type) -> set[str] | None:
     """The names of ``cls``'s class attributes and of every ``self.NAME`` its methods (and its bases') assign;
-    None where that cannot be told (no source, or a setattr)."""
+    None where that cannot be told (no source; a setattr, a ``__dict__`` or a ``__getattr__``)."""
     names: set[str] = set()
     for klass in cls.__mro__[:-1]:
         names.update(vars(klass), getattr(klass, "__annotations__", {}))
         try:
             tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
-        except (OSError, TypeError):
+        except (OSError, TypeError, SyntaxError):
             return None
         for node in ast.walk(tree):
-            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "setattr":
+            if _dynamic(node):
                 return None
             if isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store) and \
                     isinstance(node.value, ast.Name) and node.value.id == "self":
@@ -109,11 +109,19 @@ def _attributes_set(cls: type) -> set[str] | None:
     return names
 
 
+def _dynamic(node: ast.AST) -> bool:
+    """Whether ``node`` may give an instance attributes no ``self.NAME =`` shows."""
+    return (isinstance(node, ast.Name) and node.id == "setattr") or \
+        (isinstance(node, ast.Attribute) and node.attr in ("__dict__", "__setattr__")) or \
+        (isinstance(node, ast.FunctionDef) and node.name == "__getattr__")
+
+
 # -- the step on the tiny input ----------------------------------------------------------------------------------
 
 
 def _check_function(fn: Callable, kind: str, args: tuple, functions: list[Callable]) -> None:
     """Compile ``fn`` on the tiny input where numba compiles (else run it) and check what it returns."""
+    _check_signature(fn, kind)
     numba = _numba()
     if numba is None:
         returned = _run(fn, kind, args, functions)
@@ -121,6 +129,16 @@ def _check_function(fn: Callable, kind: str, args: tuple, functions: list[Callab
             _check_value(fn, kind, returned)
     else:
         _check_type(fn, kind, _compile(numba, fn, kind, args, functions))
+
+
+def _check_signature(fn: Callable, kind: str) -> None:
+    """The arguments the batch loop passes, by position: a step's five, ``tuned``'s four."""
+    names = ("p", "s", "temp_q5", "target_c") + (("board",) if kind == "step" else ())
+    try:
+        inspect.signature(fn).bind(*names)
+    except TypeError as exc:
+        raise _Fault(f"its {kind} {fn.__name__} cannot take the batch's arguments ({', '.join(names)}): {exc}",
+                     where=_def_line(fn)) from None
 
 
 def _numba() -> Any:
@@ -157,7 +175,9 @@ def _compile(numba: Any, fn: Callable, kind: str, args: tuple, functions: list[C
     try:
         dispatcher.compile(tuple(numba.typeof(a) for a in (*args, TEMP_Q5, TARGET_C)))
     except KeyError as exc:  # numba's typing of a record field the record lacks
-        raise _Fault(_field_missing(exc.args[0], args), str(exc.args[0]), details=str(exc)) from exc
+        if not exc.args or not isinstance(exc.args[0], str):
+            raise
+        raise _Fault(_field_missing(exc.args[0], args), exc.args[0], details=str(exc)) from exc
     except NumbaError as exc:
         raise _numba_fault(str(exc), functions) from exc
     return dispatcher.nopython_signatures[0].return_type

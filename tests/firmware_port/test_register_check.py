@@ -75,6 +75,27 @@ def undefined_step(p, s, temp_q5, target_c, board):
     return clamp(temp_q5 * kp_gain_q8, 0, 255)  # noqa: F821 (the mistake under test)
 
 
+def float_step(p, s, temp_q5, target_c, board):
+    return ((target_c << 5) - temp_q5) * 0.5
+
+
+def short_step(p, s, temp_q5, target_c):
+    return 0
+
+
+def field_tuned(p, s, temp_q5, target_c):
+    return temp_q5 > p.band_q5
+
+
+class KwargPi(UserPi):
+    """Its gain set by name, as some users' classes do: the check cannot tell its attributes, so trusts it."""
+
+    def __init__(self, **gains_q8: int):
+        for name, value in gains_q8.items():
+            setattr(self, name, value)
+        self.reset()
+
+
 def _line(fn, text: str) -> int:
     """The line of this file, inside ``fn``, that holds ``text``."""
     lines, first = inspect.getsourcelines(fn)
@@ -133,6 +154,31 @@ def test_a_wrong_return_arity_names_the_step_and_its_return(mode):
     message = str(_refused("two_values", arity_step, details=False))
     assert "its step arity_step returns 2 values, not one integer 0..255" in message
     assert _at(arity_step, "return clamp(e_q5, 0, 255), s.i_q13") in message
+
+
+def test_a_float_return_names_the_step_and_its_return(mode):
+    message = str(_refused("a_float", float_step, details=False))
+    assert "its step float_step returns a float64, not one integer 0..255" in message
+    assert _at(float_step, "return ((target_c << 5) - temp_q5) * 0.5") in message
+
+
+def test_a_step_that_cannot_take_the_batchs_arguments_names_them(mode):
+    message = str(_refused("short", short_step, details=False))
+    assert "its step short_step cannot take the batch's arguments (p, s, temp_q5, target_c, board)" in message
+    assert _at(short_step, "def short_step(p, s, temp_q5, target_c):") in message
+
+
+def test_tuned_is_checked_as_the_step_is(mode):
+    with pytest.raises(LawError) as info:
+        register(LaneLaw("tuned_field", UserPi, PARAMS, STATE, good_step, tuning=("kp_q8",), tuned=field_tuned))
+    message = str(info.value)
+    assert "record field 'band_q5', which its records lack" in message
+    assert _at(field_tuned, "return temp_q5 > p.band_q5") in message
+
+
+def test_a_class_whose_attributes_the_check_cannot_tell_is_trusted(mode):
+    law = register(LaneLaw("by_name", KwargPi, PARAMS, STATE, good_step))
+    assert lane_law.law_for(KwargPi(kp_q8=5120)) is law
 
 
 def test_an_untyped_global_names_it_and_its_line(mode):

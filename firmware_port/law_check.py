@@ -67,7 +67,8 @@ def _paragraph(law: Any, fault: _Fault, functions: list[Callable]) -> str:
     """The one paragraph: the law, what is wrong, where (file, line, the line itself), what to read next."""
     where = fault.where or (_locate(fault.name, functions) if fault.name else None) or _def_line(law.step)
     path, line = where
-    shown = os.path.relpath(path) if not os.path.relpath(path).startswith("..") else path
+    relative = os.path.relpath(path)
+    shown = path if relative.startswith("..") else relative
     code = linecache.getline(path, line).strip()
     at = f", at {shown} line {line}{': ' + code if code else ''}" if line else ""
     more = f" {SUBSET}; the full message is the LawError's details." if fault.details else ""
@@ -80,14 +81,16 @@ def _paragraph(law: Any, fault: _Fault, functions: list[Callable]) -> str:
 def _check_fields(law: Any) -> None:
     """Every params field (unless the law packs its own) and state field (unless it reads its own) must be an
     attribute the controller class sets: the batch packs each lane's records from its controller."""
-    fields = ([] if law.pack else list(law.params.names or ())) + ([] if law.read else list(law.state.names or ()))
+    params = [] if law.pack else list(law.params.names or ())
+    fields = params + ([] if law.read else list(law.state.names or ()))
     known = _attributes_set(law.controller)
     missing = [name for name in fields if known is not None and name not in known]
     if missing:
-        cls = law.controller
-        raise _Fault(f"the record field {missing[0]!r} is no attribute of {cls.__name__} (the batch packs each lane's "
-                     "records from its controller's attributes of the fields' names: set self."
-                     f"{missing[0]} in the class, or give the law pack and read)", missing[0], _def_line(cls))
+        cls, name = law.controller, missing[0]
+        own = "pack (its params)" if name in params else "read and write (its state)"
+        raise _Fault(f"the record field {name!r} is no attribute of {cls.__name__} (the batch packs each lane's records "
+                     f"from its controller's attributes of the fields' names): set self.{name} in the class, or give "
+                     f"the law its own {own}", name, _def_line(cls))
 
 
 def _attributes_set(cls: type) -> set[str] | None:
@@ -168,7 +171,7 @@ def _compile(numba: Any, fn: Callable, kind: str, args: tuple, functions: list[C
 
     jitable(fn)
     probe = _probe(fn, kind, source_hash(*functions))
-    try:  # cached where numba finds a folder for it: a law checked before loads in a few milliseconds
+    try:  # cached where numba finds a folder for it: a law checked before is loaded, not compiled again
         dispatcher = numba.njit(cache=True, **NUMBA_OPTIONS)(probe)
     except RuntimeError:  # numba's "no locator available": compiled afresh each time
         dispatcher = numba.njit(**NUMBA_OPTIONS)(probe)

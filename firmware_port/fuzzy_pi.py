@@ -328,7 +328,7 @@ def fuzzy_pi_lane(p, s, temp_q5, target_c, board):
 # Every parameter is read from the first reading with a target: lanes share a heat-up only with their twins.
 FUZZY_PI_LAW = register(LaneLaw(
     "fuzzy_pi", FuzzyPi, record_dtype(("n_sets", "err_range_q5", "derr_range_q5", "du_range_q4", "out_max")),
-    record_dtype(("duty_q16", "err_prev_q5", "have_prev")), fuzzy_pi_lane))
+    record_dtype(("duty_q16", "err_prev_q5", "have_prev")), fuzzy_pi_lane), check=False)
 
 
 class FuzzyPiFloat:

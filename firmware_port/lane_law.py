@@ -16,9 +16,9 @@ family's lane law, declared beside the family's scalar class (as ``PID_LAW`` bes
   and ``tuned(p, s, temp_q5, target_c) -> bool`` saying whether a reading reads them (the batch
   runs such a heat-up once for lanes alike in everything else: its shared prefix).
 
-The step is plain Python, compiled by twin with numba (``nopython`` mode; firmware_port does not
-import numba), so it and every function it calls keep to the subset numba compiles, as SciPy's
-``vectorized`` asks a user's function to take arrays:
+The step is plain Python, compiled by twin with numba (``nopython`` mode; ``register`` compiles it once
+to check it, firmware_port/law_check.py), so it and every function it calls keep to the subset numba
+compiles, as SciPy's ``vectorized`` asks a user's function to take arrays:
 
 - integers (int64: ``+ - * // % << >> & | ^``, ``//`` and ``>>`` floor as in Python) and floats
   (float64, or ``np.float32(...)`` for a float32 law), ``abs``, ``min``, ``max``, comparisons,
@@ -29,9 +29,10 @@ import numba), so it and every function it calls keep to the subset numba compil
   ``checked_s32``-style overflow checks: int64 wraps where a scalar class's Python int would not,
   so keep every intermediate within the widths the scalar class declares.
 
-A family registers its law once (``register``); ``law_for`` finds it by the controller's class. A
-user's controller gets the compiled batch the same way (tests/helpers/integer_pi.py: an integer PI
-whose ``update`` runs its own step); a controller without a law runs one scalar twin per candidate.
+A family registers its law once (``register``, which checks it: a mistake is a ``LawError`` naming the
+law, the line and the field); ``law_for`` finds it by the controller's class. A user's controller gets
+the compiled batch the same way (tests/helpers/integer_pi.py: an integer PI whose ``update`` runs its
+own step); a controller without a law runs one scalar twin per candidate.
 """
 
 from __future__ import annotations
@@ -42,6 +43,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from firmware_port.law_check import check_law
 
 
 # What a law that reads the board (``BoardInputs``) sees at each reading: the heater's soft-PWM amount
@@ -156,8 +159,13 @@ class LaneLaw:
 LAWS: dict[type, LaneLaw] = {}
 
 
-def register(law: LaneLaw) -> LaneLaw:
-    """Make ``law`` the lane law of its controller class (a later registration replaces it)."""
+def register(law: LaneLaw, *, check: bool = True) -> LaneLaw:
+    """Make ``law`` the lane law of its controller class (a later registration replaces it), once it is checked
+    (firmware_port/law_check.py: compiled once on a tiny input; a mistake is a LawError in one paragraph).
+    The library's own laws pass ``check=False``: their tests check them, and checking them at import would
+    load numba for every command."""
+    if check:
+        check_law(law, BOARD_INPUTS)
     LAWS[law.controller] = law
     return law
 

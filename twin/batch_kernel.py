@@ -53,10 +53,7 @@ spreads lanes over threads.
 from __future__ import annotations
 
 import functools
-import hashlib
-import inspect
 import os
-import types
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -64,6 +61,7 @@ from typing import NamedTuple
 import numpy as np
 
 from firmware_port.lane_law import LaneLaw
+from firmware_port.law_jit import NUMBA_OPTIONS, jitable, source_hash
 from firmware_port.marlin.constants import MIN_ADC_ISR_LOOPS, TICKS_PER_READING  # frozen in: constant divisors
 from firmware_port.marlin.lanes import (
     FIRST_HEATING,
@@ -81,7 +79,6 @@ from twin.streaming import HEAT, LAST_HEAT, SCORED  # frozen in: the objective's
 
 try:
     import numba
-    from numba.extending import register_jitable
 except ImportError:  # the optional `fast` extra
     numba = None  # type: ignore[assignment]
 
@@ -231,14 +228,6 @@ def describe() -> str:
     if numba is None:
         return "numba not installed"
     return f"numba {numba.__version__}" + ("" if compiled() else " (NUMBA_DISABLE_JIT: plain Python)")
-
-
-# The loop allocates nothing (its scratch arrays come in), so it runs without numba's reference
-# counting: passing arrays to the inlined helpers would otherwise cost an atomic increment and
-# decrement each, per period, more than the arithmetic (0.96 s against 0.39 s of CPU for 1000
-# lanes x 600 s on the 2-core reference machine). ``_nrt`` is numba's own switch for that runtime
-# (underscored, so not promised: tests/firmware_port/marlin/test_lanes.py, run against numba in CI, would catch a change).
-NUMBA_OPTIONS = {"_nrt": False, "error_model": "numpy"}
 
 
 def jit(fn, folder: Path | None = None):
@@ -736,56 +725,7 @@ def law_kernel(law: LaneLaw) -> Callable[..., None]:
     return jit(run_lanes, folder)
 
 
-def jitable(fn: Callable) -> Callable:
-    """A law's plain-Python function made callable from compiled code (inlined there), with every
-    module-level plain function it calls; the function itself, unchanged, without numba."""
-    if numba is not None and fn not in _JITABLE:
-        _JITABLE.add(fn)
-        register_jitable(**NUMBA_OPTIONS)(fn)
-        for value in _globals_read(fn).values():
-            if isinstance(value, types.FunctionType):
-                jitable(value)
-    return fn
-
-
-_JITABLE: set[Callable] = set()
-
-
 def law_source(law: LaneLaw) -> int:
-    """A hash of what the law's compiled step is made of: the source of its step, its ``tuned`` and every
-    plain function they call, and the module-level constants those read. numba keys a cached function by
-    its own file only; this key makes an edited law compile afresh."""
-    parts: list[str] = []
-    seen: set[Callable] = set()
-
-    def walk(fn: Callable) -> None:
-        if fn in seen:
-            return
-        seen.add(fn)
-        try:
-            parts.append(inspect.getsource(fn))
-        except OSError:  # defined where no source is kept (an interactive session): its bytecode
-            parts.append(fn.__code__.co_code.hex())
-        for name, value in sorted(_globals_read(fn).items()):
-            if isinstance(value, types.FunctionType):
-                walk(value)
-            elif isinstance(value, np.ndarray):
-                parts.append(f"{name}={value.dtype}{value.shape}{value.tobytes().hex()}")
-            elif not isinstance(value, types.ModuleType):
-                parts.append(f"{name}={value!r}")
-
-    walk(law.step)
-    walk(law.tuned or never_tuned)
-    digest = hashlib.sha256("\n".join(parts).encode()).digest()
-    return int.from_bytes(digest[:7], "little") | 1  # positive, non-zero
-
-
-def _globals_read(fn: Callable) -> dict[str, object]:
-    """The module-level names a function's code (and its nested code) reads, with their values."""
-    names: set[str] = set()
-    codes = [fn.__code__]
-    while codes:
-        code = codes.pop()
-        names.update(code.co_names)
-        codes.extend(c for c in code.co_consts if isinstance(c, types.CodeType))
-    return {name: fn.__globals__[name] for name in names if name in fn.__globals__}
+    """A hash of what the law's compiled step is made of (``source_hash`` of its step and its ``tuned``). numba
+    keys a cached function by its own file only; this key makes an edited law compile afresh."""
+    return source_hash(law.step, law.tuned or never_tuned)

@@ -15,6 +15,8 @@ import os
 import stat
 from pathlib import Path
 
+from firmware_port.user_error import UserError as UserError  # where every command catches it
+
 ABSOLUTE_ZERO_C = -273.15
 HEATER_MAX_C = 400.0  # the hottest setpoint the twin takes; firmware clamps lower (Marlin: hotend 260, bed 140)
 TARGET_RANGE_C = (0, int(HEATER_MAX_C))  # setpoints (whole degrees, as M104/M140 take them)
@@ -30,11 +32,6 @@ SEED_MAX = 2**63 - 1  # a lane's seed is an int64 (twin/lane_noise.py)
 # swaps; record fewer rows (``record_every_s``, twin-sim --record-every) or none (``record=False``).
 TRACE_MAX_BYTES = 2**31
 THREADS_ENV = "HEATER_TWIN_THREADS"  # how many threads a batch spreads its lanes over (twin/batch.py)
-
-
-class UserError(ValueError):
-    """A value a user gave (a flag, a file, a scenario, a capture, an argument) that the twin cannot use. A
-    command line says it in one line and exits 2 (tools/entry.py); any other exception there is a bug."""
 
 
 def _show(value: object) -> str:

@@ -30,7 +30,7 @@ def bang_bang_lane(p, s, temp_q5, target_c, board):
 
 
 BANG_BANG_LAW = register(LaneLaw("bangbang", BangBangHotend, record_dtype(()), record_dtype(()),
-                                 bang_bang_lane))
+                                 bang_bang_lane), check=False)
 
 
 class BangBangBed:

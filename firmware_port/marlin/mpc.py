@@ -290,7 +290,7 @@ def mpc_lane(p, s, temp_q5, target_c, board):
 
 # Every constant is read from the first reading on: lanes share a run only with their twins.
 MPC_LAW = register(LaneLaw("mpc", MpcController, LANE_PARAMS, LANE_STATE, mpc_lane, reads_board=True,
-                           fits=lambda c: c.f is np.float32))
+                           fits=lambda c: c.f is np.float32), check=False)
 
 
 def mpc_controller(heater_power_w: float = MPC_HEATER_POWER_W,

@@ -318,7 +318,7 @@ def _set_pid_state(lanes: PidLanes, state: np.ndarray) -> None:
 PID_LAW = register(LaneLaw("pid", PidFixed, PID_PARAMS, PID_STATE, pid_lane, tuning=("kp_q12", "ki_q24", "kd_q16",
                                                                                      "i_max_q5"),
                            tuned=pid_tuned, lanes=PidLanes, pack=lambda lanes: _records(lanes, PID_PARAMS),
-                           read=lambda lanes: _records(lanes, PID_STATE), write=_set_pid_state))
+                           read=lambda lanes: _records(lanes, PID_STATE), write=_set_pid_state), check=False)
 
 
 def pid_space(default: PidGains = HOTEND_GAINS, prev_temp_mode: str = PREV_TEMP_EVERY_SAMPLE) -> ParamSpace:

@@ -208,7 +208,9 @@ def _report(args: argparse.Namespace) -> Report:
 def run(args: argparse.Namespace) -> int:
     report = _report(args)
     print("\n".join(report.lines + ["", report.summary()]))
-    if args.plot:
+    if args.plot and not report.traces:  # an M303 capture without a status trace: its cycles are the table above
+        print(f"no plot: {args.log.name} has no temperature trace to draw, only the table above")
+    elif args.plot:
         compare_figure.write(args.plot, report.traces, f"{args.log.name}: the log against the twin")
         print(f"plot written to {args.plot}")
     return 0

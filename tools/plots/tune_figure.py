@@ -76,6 +76,8 @@ def curves(result: TuneResult, proof: Proven | None, describe: Callable[[Candida
     tripped = [c for c, _, _ in chosen if _tripped(c.run)]
     trips = dict(zip(map(id, tripped), first_run_trips(result.problem, np.array([c.params for c in tripped]))
                      if tripped else []))
+    if missed := [c.method for c in tripped if trips[id(c)] is None]:
+        raise RuntimeError(f"the scalar twin did not trip where the batch did: {', '.join(missed)} (a bug)")
     return [Curve(c, label, style, trips.get(id(c)), None if _tripped(c.run) else hold_cycle(c.run))
             for c, label, style in chosen]
 

@@ -22,6 +22,8 @@ from pathlib import Path
 from typing import cast
 
 from tools.cli.args import plot_path, ranged_float
+from tools.plots import compare_figure
+from tools.plots.compare_figure import Trace
 from tools.entry import EXIT_STATUS_HELP, OneLineParser, run_main
 from tools.cli.progress import load_with_progress, progress_bar
 from tools.ident.lsq import MAX_EVALUATIONS
@@ -38,7 +40,7 @@ class Report:
     """What a check prints, what it plots, and its out-of-sample verdicts (the summary counts these)."""
 
     lines: list[str] = field(default_factory=list)
-    traces: list[tuple[str, tuple]] = field(default_factory=list)
+    traces: list[Trace] = field(default_factory=list)
     out_of_sample: list[bool] = field(default_factory=list)
 
     def table(self, header: str, rows: list[str], keys: int = 1) -> None:
@@ -64,7 +66,10 @@ def _stats_heater(path: Path, heater: str, report: Report, closed: list[str], tu
         closed.append(compare.unusable_row(path.name, heater, str(error), compare.CLOSED_COLUMNS))
         return
     closed.append(compare.closed_loop_row(r))
-    report.traces.append((f"{r.heater}: {r.replay_label}", r.trace))
+    fitted = "this heat-up (in-sample)" if r.same_segment else "another heat-up (held-out)"
+    trip = None if r.shutdown is None or r.shutdown_s is None else (r.shutdown_s, r.shutdown.splitlines()[0])
+    report.traces.append(Trace(f"{r.heater}: the twin replays the log's heat-up ({r.replay_label}) on the plant "
+                               f"fitted to {fitted}", *r.trace, trip=trip))
     if not r.same_segment:
         report.out_of_sample.append(all(r.checks.values()))
     try:
@@ -106,7 +111,9 @@ def _heattest(args: argparse.Namespace, log: Log) -> Report:
     report.lines += textwrap.wrap(text[0], WIDTH) + [""]
     report.table("\n".join(text[2:4]), text[4:end], keys=1)
     report.lines += [wrapped for line in text[end:] for wrapped in textwrap.wrap(line, WIDTH) or [""]]
-    report.traces = [(name, (t, logged, twin, None, None)) for name, (t, logged, twin) in r.traces.items()]
+    report.traces = [Trace(f"{name}: " + ("the plant fitted to this run (in-sample)" if name == compare.ONION_NO_FAN
+                                          else "the plant's prediction (out-of-sample)"), t, logged, twin)
+                     for name, (t, logged, twin) in r.traces.items()]
     report.out_of_sample = [row["passed"] for row in r.rows]
     return report
 
@@ -133,41 +140,12 @@ def _m303(args: argparse.Namespace, log: Log) -> Report:
     report.out_of_sample = [row.passed for row in r.out_of_sample()]
     if r.trace is not None:
         t, logged, sim, duty = r.trace
-        report.traces = [(f"{r.heater}: status trace and the plant ({r.plant})", (t, logged, sim, duty, None))]
+        report.traces = [Trace(f"{r.heater}: the capture's temperatures against the plant ({r.plant}) fed the "
+                               "capture's heater power", t, logged, sim, duty)]
     return report
 
 
 # --- output --------------------------------------------------------------------------------------
-
-
-def _plot(file: str, traces) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(len(traces), 1, figsize=(10, 3.2 * len(traces)), squeeze=False)
-    for ax, (title, (t, logged, twin, log_pwm, twin_pwm)) in zip(axes[:, 0], traces):
-        ax.plot(t, logged, label="log", lw=1.2)
-        ax.plot(t, twin, label="twin", lw=1.0)
-        ax.set_title(title, fontsize=9)
-        ax.set_ylabel("temp (C)")
-        handles, labels = ax.get_legend_handles_labels()
-        top = ax
-        if log_pwm is not None:
-            ax2 = ax.twinx()
-            ax2.step(t, log_pwm, where="post", color="C2", lw=0.6, label="pwm log")
-            if twin_pwm is not None:
-                ax2.step(t, twin_pwm, where="post", color="C3", lw=0.6, label="pwm twin")
-            ax2.set_ylim(0, 1.05)
-            ax2.set_ylabel("pwm")
-            more, more_labels = ax2.get_legend_handles_labels()
-            handles, labels, top = handles + more, labels + more_labels, ax2
-        top.legend(handles, labels, loc="lower right", fontsize=8, framealpha=0.9)  # on the top axes: not overdrawn
-    axes[-1, 0].set_xlabel("t (s)")
-    fig.tight_layout()
-    fig.savefig(file)
-    plt.close(fig)
 
 
 EXAMPLES = """examples:
@@ -230,8 +208,10 @@ def _report(args: argparse.Namespace) -> Report:
 def run(args: argparse.Namespace) -> int:
     report = _report(args)
     print("\n".join(report.lines + ["", report.summary()]))
-    if args.plot:
-        _plot(str(args.plot), report.traces)
+    if args.plot and not report.traces:  # an M303 capture without a status trace: its cycles are the table above
+        print(f"no plot: {args.log.name} has no temperature trace to draw, only the table above")
+    elif args.plot:
+        compare_figure.write(args.plot, report.traces, f"{args.log.name}: the log against the twin")
         print(f"plot written to {args.plot}")
     return 0
 

@@ -4,6 +4,7 @@ report, the JSON and the plot. Imported when a tune runs, so that ``twin-tune --
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 import time
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.plots import tune_figure
 from tools.progress import Steps
 from tools.ident.log_fit import LogFitOptions
 from firmware_port.firmwares import KALICO_MPC
@@ -156,47 +158,6 @@ def _statistic(problem: Problem) -> str:
     return f"the {problem.ensemble.statistic} over {problem.ensemble.size} members; metrics of the nominal member"
 
 
-def write_plot(path: Path, result: TuneResult, title: str) -> None:
-    """Responses of the best candidates and the references (nominal plant): the whole run, the hold
-    zoomed to where they differ, the disturbances labelled; the convergence of any optimiser."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    candidates, events = result.candidates, result.problem.scenario.events
-    shown = candidates[:4] + result.references
-    searched = [c for c in candidates if c.history is not None]
-    fig, axes = plt.subplots(2 + bool(searched), 1, figsize=(10, 8 + 3 * bool(searched)), squeeze=False)
-    run0 = candidates[0].run
-    hold = run0.t_s >= run0.heatup_end_s - 20.0
-    for ax in axes[:2, 0]:
-        for c in shown:
-            ax.plot(c.run.t_s, c.run.temp_c[:, 0], lw=1.2 if c is candidates[0] else 0.8,
-                    label=f"{c.method}: {describe(result.problem, c)} (cost {c.cost:.4g})")
-        ax.axhline(run0.target_c, color="k", ls=":", lw=0.8)
-        for event in events:
-            ax.axvline(event.at_s, color="grey", ls="--", lw=0.6)
-            ax.annotate(f"{event.kind} {event.value:g}", (event.at_s, 1.0), xycoords=("data", "axes fraction"),
-                        xytext=(2, -10), textcoords="offset points", fontsize=7, color="grey")
-        ax.set(xlabel="time (s)", ylabel="measured temperature (C)")
-    axes[0, 0].set_title(title)
-    axes[0, 0].legend(fontsize=7)
-    deviation = max(float(np.max(np.abs(c.run.temp_c[hold, 0] - run0.target_c))) for c in shown)
-    axes[1, 0].set(xlim=(float(run0.t_s[hold][0]), float(run0.t_s[-1])),
-                   ylim=(run0.target_c - 1.1 * deviation, run0.target_c + 1.1 * deviation),
-                   title="holding, from the first disturbance on (zoomed)")
-    if searched:
-        for c in searched:
-            axes[2, 0].semilogy(c.history, label=c.method)
-        axes[2, 0].set(xlabel="iteration", ylabel="best cost")
-        axes[2, 0].legend(fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 # -- the command ----------------------------------------------------------------------------------
 def tune_all(args: argparse.Namespace, plot: Path | None) -> int:
     """The plants, every tune the arguments ask for, their report, JSON and plots (to ``plot``, named per tune
@@ -246,8 +207,11 @@ def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client, p
         several = args.loop == LOOP_BOTH or "," in args.controller
         suffix = f"-{problem.controller.name}-{problem.loop}" if several else ""
         path = path.with_name(f"{path.stem}{suffix}{path.suffix}")
-        write_plot(path, result, f"{problem.name}: {problem.controller.name}, {args.objective} on the "
-                                 f"{problem.loop} loop")
+        source = Path(args.from_log).name if args.from_log else args.plant
+        title = tune_figure.title_words("bed" if is_bed else "hotend", source, result, proof)
+        if several:
+            title += f" ({problem.controller.name} on the {problem.loop} loop)"
+        tune_figure.write(path, result, proof, title, functools.partial(describe, problem), args.plot_history)
         print(f"plot: {path}")
     print(f"({time.perf_counter() - started:.1f} s)", file=sys.stderr)
     return status, result, proof

@@ -12,6 +12,7 @@ fits of different segments for the real spread.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -75,13 +76,18 @@ def least_squares_fit(residuals: Callable[[dict[str, float]], np.ndarray], start
             return np.array([np.log(max(v, 0.0)) if log else v for v, log in zip(values, is_log)], dtype=float)
 
     limits = [(bounds or {}).get(name, (-math.inf, math.inf)) for name in names]
+    import scipy.optimize  # here: a command's start-up needs no scipy
+    from scipy.signal import BadCoefficients
+
     def evaluate(z: np.ndarray) -> np.ndarray:
         if on_evaluation is not None:
             on_evaluation()
-        with np.errstate(over="ignore", invalid="ignore"):  # exploring far out: non-finite residuals, a rejected step
+        # Exploring far out: non-finite residuals, a rejected step; and scipy.signal's BadCoefficients where a lag
+        # reaches 1e23 s (a transfer function's numerator / its leading coefficient below 1e-14): that model barely
+        # responds, its residuals say so, and the fit's standard errors flag a lag the data leave open.
+        with np.errstate(over="ignore", invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", BadCoefficients)
             return residuals(params(z))
-
-    import scipy.optimize  # here: a command's start-up needs no scipy
 
     sol = scipy.optimize.least_squares(evaluate, internal(start.values()),
                                        x_scale=np.where(is_log, LOG_X_SCALE, 1.0), max_nfev=MAX_EVALUATIONS,

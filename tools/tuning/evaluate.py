@@ -475,6 +475,28 @@ def run_scalars(problem: Problem, params: np.ndarray, seeds: Sequence[int] | Non
     return run_lanes(problem, params, True, seeds, batched=False)
 
 
+def first_run_trips(problem: Problem, params: np.ndarray) -> list[tuple[float, str] | None]:
+    """Where and why each candidate tripped on the problem's first run (the nominal plant on its first seed: lane
+    0 of a ``Candidate.run``): (time in s, the firmware's words), None where it did not. A batch keeps only
+    whether a lane tripped, so the candidates run again on scalar twins, which give the batch's readings."""
+    first = problem.runs()[0]
+    params = np.atleast_2d(np.asarray(params, float))
+    if first.loop == "ideal":  # no protection in the papers' loop
+        return [None] * len(params)
+    engine = _stack(first, params, [first.seed] * len(params))
+    _drive(engine, first, lambda plant: first.scenario.events, True)
+    return [_trip_of(twin) for twin in engine.engines]
+
+
+def _trip_of(twin) -> tuple[float, str] | None:
+    """A scalar twin's first protection trip: (time in s, the firmware's words), or None."""
+    if isinstance(twin, KlipperTwin):
+        trips = twin.trips()
+        return None if not trips or twin.shutdown_time_s is None else (twin.shutdown_time_s, trips[0].reason)
+    trips = twin.result().protection_trips()
+    return None if not trips else (trips[0][0], trips[0][1])
+
+
 def _ideal_maps(lti: Lti, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Zero-order hold of x' = A x + b u + E d on dt_s: (Phi, g, H)."""
     n, m = lti.a.shape[0], lti.e.shape[1]

@@ -349,6 +349,7 @@ class ClosedLoopResult:
     target_c: float
     shutdown: str | None
     trace: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # t, log temp, twin temp, log pwm, twin pwm
+    shutdown_s: float | None = None  # when the twin shut down, on the trace's clock
 
     @property
     def heatup_rel(self) -> float:
@@ -390,7 +391,7 @@ def replay(fit: FitResult, info: HeaterInfo, heater: str, window: Window):
     """KlipperTwin through the logged targets of the window and its lead-in, from the lead-in's
     first reading (the twin's first report comes ADC_FIRST_SAMPLE_S after its start and its PID
     starts from Klipper's initial state: the lead-in settles both as the printer's were when the
-    target changed); the twin at the window's instants."""
+    target changed); the twin at the window's instants, and its shutdown (message, time from the window's start)."""
     t_all = np.r_[window.lead_t_s, window.t_s]
     temp0 = float(np.r_[window.lead_temp_c, window.temp_c][0])
     plant = Plant(fit.model, fit.spec(), fit.values["ambient_c"], temp0)
@@ -404,7 +405,8 @@ def replay(fit: FitResult, info: HeaterInfo, heater: str, window: Window):
     ok = idx >= 0
     twin_temp = np.where(ok, rtemp[np.maximum(idx, 0)], temp0)
     twin_pwm = np.where(ok, rpwm[np.maximum(idx, 0)], 0.0)
-    return twin_temp, twin_pwm, twin.shutdown_message
+    shutdown_s = None if twin.shutdown_time_s is None else twin.shutdown_time_s - (window.t_s[0] - t_all[0])
+    return twin_temp, twin_pwm, twin.shutdown_message, shutdown_s
 
 
 def _load_stats(path: Path) -> StatsLog:
@@ -427,7 +429,7 @@ def score_replay(file: str, heater: str, fit: FitResult, fit_label: str, info: H
                  same_segment: bool) -> ClosedLoopResult:
     """Replay one window on one fitted plant and measure both traces."""
     target = float(window.target_c[-1])
-    twin_temp, twin_pwm, shutdown = replay(fit, info, heater, window)
+    twin_temp, twin_pwm, shutdown, shutdown_s = replay(fit, info, heater, window)
     rel = window.t_s - window.t_s[0]
     log_m = replay_metrics(rel, window.temp_c, window.pwm, target)
     twin_m = replay_metrics(rel, twin_temp, twin_pwm, target)
@@ -436,7 +438,7 @@ def score_replay(file: str, heater: str, fit: FitResult, fit_label: str, info: H
     err = twin_temp[hold] - window.temp_c[hold]
     hold_rmse = float(np.sqrt(np.mean(err ** 2))) if err.size else math.nan
     return ClosedLoopResult(file, heater, fit, fit_label, window.label, same_segment, info, log_m, twin_m, hold_rmse,
-                            target, shutdown, (rel, window.temp_c, twin_temp, window.pwm, twin_pwm))
+                            target, shutdown, (rel, window.temp_c, twin_temp, window.pwm, twin_pwm), shutdown_s)
 
 
 def closed_loop_check(path: str | Path, heater: str) -> ClosedLoopResult:

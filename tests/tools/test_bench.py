@@ -83,16 +83,18 @@ def test_twin_tune_bench_runs_the_command(hardware_logs, capsys):
                        "--proof", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[2] == bench.NOT_MEASURED
-    runs = lines[4:]
+    assert re.fullmatch(r"one default job \(python -m tools.cli.sim --no-plot\), the unit below: [\d.]+ s wall, "
+                        r"[\d.]+ s CPU \(the median of 3\)", lines[3]), lines[3]
+    runs = lines[5:]
     assert len(runs) == 4
-    assert re.fullmatch(r"  twin-tune --plant hotend_cartridge --target 210: [\d.]+ s wall \(target <= 15 s\), "
+    assert re.fullmatch(r"  twin-tune --plant hotend_cartridge --target 210: [\d.]+ x \(target <= 4 x\), [\d.]+ s wall, "
                         r"[\d.]+ s CPU, exit 0: (new gains Kp .+|keep \S+ gains): .+", runs[0]), runs[0]
-    assert re.fullmatch(r"  twin-tune --plant hotend_cartridge --target 210 --controller mpc: [\d.]+ s wall, [\d.]+ x "
-                        r"the PID tune's \(target <= 3 x\), [\d.]+ s CPU, exit 0: (new gains|keep \S+ gains): .+",
+    assert re.fullmatch(r"  twin-tune --plant hotend_cartridge --target 210 --controller mpc: [\d.]+ x the PID tune's "
+                        r"\(target <= 3 x\), [\d.]+ s wall, [\d.]+ s CPU, exit 0: (new gains|keep \S+ gains): .+",
                         runs[1]), runs[1]
     for line in runs[2:]:
-        assert re.fullmatch(r"  twin-tune --from-log m303_hotend_C\d_degenerate_\w+\.txt: [\d.]+ s wall "
-                            r"\(target <= 30 s\), [\d.]+ s CPU, exit 2: twin-tune: error: .+", line), line
+        assert re.fullmatch(r"  twin-tune --from-log m303_hotend_C\d_degenerate_\w+\.txt: [\d.]+ x \(target <= 10 x\), "
+                            r"[\d.]+ s wall, [\d.]+ s CPU, exit 2: twin-tune: error: .+", line), line
 
 
 def test_startup_reports_each_commands_help_and_twin_serials_link(monkeypatch, capsys):

@@ -71,7 +71,7 @@ from pathlib import Path
 from firmware_port.marlin.constants import TICKS_PER_READING
 from tools.cli.args import section_page
 from tools.entry import EXIT_STATUS_HELP, OneLineParser, run_cli
-from tools.logs.location import hardware_logs_dir
+from tools.logs.location import DEFAULT_LOGS, LOGS_ENV
 from tools.validation.doc_compare import write_section
 from twin.clock import TICK_S
 from twin.limits import DURATION_MAX_S, THREADS_ENV, TRACE_MAX_BYTES, UserError, checked
@@ -217,7 +217,7 @@ def check_sizes(args: argparse.Namespace) -> None:
                         "--lanes or a shorter --duration")
     if args.captures is not None and Path(args.captures).is_absolute():
         raise UserError(f"--captures {args.captures}: a pattern inside the hardware logs folder "
-                        f"({hardware_logs_dir()}), not an absolute path")
+                        f"(${LOGS_ENV}, else {DEFAULT_LOGS}), not an absolute path")
 
 
 def run(args: argparse.Namespace) -> int:

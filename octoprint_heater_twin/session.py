@@ -310,8 +310,17 @@ class Session:
         left_s = None if len(ends) < 2 else round((ends[-1] - ends[0]) / (len(ends) - 1) * (self.cycles - done))
         words = f"Your printer's autotune ({self.m303}): " + (
             f"{done} of {self.cycles} cycles done" if done else f"heating to {self.target_c:g} C, the first swing")
-        return {"percent": round(100 * AUTOTUNE_SHARE * done / (self.cycles + 1)), "left_s": left_s,
-                "left_of": "the autotune", "words": words}
+        return {"percent": round(100 * AUTOTUNE_SHARE * (done + self._heated()) / (self.cycles + 1)),
+                "left_s": left_s, "left_of": "the autotune", "words": words}
+
+    def _heated(self) -> float:
+        """How far the heat-up has come, 0..1 (the first of the autotune's units: then it swings)."""
+        if self.cycle_ends_s:
+            return 1.0
+        if len(self.trace) < 2 or self.target_c <= self.trace[0][0]:
+            return 0.0
+        start_c = self.trace[0][0]
+        return min(1.0, max(0.0, (self.trace[-1][0] - start_c) / (self.target_c - start_c)))
 
     def _on_message(self, message: str) -> None:
         with self.lock:
@@ -332,12 +341,12 @@ class Session:
                 "plot": bool(self.answer and self.answer.get("plot")), "no_plot": self.no_plot,
             }
 
-    def plot(self) -> Path | None:
-        """The answer's plot, if it has one."""
+    def plot(self, compact: bool = False) -> Path | None:
+        """The answer's plot (twin-tune's full figure, or the ``compact`` one made for the tab), if it has one."""
         with self.lock:
             if not self.answer or not self.answer.get("plot") or self.run_id is None:
                 return None
-            path = self.runs_dir / self.run_id / tuner.PLOT
+            path = self.runs_dir / self.run_id / (tuner.TAB_PLOT if compact else tuner.PLOT)
             return path if path.exists() else None
 
     def _refusal(self) -> str | None:

@@ -38,6 +38,7 @@ FAILURES = {EXIT_UNSAFE: "No safe answer: nothing the twin tried beats the firmw
                            "tab reads them with M503 before the autotune; check that the printer answers M503)",
             EXIT_INTERNAL: "twin-tune hit an internal error (a bug, not your capture): please report it"}
 CAPTURE, ANSWER, PLOT, REPORT = "capture.txt", "answer.json", "plot.png", "twin-tune.txt"  # a run's files
+TAB_PLOT = "plot-tab.png"  # the answer's compact figure, made for the tab's width (tools/plots/tab_figure.py)
 CHECK, CHECK_REPORT = "check.json", "check.txt"  # the quick proof of gains the user edited
 # The quick proof: the capture fitted as for the answer (the same plants, the same noise seeds), the edited gains
 # as the gains to beat, proven beside Marlin's own rule on the twin's ultimate point: no search, no cross-check.
@@ -79,8 +80,9 @@ def command(run_dir: Path, heater: str, current: Gains | None, plot: bool) -> li
     args = [str(twin_tune()), "--from-log", str(run_dir / CAPTURE), "--heater", heater]
     if current is not None:
         args += ["--current-gains", current.flag()]
-    return args + ["--json", str(run_dir / ANSWER), "--progress", "lines", "--plot", str(run_dir / PLOT) if plot
-                   else "none"]
+    args += ["--json", str(run_dir / ANSWER), "--progress", "lines"]
+    return args + (["--plot", str(run_dir / PLOT), "--plot-compact", str(run_dir / TAB_PLOT)] if plot else
+                   ["--plot", "none"])
 
 
 def check_command(run_dir: Path, heater: str, edited: Gains) -> list[str]:

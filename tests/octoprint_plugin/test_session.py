@@ -91,7 +91,8 @@ def test_the_tuner_is_called_as_its_contract_says(tmp_path):
     assert args[0].endswith("twin-tune")
     assert args[1:] == ["--from-log", str(tmp_path / "capture.txt"), "--heater", "heater_bed",
                         "--current-gains", "86.92,10.4,484.2", "--json", str(tmp_path / "answer.json"),
-                        "--progress", "lines", "--plot", str(tmp_path / "plot.png")]
+                        "--progress", "lines", "--plot", str(tmp_path / "plot.png"), "--plot-compact",
+                        str(tmp_path / "plot-tab.png")]
     assert "--current-gains" not in tuner.command(tmp_path, "extruder", None, plot=True)
     assert tuner.command(tmp_path, "extruder", None, plot=False)[-2:] == ["--plot", "none"]  # no matplotlib
     assert tuner.progress("run: 62% about 20 s left: Searching for better gains") == \
@@ -306,16 +307,19 @@ def test_the_autotune_feeds_the_graph_the_cycles_and_one_bar(session):
     _autotune(session)
     assert session.state()["progress"]["words"] == "Your printer's autotune (M303 E0 S210 C8): heating to 210 C, " \
                                                    "the first swing"
-    reply(session, "PID Autotune start", " T:200.97 /0.00 B:24.97 /0.00 @:127 B@:0",
-          " T:212.94 /0.00 B:24.97 /0.00 @:0 B@:0")
+    reply(session, "PID Autotune start", " T:25.00 /0.00 B:24.97 /0.00 @:127 B@:0",
+          " T:117.50 /0.00 B:24.97 /0.00 @:127 B@:0")
+    assert session.state()["progress"]["percent"] == round(100 * tab.AUTOTUNE_SHARE * 0.5 / 9)  # half-way heated
+    reply(session, " T:212.94 /0.00 B:24.97 /0.00 @:0 B@:0")
     for cycle in range(3):
         reply(session, f" bias: 8{cycle} d: 8{cycle} min: 207.03 max: 216.78 T:209.16 /0.00 B:24.97 /0.00 @:82 B@:0")
     state = session.state()
-    assert state["trace"] == [(200.97, 100.0), (212.94, 0.0), *[(209.16, 100 * 82 / 127)] * 3]
+    assert state["trace"] == [(25.0, 100.0), (117.5, 100.0), (212.94, 0.0), *[(209.16, 100 * 82 / 127)] * 3]
     assert (state["cycles"], state["cycles_done"], state["target_c"]) == (8, 3, 210.0)
     bar = state["progress"]
     assert bar["words"] == "Your printer's autotune (M303 E0 S210 C8): 3 of 8 cycles done"
-    assert bar["percent"] == round(100 * tab.AUTOTUNE_SHARE * 3 / 9) and bar["left_of"] == "the autotune"
+    assert bar["percent"] == round(100 * tab.AUTOTUNE_SHARE * (1 + 3) / 9)  # heated, then 3 of the 8 cycles
+    assert bar["left_of"] == "the autotune"
     assert bar["left_s"] is not None and bar["left_s"] >= 0  # from the cycles' own pace: 5 more cycles
     line = session.published[-1]
     assert line["line"].startswith("Recv:  bias: 82") and line["cycles_done"] == 3 and line["progress"] == bar

@@ -119,6 +119,9 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--heater", help="--from-log: extruder or heater_bed (default: the log's first)")
     parser.add_argument("--segment", type=int, help="--from-log: the segment to fit (default: the longest heat-up)")
     parser.add_argument("--plot", help="plot file (default twin-out/twin-tune-<plant>.png); 'none' for no plot")
+    parser.add_argument("--plot-compact", metavar="FILE", type=plot_path,
+                        help="also a compact figure for a narrow page (OctoPrint's tab): your gains against the "
+                             "answer on the nominal plant, temperature and duty")
     parser.add_argument("--plot-history", action="store_true",
                         help="add a panel of each optimiser's best cost per iteration to the plot")
     parser.add_argument("--dask", metavar="ADDRESS", help="a dask.distributed scheduler (tcp://host:port)")

@@ -146,6 +146,9 @@ $(function () {
             if (!self.hasPlot() || !self.run()) return null;
             return BASEURL + "api/plugin/" + PLUGIN + "?plot=" + self.run();
         });
+        self.tabPlotUrl = ko.pureComputed(function () {
+            return self.plotUrl() ? self.plotUrl() + "&figure=tab" : null;
+        });
 
         // per plant, the answer's row (else the best other candidate's: what did not beat yours) and yours
         self.proofRows = ko.pureComputed(function () {

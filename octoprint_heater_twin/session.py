@@ -298,7 +298,7 @@ class Session:
             return self._autotune_progress()
         if self.phase not in (TUNING, CHECKING):
             return None
-        twin = self.progress or tuner.Progress(0, None, "Starting the twin")
+        twin = self.progress or tuner.Progress(0, None, "starting")
         head = "The twin" if self.phase == TUNING else "The twin checks your edited gains"
         return {"percent": round(100 * self.tune_share + (1 - self.tune_share) * twin.percent),
                 "left_s": twin.left_s, "left_of": None, "words": f"{head}: {twin.words}"}

@@ -112,7 +112,9 @@ def build_parser() -> OneLineParser:
                         help="also write the answer as JSON (verdict, why, gains, commands, plants, proof rows)")
     parser.add_argument("--progress", default="bar", choices=PROGRESS_MODES,
                         help="progress on stderr: tqdm bars on a terminal (bar, the default) or one line per "
-                             "step of work, 'progress: <step> <done>/<total>' (lines: for a program reading it)")
+                             "step of work, 'progress: <step> <done>/<total>', each followed by the whole run's "
+                             "'run: <percent>%% [about <s> s left]: <step in a user's words>' (lines: for a program "
+                             "reading it)")
     parser.add_argument("--model", metavar="MODEL",
                         help=f"--from-log: the model to fit, one of {', '.join(MODELS)} (default: as twin-fit, "
                              "two_node for a trace, three_node for an M303 capture)")

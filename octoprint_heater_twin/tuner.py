@@ -25,6 +25,7 @@ from octoprint_heater_twin.console import Gains
 
 STEP_RE = re.compile(r"^progress: (.+) (\d+)/(\d+)$")
 RUN_RE = re.compile(r"^run: (\d+)%(?: about (\d+) s left)?: (.+)$")
+TIMING_RE = re.compile(r"^\(\d+(?:\.\d+)? s\)$")  # twin-tune's "(28.7 s)" after a tune: for a terminal, not the tab
 NICENESS = 10  # below OctoPrint's own priority; a tune takes minutes on a Raspberry Pi
 # twin-tune's exit codes (tools/tuning/defaults.py, tools/entry.py: the plugin imports none of the project, which
 # runs in its own process; tests/octoprint_plugin/test_tuner_outcome.py checks that these are the same)
@@ -131,7 +132,7 @@ def _twin_tune(args: list[str], report_path: Path, on_progress: Callable[[Progre
                 line = raw.rstrip()
                 if step := progress(line):
                     on_progress(step)
-                elif line and not STEP_RE.match(line):
+                elif line and not STEP_RE.match(line) and not TIMING_RE.match(line):
                     last = line
                     on_message(line)
     except OSError as exc:

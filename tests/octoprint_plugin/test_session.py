@@ -273,6 +273,8 @@ def test_without_matplotlib_the_answer_has_no_plot_and_says_why(session, monkeyp
     assert (state["phase"], state["error"]) == (tab.ANSWER, None)
     assert state["answer"]["plot"] is None and state["plot"] is False and session.plot() is None
     assert state["no_plot"] == tuner.NO_MATPLOTLIB
+    # what the tab listed on the way: twin-tune's notes, not its step lines nor its wall time (for a terminal)
+    assert not [m for m in state["messages"] if m.startswith(("progress: ", "run: ")) or tuner.TIMING_RE.match(m)]
 
 
 def test_a_paste_takes_the_gains_to_beat_from_m503_in_it(session, monkeypatch):

@@ -67,6 +67,9 @@ class RunProgress:
         self.first: int | None = None  # the first stage seen: the run's start (a preset's run has no fitting)
         self.fraction = 0.0
 
+    def __repr__(self) -> str:
+        return f"RunProgress({self.estimate()})"
+
     def update(self, step: str, done: int, total: int) -> None:
         index = stage_of(step)
         if index is None:

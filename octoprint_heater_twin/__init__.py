@@ -16,7 +16,7 @@ import octoprint.plugin
 from octoprint.access.permissions import Permissions
 from octoprint.events import Events
 
-from octoprint_heater_twin.console import HEATERS
+from octoprint_heater_twin.console import HEATERS, Gains
 from octoprint_heater_twin.session import Session
 
 TAG = "plugin:heater_twin"  # on the commands the plugin queues: the sending hook tells them from the user's
@@ -75,7 +75,8 @@ class HeaterTwinPlugin(octoprint.plugin.SettingsPlugin, octoprint.plugin.Templat
         return True
 
     def get_api_commands(self) -> dict:
-        return {"start": ["heater", "target_c", "cycles"], "paste": ["heater", "text"], "apply": []}
+        return {"start": ["heater", "target_c", "cycles"], "paste": ["heater", "text"], "check": ["kp", "ki", "kd"],
+                "apply": []}
 
     def on_api_command(self, command: str, data: dict):
         if not Permissions.CONTROL.can():
@@ -95,13 +96,15 @@ class HeaterTwinPlugin(octoprint.plugin.SettingsPlugin, octoprint.plugin.Templat
                                       timeout_s)
         if command == "paste":
             return self.session.paste(str(data["text"]), str(data["heater"]))
-        return self.session.apply()
+        if command == "check":
+            return self.session.check(_gains(data))
+        return self.session.apply(_gains(data["gains"]) if data.get("gains") else None)
 
     def on_api_get(self, request):
         if not Permissions.STATUS.can():
             flask.abort(403)
         if "plot" in request.args:
-            path = self.session.plot()
+            path = self.session.plot(compact=request.args.get("figure") == "tab")
             if path is None:
                 flask.abort(404)
             return flask.send_file(path, mimetype="image/png", max_age=0)
@@ -133,6 +136,14 @@ def _number(data: dict, field: str) -> float:
     if not math.isfinite(value):
         raise ValueError(f"{field} {data[field]!r}: not a number")
     return value
+
+
+def _gains(data: dict) -> Gains:
+    """The gains the user edited, {"kp": .., "ki": .., "kd": ..}, or ValueError naming the field."""
+    fields = ("kp", "ki", "kd")
+    if not isinstance(data, dict) or any(field not in data for field in fields):
+        raise ValueError(f"gains {data!r}: give kp, ki and kd")
+    return Gains(*(_number(data, field) for field in fields))
 
 
 def _integer(data: dict, field: str) -> int:

@@ -28,6 +28,14 @@ COMPLAINT_RE = re.compile(r"Error|Unknown command|refused")
 # of the scaled gain Marlin keeps (Ki * dt, Kd / dt): a relative 2^-23 or so, taken as 1e-6.
 READBACK_ABS = 0.005
 READBACK_REL = 1e-6
+# Marlin's report during M303, every REPORT_INTERVAL_S: " T:201.37 /0.00 B:24.97 /0.00 @:127 B@:0"; the heater's
+# temperature and its power, soft PWM 0..POWER_FULL (the PID's 0..255 output halved: 127 is full power).
+READING_RES = {"extruder": (re.compile(r"(?<![\w@])T:\s*(-?[\d.]+)"), re.compile(r"(?<![\w@])@:\s*(\d+)")),
+               "heater_bed": (re.compile(r"(?<![\w@])B:\s*(-?[\d.]+)"), re.compile(r"(?<![\w@])B@:\s*(\d+)"))}
+REPORT_INTERVAL_S = 2.0  # Marlin's PID_autotune prints the heaters' states every 2 s
+POWER_FULL = 127
+# Each relay cycle past the first swing prints its bias (" bias: 82 d: 82 min: 207.03 max: 216.78"): C lines for C8
+BIAS_RE = re.compile(r"\bbias:\s*-?\d")
 
 
 class Gains(NamedTuple):
@@ -43,6 +51,11 @@ class Gains(NamedTuple):
 
     def text(self) -> str:
         return f"P{self.kp:g} I{self.ki:g} D{self.kd:g}"
+
+    def command(self, heater: str) -> str:
+        """What Apply sends for these gains: ``M301 E0 P.. I.. D..`` (the hotend) or ``M304 P.. I.. D..``."""
+        code = HEATERS[heater][0]
+        return f"{code} E0 {self.text()}" if heater == "extruder" else f"{code} {self.text()}"
 
     def holds(self, read: Gains) -> bool:
         """Whether ``read`` (M503's report) is these gains as the printer prints them."""
@@ -66,6 +79,20 @@ def last_gains(lines: list[str], heater: str) -> Gains | None:
     """The last gains of ``heater`` among ``lines`` (M503's report, or a pasted capture with it)."""
     found = [g for g in (gains_in(line, heater) for line in lines) if g is not None]
     return found[-1] if found else None
+
+
+def reading(line: str, heater: str) -> tuple[float, float] | None:
+    """The heater's temperature (C) and power (% of full) in a report line of M303's, else None."""
+    temp_re, power_re = READING_RES[heater]
+    temp, power = temp_re.search(line), power_re.search(line)
+    if temp is None or power is None:
+        return None
+    return float(temp[1]), 100.0 * min(int(power[1]), POWER_FULL) / POWER_FULL
+
+
+def is_cycle_end(line: str) -> bool:
+    """Whether the line ends one of M303's relay cycles (its bias line)."""
+    return BIAS_RE.search(line) is not None
 
 
 def is_text(capture: str) -> bool:

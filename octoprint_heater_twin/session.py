@@ -1,8 +1,10 @@
 """One tuning at a time, from the printer's autotune (or a pasted capture) to gains applied and read back.
 
 The phases: ``reading`` (M503: the printer's gains before the autotune), ``autotune`` (M303's output is
-the capture), ``tuning`` (twin-tune in its own process), ``answer``, ``applying`` (M301/M304, M500, then
-M503 read back) and ``applied``. Nothing is sent to the printer but on the user's request (start, apply).
+the capture, its temperatures the live graph, its bias lines the cycles done), ``tuning`` (twin-tune in its
+own process), ``answer``, ``checking`` (the quick proof of gains the user edited), ``applying`` (M301/M304,
+M500, then M503 read back) and ``applied``. One bar follows the whole run (``progress``): the autotune's
+cycles, then twin-tune's own account of its run. Nothing is sent to the printer but on the user's request (start, apply).
 The printer's lines arrive on OctoPrint's serial thread, requests on its web threads and the tune's end
 on a thread of its own: every method holds one lock, and every change is published to the tab.
 """
@@ -15,15 +17,20 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
-from octoprint_heater_twin import tuner
+from octoprint_heater_twin import check, tuner
 from octoprint_heater_twin.console import (
     ERROR_PREFIX, FAILED, FINISHED, HEATERS, MAX_CYCLES, MIN_CYCLES, Gains, autotune_command, gains_in, is_complaint,
-    is_ok, is_text, last_gains, received, sent)
+    is_cycle_end, is_ok, is_text, last_gains, reading, received, sent)
 
-IDLE, READING, AUTOTUNE, TUNING, ANSWER, APPLYING, APPLIED = (
-    "idle", "reading", "autotune", "tuning", "answer", "applying", "applied")
+IDLE, READING, AUTOTUNE, TUNING, ANSWER, CHECKING, APPLYING, APPLIED = (
+    "idle", "reading", "autotune", "tuning", "answer", "checking", "applying", "applied")
 BUSY = {READING: "reading the printer's gains", AUTOTUNE: "the autotune is running",
-        TUNING: "the twin is tuning", APPLYING: "the gains are being applied"}
+        TUNING: "the twin is tuning", CHECKING: "the twin is checking your gains",
+        APPLYING: "the gains are being applied"}
+# The bar's share of a run from the printer (the rest is twin-tune's): M303 heats up and swings for minutes, a tune
+# takes tens of seconds on a PC and minutes on a Raspberry Pi.
+AUTOTUNE_SHARE = 0.5
+TRACE_POINTS = 4000  # the live graph's readings kept: 2 h of M303's 2 s reports (Marlin gives up after 20 min)
 READBACK_TIMEOUT_S = 60.0  # Apply: M301/M304, M500 and M503 take a second on any printer that is idle
 CONSOLE_LINES = 400  # the capture's last lines shown in the tab (an autotune at C8 prints about 150)
 NEW_GAINS = "new gains"
@@ -56,7 +63,14 @@ class Session:
         self.result: str | None = None  # the autotune's end as Marlin says it: FINISHED, or its failure line
         self.current: Gains | None = None  # the printer's gains, the ones to beat
         self.current_from: str | None = None  # where the plugin read them
-        self.progress: tuner.Progress | None = None
+        self.progress: tuner.Progress | None = None  # twin-tune's account of its run
+        self.target_c = 0.0
+        self.cycles = 0  # M303's C
+        self.trace: list[tuple[float, float]] = []  # the autotune's readings: (temperature C, power %)
+        self.cycle_ends_s: list[float] = []  # when each relay cycle ended (its bias line), monotonic
+        self.tune_share = 0.0  # where twin-tune's run starts on the bar
+        self.checked: dict | None = None  # the quick proof of edited gains (check.summary)
+        self.after_check = ANSWER
         self.messages: list[str] = []
         self.answer: dict | None = None
         self.no_plot: str | None = None  # why the answer has no plot
@@ -64,6 +78,7 @@ class Session:
         self.problems: list[str] = []  # Apply: what the printer objected to (EEPROM, unknown command)
         self.timer: threading.Timer | None = None
         self.runs = 0
+        self.sent_gains = ""  # the gains command Apply sent: what M503 must read back
 
     # -- requests (the tab's buttons); each returns the one-line reason it is refused, else None ---------
     def start(self, heater: str, target_c: float, cycles: int, timeout_s: float) -> str | None:
@@ -80,7 +95,7 @@ class Session:
             if refused := self._refusal():
                 return refused
             self._new_run(heater)
-            self.phase = READING
+            self.phase, self.target_c, self.cycles, self.tune_share = READING, target_c, cycles, AUTOTUNE_SHARE
             self.m303 = autotune_command(heater, target_c, cycles)
             self._arm(timeout_s, f"The autotune timed out: no result from the printer within {timeout_s / 60:g} min")
             self.printer.send(["M503", self.m303])
@@ -107,20 +122,56 @@ class Session:
             self._tune()
         return None
 
-    def apply(self) -> str | None:
-        """Send the answer's commands (M301/M304, M500), then M503 to read the gains back."""
+    def check(self, edited: Gains) -> str | None:
+        """Prove ``edited`` (the answer's gains as the user changed them) on the twin, quickly (tuner.QUICK)."""
+        if refused := _bad_gains(edited):
+            return refused
         with self.lock:
-            if self.phase not in (ANSWER, APPLIED) or not self.answer or self.answer.get("verdict") != NEW_GAINS:
-                return "There are no new gains to apply"
-            if refused := self._refusal():
+            if refused := self._no_answer():
+                return refused
+            self.after_check, self.phase, self.error, self.checked = self.phase, CHECKING, None, None
+            self.progress, self.tune_share, self.messages = None, 0.0, []
+            self._publish()
+            threading.Thread(target=self._check_in_background, args=(self.runs_dir / str(self.run_id), edited),
+                             name="heater_twin.check", daemon=True).start()
+        return None
+
+    def apply(self, edited: Gains | None = None) -> str | None:
+        """Send the answer's commands (M301/M304, M500), or ``edited``'s once the twin has checked them and seen
+        no trip, then M503 to read the gains back."""
+        with self.lock:
+            if refused := self._no_answer():
+                return refused
+            assert self.answer is not None
+            commands = list(self.answer["commands"]) if edited is None else self._edited_commands(edited)
+            if isinstance(commands, str):
+                return commands
+            if refused := self.printer.refusal():
                 return refused
             self.phase, self.applied, self.error = APPLYING, None, None
-            self.reply, self.reply_open, self.problems = [], False, []
+            self.reply, self.reply_open, self.problems, self.sent_gains = [], False, [], commands[0]
             self._arm(READBACK_TIMEOUT_S, f"The printer did not report its gains within {READBACK_TIMEOUT_S:g} s "
                                           "of M503: are they applied? Check with M503 in the terminal")
-            self.printer.send(list(self.answer["commands"]) + ["M503"])
+            self.printer.send(commands + ["M503"])
             self._publish()
         return None
+
+    def _no_answer(self) -> str | None:
+        if self.phase in BUSY:
+            return f"Busy: {BUSY[self.phase]}"
+        if self.phase not in (ANSWER, APPLIED) or not self.answer or self.answer.get("verdict") != NEW_GAINS:
+            return "There are no new gains to apply"
+        return None
+
+    def _edited_commands(self, edited: Gains) -> list[str] | str:
+        """What Apply sends for ``edited``, or why not: gains the twin has not checked, or saw trip."""
+        if refused := _bad_gains(edited):
+            return refused
+        if self.checked is None or Gains(**self.checked["gains"]) != edited:
+            return f"{edited.text()}: check the edited gains on the twin first (Check these gains)"
+        if self.checked["trips"]:
+            return self.checked["line"]
+        return [edited.command(self.heater), "M500"]
 
     # -- the printer's side (OctoPrint's serial thread) -------------------------------------------------
     def on_sending(self, command: str) -> None:
@@ -158,8 +209,14 @@ class Session:
 
     def _autotune_line(self, line: str) -> None:
         self.capture.append(received(line))
-        self.publish({"line": self.capture[-1]})
         text = line.strip()
+        sample = reading(text, self.heater)
+        if sample is not None and len(self.trace) < TRACE_POINTS:
+            self.trace.append(sample)
+        if is_cycle_end(text):
+            self.cycle_ends_s.append(time.monotonic())
+        self.publish({"line": self.capture[-1], "sample": sample, "cycles_done": len(self.cycle_ends_s),
+                      "progress": self._progress()})
         if text.startswith(FINISHED):
             self.result = FINISHED
         elif (FAILED in text or text.startswith(ERROR_PREFIX)) and self.result is None:
@@ -184,7 +241,7 @@ class Session:
         if not is_ok(text) or read is None:
             return
         self._cancel_timer()
-        code, command = HEATERS[self.heater][0], self.answer["commands"][0]
+        code, command = HEATERS[self.heater][0], self.sent_gains
         expected = gains_in(command, self.heater)
         holds = expected is not None and expected.holds(read)
         if not holds:
@@ -217,10 +274,53 @@ class Session:
             self.phase, self.answer, self.no_plot, self.progress = ANSWER, outcome.answer, outcome.no_plot, None
             self._publish()
 
+    def _check_in_background(self, run_dir: Path, edited: Gains) -> None:
+        outcome = tuner.check(run_dir, self.heater, edited, self._on_progress, self._on_message)
+        with self.lock:
+            self.phase, self.progress = self.after_check, None
+            if outcome.answer is None:
+                self.error = str(outcome.error)
+            else:
+                assert self.answer is not None
+                self.checked = check.summary(edited, outcome.answer, self.answer)
+            self._publish()
+
     def _on_progress(self, progress: tuner.Progress) -> None:
         with self.lock:
             self.progress = progress
-            self.publish({"progress": progress.__dict__})
+            self.publish({"progress": self._progress()})
+
+    def _progress(self) -> dict | None:
+        """The run's one bar: done in percent, the time left (None: not known yet) and of what, in a user's words."""
+        if self.phase == READING:
+            return {"percent": 0, "left_s": None, "left_of": None, "words": "Reading your printer's gains (M503)"}
+        if self.phase == AUTOTUNE:
+            return self._autotune_progress()
+        if self.phase not in (TUNING, CHECKING):
+            return None
+        twin = self.progress or tuner.Progress(0, None, "starting")
+        head = "The twin" if self.phase == TUNING else "The twin checks your edited gains"
+        return {"percent": round(100 * self.tune_share + (1 - self.tune_share) * twin.percent),
+                "left_s": twin.left_s, "left_of": None, "words": f"{head}: {twin.words}"}
+
+    def _autotune_progress(self) -> dict:
+        """M303's share of the bar: the heat-up and first swing, then each of its C cycles; the time left from
+        the cycles' own pace, once two have ended."""
+        done, ends = min(len(self.cycle_ends_s), self.cycles), self.cycle_ends_s
+        left_s = None if len(ends) < 2 else round((ends[-1] - ends[0]) / (len(ends) - 1) * (self.cycles - done))
+        words = f"Your printer's autotune ({self.m303}): " + (
+            f"{done} of {self.cycles} cycles done" if done else f"heating to {self.target_c:g} C, the first swing")
+        return {"percent": round(100 * AUTOTUNE_SHARE * (done + self._heated()) / (self.cycles + 1)),
+                "left_s": left_s, "left_of": "the autotune", "words": words}
+
+    def _heated(self) -> float:
+        """How far the heat-up has come, 0..1 (the first of the autotune's units: then it swings)."""
+        if self.cycle_ends_s:
+            return 1.0
+        if len(self.trace) < 2 or self.target_c <= self.trace[0][0]:
+            return 0.0
+        start_c = self.trace[0][0]
+        return min(1.0, max(0.0, (self.trace[-1][0] - start_c) / (self.target_c - start_c)))
 
     def _on_message(self, message: str) -> None:
         with self.lock:
@@ -235,17 +335,18 @@ class Session:
                 "phase": self.phase, "busy": self.phase in BUSY, "doing": BUSY.get(self.phase), "error": self.error,
                 "heater": self.heater, "run": self.run_id, "console": self.capture[-CONSOLE_LINES:],
                 "current": None if self.current is None else self.current._asdict(), "current_from": self.current_from,
-                "progress": None if self.progress is None else self.progress.__dict__, "messages": self.messages,
-                "answer": self.answer, "applied": self.applied,
+                "progress": self._progress(), "messages": self.messages, "answer": self.answer,
+                "applied": self.applied, "checked": self.checked, "trace": self.trace, "target_c": self.target_c,
+                "cycles": self.cycles, "cycles_done": len(self.cycle_ends_s),
                 "plot": bool(self.answer and self.answer.get("plot")), "no_plot": self.no_plot,
             }
 
-    def plot(self) -> Path | None:
-        """The answer's plot, if it has one."""
+    def plot(self, compact: bool = False) -> Path | None:
+        """The answer's plot (twin-tune's full figure, or the ``compact`` one made for the tab), if it has one."""
         with self.lock:
             if not self.answer or not self.answer.get("plot") or self.run_id is None:
                 return None
-            path = self.runs_dir / self.run_id / tuner.PLOT
+            path = self.runs_dir / self.run_id / (tuner.TAB_PLOT if compact else tuner.PLOT)
             return path if path.exists() else None
 
     def _refusal(self) -> str | None:
@@ -259,6 +360,7 @@ class Session:
         self.heater, self.error, self.result, self.current, self.current_from = heater, None, None, None, None
         self.capture, self.reply, self.reply_open, self.messages = [], [], False, []
         self.progress, self.answer, self.no_plot, self.applied = None, None, None, None
+        self.trace, self.cycle_ends_s, self.cycles, self.tune_share, self.checked = [], [], 0, 0.0, None
 
     def _fail(self, error: str) -> None:
         self._cancel_timer()
@@ -291,3 +393,11 @@ class Session:
 
     def _publish(self) -> None:
         self.publish({"state": self.state()})
+
+
+def _bad_gains(gains: Gains) -> str | None:
+    """Why ``gains`` cannot be a PID's (a field that is not a number >= 0), else None."""
+    for name, value in zip(("kp", "ki", "kd"), gains):
+        if not value >= 0 or value == float("inf"):
+            return f"{name} {value:g}: must be a number >= 0"
+    return None

@@ -142,13 +142,14 @@ class OctoPrint:
 
 
 @contextlib.contextmanager
-def twin_printer(tmp_path: Path, spawn, idle_speed: float) -> Iterator[Path]:
-    """twin-serial on a pty behind tmp_path/printer: the default stock printer (stopped by ``spawn``);
-    on exit, its stderr must hold no traceback."""
+def twin_printer(tmp_path: Path, spawn, idle_speed: float, speed: str = "max") -> Iterator[Path]:
+    """twin-serial on a pty behind tmp_path/printer: the default stock printer (stopped by ``spawn``), its clock at
+    ``speed`` while a command runs (twin-serial's --speed); on exit, its stderr must hold no traceback."""
     link = tmp_path / "printer"
     stderr_path = tmp_path / "twin-serial.stderr"
     with open(stderr_path, "w") as stderr:
-        proc = spawn([sys.executable, "-m", "tools.cli.serial", "--link", str(link), "--idle-speed", str(idle_speed)],
+        proc = spawn([sys.executable, "-m", "tools.cli.serial", "--link", str(link), "--idle-speed", str(idle_speed),
+                      "--speed", speed],
                      stdout=subprocess.PIPE, stderr=stderr, text=True)
     ready, _, _ = select.select([proc.stdout], [], [], SERIAL_START_TIMEOUT_S)
     assert ready and proc.stdout.readline().strip(), "twin-serial printed no port"

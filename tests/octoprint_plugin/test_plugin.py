@@ -21,7 +21,8 @@ def test_the_entry_point_names_the_plugin():
     (point,) = [p for p in entry_points(group="octoprint.plugin") if p.name == "heater_twin"]
     module = importlib.import_module(point.value)
     assert module.__plugin_implementation__.get_api_commands() == {
-        "start": ["heater", "target_c", "cycles"], "paste": ["heater", "text"], "apply": []}
+        "start": ["heater", "target_c", "cycles"], "paste": ["heater", "text"], "check": ["kp", "ki", "kd"],
+        "apply": []}
     assert set(module.__plugin_hooks__) == {"octoprint.comm.protocol.gcode.received",
                                             "octoprint.comm.protocol.gcode.sending"}
 

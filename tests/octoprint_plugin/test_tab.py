@@ -2,12 +2,15 @@
 Chromium (Debian's chromium and chromium-driver) driven by selenium, and the real twin-tune.
 
 As a user would: the tab refuses to start before the printer is connected and says why in one line; a
-capture without autotune output is twin-tune's one-line error; connected, it runs M303, tunes the capture,
-shows the answer; Apply stores it, and the printer (M501 then M503 through OctoPrint's terminal) holds what
-the tab showed; a second autotune right after says "keep your gains". Screenshots go to
-twin-out/octoprint/ (the CI's artefacts); with HEATER_TWIN_WRITE_DOCS=1 also to docs/octoprint/.
+capture without autotune output is twin-tune's one-line error; connected, it runs M303 and draws it live with
+its cycles done, follows the whole run on one bar in a user's words, folds Marlin's lines away once the twin
+is asked, shows the answer; the answer's gains edited are checked on the twin, and Apply stores the edit, which
+the printer (M501 then M503 through OctoPrint's terminal) holds; a second autotune right after compares
+against them. Screenshots go to twin-out/octoprint/ (the CI's artefacts); with HEATER_TWIN_WRITE_DOCS=1 also
+to docs/octoprint/.
 
-CI cost: one OctoPrint start, two autotunes of under a second each at --speed max, two tunes by twin-tune.
+CI cost: one OctoPrint start, two autotunes of about half a minute each at --speed 10 (slow enough to watch the
+graph and the cycles mid-run), two tunes and a quick proof by twin-tune.
 """
 
 from __future__ import annotations
@@ -31,6 +34,9 @@ DOCS = ROOT / "docs" / "octoprint"
 WRITE_DOCS = os.environ.get("HEATER_TWIN_WRITE_DOCS") == "1"
 USER = ("heater", "twin-tune-in-octoprint")
 IDLE_SPEED = 50  # the printer's clock while OctoPrint waits: the hotend cools between the two autotunes
+AUTOTUNE_SPEED = "10"  # M303 at 10 x real time: its cycles end every 2 s or so, the tab is watched mid-run
+INTERNAL_STEPS = ("fitting the structures", "profiling what the log leaves open", "replaying the log", "searching (")
+EDIT_KD = 1.1  # the edit: the answer's Kd 10 % higher (a change any answer takes without a trip)
 PAGE_TIMEOUT_S = 600  # OctoPrint's page loads its assets, the tab's requests come back
 TUNE_TIMEOUT_S = 1800  # twin-tune on a loaded 2-core machine
 WINDOW = "1280,2200"  # tall enough for the answer with its proof table and plot in one screenshot
@@ -69,7 +75,7 @@ def browser(tmp_path, monkeypatch):
 @pytest.fixture
 def octoprint(tmp_path, spawn):
     """OctoPrint with the plugin (installed with the package), a user to log in as, and the printer's link."""
-    with twin_printer(tmp_path, spawn, IDLE_SPEED) as link:
+    with twin_printer(tmp_path, spawn, IDLE_SPEED, AUTOTUNE_SPEED) as link:
         server = start_octoprint(tmp_path, link, spawn)
         server.add_user(*USER)
         yield server, link
@@ -79,12 +85,15 @@ class Tab:
     """The Heater tuning tab in the browser, as a user sees and clicks it."""
 
     def __init__(self, driver, base: str):
+        from selenium.common.exceptions import StaleElementReferenceException
         from selenium.webdriver.common.by import By
         from selenium.webdriver.support import expected_conditions
         from selenium.webdriver.support.ui import WebDriverWait
 
         self.driver, self.base, self.by, self.ec = driver, base, By, expected_conditions
-        self.wait = lambda timeout_s: WebDriverWait(driver, timeout_s)
+        # the live graph's elements are redrawn as readings come: one found may be gone when read
+        self.wait = lambda timeout_s: WebDriverWait(driver, timeout_s,
+                                                    ignored_exceptions=[StaleElementReferenceException])
 
     def open(self) -> None:
         """Log in, then choose the tab (in OctoPrint's overflow menu: the core tabs fill the bar)."""
@@ -114,16 +123,42 @@ class Tab:
     def run(self) -> str:
         return self.element("heater_twin_answer").get_attribute("data-run") or ""
 
-    def answer(self, after_run: str) -> str:
-        """Wait for the answer of a run other than ``after_run``; the verdict. Fails on the tab's error."""
+    def answer(self, after_run: str, bar: list[tuple[int, str]] | None = None) -> str:
+        """Wait for the answer of a run other than ``after_run``; the verdict. Fails on the tab's error. The bar's
+        (percent, words) as seen on the way go to ``bar``."""
         def shown(driver) -> bool:
             error = self.element("heater_twin_error")
             assert not error.is_displayed(), f"the tab says: {error.text}"
+            if bar is not None:
+                bar.append(self.bar())
             answer = self.element("heater_twin_answer")
             return answer.is_displayed() and self.run() != after_run and self.element("heater_twin_verdict").text
 
         self.wait(TUNE_TIMEOUT_S).until(shown)
         return self.text("heater_twin_verdict")
+
+    def bar(self) -> tuple[int, str]:
+        """The run's bar as shown: (percent, its words), (-1, '') when hidden."""
+        if not self.element("heater_twin_progress").is_displayed():
+            return -1, ""
+        return int(self.element("heater_twin_progress").get_attribute("data-percent")), self.text("heater_twin_step")
+
+    def mid_autotune(self) -> tuple[int, int]:
+        """Wait until M303 is under way, its graph drawn and some but not all of its cycles done; (cycles done,
+        readings drawn)."""
+        def under_way(driver):
+            cycles = re.fullmatch(r"(\d+) of (\d+) cycles done", self.text("heater_twin_cycles_done"))
+            points = int(self.element("heater_twin_graph").get_attribute("data-points") or 0)
+            if cycles and 0 < int(cycles[1]) < int(cycles[2]) and points and self.text("heater_twin_busy"):
+                return int(cycles[1]), points
+            return False
+
+        return self.wait(TUNE_TIMEOUT_S).until(under_way)
+
+    def edit(self, field: str, value: str) -> None:
+        box = self.element(f"heater_twin_edit_{field}")
+        box.clear()
+        box.send_keys(value)
 
     def paste(self, text: str) -> str:
         """Tune a pasted capture; the tab's error (then the paste box is folded again)."""
@@ -187,7 +222,11 @@ def check_plot(tab: Tab) -> None:
 
     plot, no_plot = tab.element("heater_twin_plot"), tab.element("heater_twin_no_plot")
     if importlib.util.find_spec("matplotlib") is not None:
-        assert plot.get_attribute("naturalWidth") not in (None, "0"), "the plot did not load"
+        from tools.plots.tab_figure import WIDTH_PX
+
+        # the compact figure, made for the tab's width; twin-tune's full one a click away
+        assert plot.get_attribute("naturalWidth") == str(WIDTH_PX), "the compact figure did not load"
+        assert tab.element("heater_twin_plot_full").get_attribute("href").endswith(f"?plot={tab.run()}")
         assert not no_plot.is_displayed(), no_plot.text
     else:
         assert not plot.is_displayed() and tab.text("heater_twin_no_plot") == NO_MATPLOTLIB
@@ -206,17 +245,47 @@ def test_the_tab_tunes_the_printer_and_the_printer_holds_the_answer(octoprint, b
 
     server.connect(link)
     tab.click("heater_twin_start")
-    assert tab.answer(after_run="") == "New gains", tab.text("heater_twin_why")
+    # M303 live: its readings drawn, its cycles counted, on the run's one bar; Marlin's lines open below
+    done, points = tab.mid_autotune()
+    percent, words = tab.bar()
+    assert words.startswith(f"Your printer's autotune (M303 E0 S210 C8): {done} of 8 cycles done"), words
+    assert 0 < percent < 100 and points > done
+    assert tab.element("heater_twin_console_fold").get_attribute("open") is not None
+    tab.shot("autotune", "tab_plugin_heater_twin")
+    later, _ = tab.mid_autotune()
+    assert later >= done
+
+    bar: list[tuple[int, str]] = []
+    assert tab.answer(after_run="", bar=bar) == "New gains", tab.text("heater_twin_why")
+    shown = [(p, w) for p, w in bar if p >= 0]
+    assert [p for p, _ in shown] == sorted(p for p, _ in shown), shown  # one bar: it never restarts
+    assert any(w.startswith("The twin: ") for _, w in shown), shown
+    assert not [w for _, w in shown if any(step in w for step in INTERNAL_STEPS)], shown
+    # the twin asked: Marlin's lines (its own #define gains) folded away, the whole autotune on the graph
+    assert tab.element("heater_twin_console_fold").get_attribute("open") is None
+    assert not tab.element("heater_twin_console").is_displayed()
+    assert tab.text("heater_twin_cycles_done") == "8 of 8 cycles done"
     tab.shot("answer")
     check_plot(tab)
-    shown = gains(tab.text("heater_twin_commands"))
+
+    answer = gains(tab.text("heater_twin_commands"))
+    edited_kd = f"{answer[2] * EDIT_KD:.2f}"
+    tab.edit("kd", edited_kd)
+    assert not tab.element("heater_twin_apply").is_enabled(), "Apply took an edit the twin had not checked"
+    tab.click("heater_twin_check")
+    tab.wait(TUNE_TIMEOUT_S).until(tab.ec.visibility_of_element_located((tab.by.ID, "heater_twin_checked")))
+    said = tab.text("heater_twin_checked")
+    assert f"D{float(edited_kd):g} never trips on the " in said and "worst overshoot" in said, said
+    shown_gains = gains(tab.text("heater_twin_commands"))
+    assert shown_gains == (answer[0], answer[1], float(edited_kd))
+    tab.shot("checked", "heater_twin_answer")
 
     tab.click("heater_twin_apply")
     tab.wait(PAGE_TIMEOUT_S).until(tab.ec.visibility_of_element_located((tab.by.ID, "heater_twin_applied")))
     assert tab.text("heater_twin_applied").startswith("The printer holds the new gains: M301 ")
     tab.shot("applied", "heater_twin_answer")
     stored = stored_gains(server)
-    assert all(abs(s - g) <= M503_DIGIT_C + 1e-9 for s, g in zip(stored, shown)), (stored, shown)
+    assert all(abs(s - g) <= M503_DIGIT_C + 1e-9 for s, g in zip(stored, shown_gains)), (stored, shown_gains)
 
     first = tab.run()
     tab.click("heater_twin_start")

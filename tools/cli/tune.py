@@ -112,13 +112,18 @@ def build_parser() -> OneLineParser:
                         help="also write the answer as JSON (verdict, why, gains, commands, plants, proof rows)")
     parser.add_argument("--progress", default="bar", choices=PROGRESS_MODES,
                         help="progress on stderr: tqdm bars on a terminal (bar, the default) or one line per "
-                             "step of work, 'progress: <step> <done>/<total>' (lines: for a program reading it)")
+                             "step of work, 'progress: <step> <done>/<total>', each followed by the whole run's "
+                             "'run: <percent>%% [about <s> s left]: <step in a user's words>' (lines: for a program "
+                             "reading it)")
     parser.add_argument("--model", metavar="MODEL",
                         help=f"--from-log: the model to fit, one of {', '.join(MODELS)} (default: as twin-fit, "
                              "two_node for a trace, three_node for an M303 capture)")
     parser.add_argument("--heater", help="--from-log: extruder or heater_bed (default: the log's first)")
     parser.add_argument("--segment", type=int, help="--from-log: the segment to fit (default: the longest heat-up)")
     parser.add_argument("--plot", help="plot file (default twin-out/twin-tune-<plant>.png); 'none' for no plot")
+    parser.add_argument("--plot-compact", metavar="FILE", type=plot_path,
+                        help="also a compact figure for a narrow page (OctoPrint's tab): your gains against the "
+                             "answer on the nominal plant, temperature and duty")
     parser.add_argument("--plot-history", action="store_true",
                         help="add a panel of each optimiser's best cost per iteration to the plot")
     parser.add_argument("--dask", metavar="ADDRESS", help="a dask.distributed scheduler (tcp://host:port)")

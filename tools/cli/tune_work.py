@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.plots import tune_figure
+from tools.plots import tab_figure, tune_figure
 from tools.progress import Steps
 from tools.ident.log_fit import LogFitOptions
 from firmware_port.firmwares import KALICO_MPC
@@ -213,6 +213,8 @@ def tune_one(args: argparse.Namespace, problem: Problem, is_bed: bool, client, p
             title += f" ({problem.controller.name} on the {problem.loop} loop)"
         tune_figure.write(path, result, proof, title, functools.partial(describe, problem), args.plot_history)
         print(f"plot: {path}")
+    if args.plot_compact:
+        tab_figure.write(Path(args.plot_compact), result, proof, functools.partial(describe, problem))
     print(f"({time.perf_counter() - started:.1f} s)", file=sys.stderr)
     return status, result, proof
 

@@ -1,11 +1,14 @@
 /*
  * The Heater tuning tab: the server's session state (GET /api/plugin/heater_twin), kept current by the
- * plugin's messages ({state}, {line}, {progress}, {message}); the buttons post start, paste and apply.
+ * plugin's messages ({state}, {line, sample, cycles_done, progress}, {progress}, {message}); the buttons post
+ * start, paste, check (the answer's gains as edited) and apply. The live graph draws M303's readings as SVG.
  */
 $(function () {
     var PLUGIN = "heater_twin";
     var CONSOLE_LINES = 400; // as the server keeps (octoprint_heater_twin/session.py)
     var GAIN_DIGITS = 4; // significant digits, as twin-tune writes the gains in the commands it proposes
+    var REPORT_INTERVAL_S = 2; // Marlin prints the heaters' states every 2 s during M303 (console.py)
+    var GRAPH = {width: 560, temp: 150, gap: 14, power: 46, left: 34, redrawMs: 250}; // the live graph, in px
 
     function HeaterTwinViewModel(parameters) {
         var self = this;
@@ -25,6 +28,15 @@ $(function () {
         self.run = ko.observable(null);
         self.console = ko.observableArray([]);
         self.progress = ko.observable(null);
+        self.trace = [];
+        self.traceVersion = ko.observable(0); // the trace grows in place: redraws follow this
+        self.runTarget = ko.observable(0);
+        self.runCycles = ko.observable(0);
+        self.cyclesDone = ko.observable(0);
+        self.checked = ko.observable(null);
+        self.editKp = ko.observable("");
+        self.editKi = ko.observable("");
+        self.editKd = ko.observable("");
         self.messages = ko.observableArray([]);
         self.answer = ko.observable(null);
         self.applied = ko.observable(null);
@@ -51,17 +63,91 @@ $(function () {
         self.consoleText = ko.pureComputed(function () {
             return self.console().join("\n");
         });
+        self.duration = function (seconds) {
+            return seconds < 90 ? seconds + " s" : Math.round(seconds / 60) + " min";
+        };
         self.progressText = ko.pureComputed(function () {
             var p = self.progress();
-            return p ? ": " + p.step + " " + p.done + "/" + p.total : "";
+            if (!p) return "";
+            var left = p.left_s === null || p.left_s === undefined ? "" :
+                ", about " + self.duration(p.left_s) + " left" + (p.left_of ? " of " + p.left_of : "");
+            return p.words + " (" + p.percent + "%" + left + ")";
         });
         self.progressPercent = ko.pureComputed(function () {
             var p = self.progress();
-            return p && p.total ? Math.round((100 * p.done) / p.total) : 0;
+            return p ? p.percent : 0;
+        });
+
+        // -- the live graph of M303: temperature against its target, and the heater's power, per 2 s report
+        self.graph = ko.pureComputed(function () {
+            self.traceVersion();
+            var trace = self.trace, n = trace.length, target = self.runTarget();
+            if (!n) return null;
+            var temps = _.map(trace, function (p) { return p[0]; });
+            var low = Math.floor(Math.min(_.min(temps), target) / 10) * 10, high = Math.ceil(Math.max(_.max(temps), target) / 10) * 10;
+            if (high - low < 10) high = low + 10;
+            var span = Math.max(n - 1, 30), w = GRAPH.width - GRAPH.left, top2 = GRAPH.temp + GRAPH.gap;
+            var x = function (i) { return (GRAPH.left + (w * i) / span).toFixed(1); };
+            var y = function (c) { return ((GRAPH.temp * (high - c)) / (high - low)).toFixed(1); };
+            var yp = function (pct) { return (top2 + (GRAPH.power * (100 - pct)) / 100).toFixed(1); };
+            var temp = _.map(trace, function (p, i) { return x(i) + "," + y(p[0]); }).join(" ");
+            var power = x(0) + "," + yp(0) + " " + _.map(trace, function (p, i) { return x(i) + "," + yp(p[1]); }).join(" ") +
+                " " + x(n - 1) + "," + yp(0);
+            var last = trace[n - 1];
+            return {temp: temp, power: power, targetY: y(target), high: high + " °C", low: low + " °C",
+                    end: self.duration(Math.round((span * REPORT_INTERVAL_S))), now: last[0].toFixed(1) + " °C",
+                    heater: Math.round(last[1]) + " %", points: n};
+        }).extend({rateLimit: GRAPH.redrawMs});
+        self.graphSize = GRAPH;
+        self.cycleText = ko.pureComputed(function () {
+            if (!self.runCycles()) return "";
+            return self.cyclesDone() + " of " + self.runCycles() + " cycles done";
+        });
+
+        // -- the answer's gains, editable: an edit is checked on the twin before Apply sends it
+        self.resetEdits = function () {
+            var a = self.answer();
+            var g = a && a.answer ? a.answer : null;
+            self.editKp(g ? self.gain(g.kp) : "");
+            self.editKi(g ? self.gain(g.ki) : "");
+            self.editKd(g ? self.gain(g.kd) : "");
+        };
+        self.editedGains = function () {
+            return {kp: Number(self.editKp()), ki: Number(self.editKi()), kd: Number(self.editKd())};
+        };
+        self.edited = ko.pureComputed(function () {
+            var a = self.answer();
+            if (!a || !a.answer) return false;
+            return self.editKp() !== self.gain(a.answer.kp) || self.editKi() !== self.gain(a.answer.ki) ||
+                self.editKd() !== self.gain(a.answer.kd);
+        });
+        self.checkedEdit = ko.pureComputed(function () {
+            var c = self.checked(), g = self.editedGains();
+            return c && c.gains.kp === g.kp && c.gains.ki === g.ki && c.gains.kd === g.kd ? c : null;
+        });
+        self.canCheck = ko.pureComputed(function () {
+            return self.canApply() && !self.busy() && self.edited() && !self.checkedEdit();
+        });
+        self.mayApply = ko.pureComputed(function () {
+            if (!self.canApply() || self.busy()) return false;
+            return !self.edited() || (self.checkedEdit() !== null && !self.checkedEdit().trips);
+        });
+        self.commandsText = ko.pureComputed(function () {
+            var a = self.answer();
+            if (!a) return "";
+            if (!self.edited()) return a.commands.join(" ; ");
+            var g = self.editedGains(), head = a.heater === "heater_bed" ? "M304" : "M301 E0";
+            return head + " P" + g.kp + " I" + g.ki + " D" + g.kd + " ; M500";
+        });
+        self.consoleOpen = ko.pureComputed(function () {
+            return self.phase() === "reading" || self.phase() === "autotune";
         });
         self.plotUrl = ko.pureComputed(function () {
             if (!self.hasPlot() || !self.run()) return null;
             return BASEURL + "api/plugin/" + PLUGIN + "?plot=" + self.run();
+        });
+        self.tabPlotUrl = ko.pureComputed(function () {
+            return self.plotUrl() ? self.plotUrl() + "&figure=tab" : null;
         });
 
         // per plant, the answer's row (else the best other candidate's: what did not beat yours) and yours
@@ -106,6 +192,7 @@ $(function () {
         });
 
         self.fromState = function (state) {
+            var newAnswer = state.run !== self.run() || (state.answer && !self.answer());
             self.phase(state.phase);
             self.busy(state.busy);
             self.doing(state.doing || "");
@@ -119,6 +206,13 @@ $(function () {
             self.hasPlot(state.plot);
             self.noPlot(state.no_plot);
             self.currentFrom(state.current_from);
+            self.checked(state.checked);
+            self.trace = state.trace.slice();
+            self.runTarget(state.target_c);
+            self.runCycles(state.cycles);
+            self.cyclesDone(state.cycles_done);
+            self.traceVersion(self.traceVersion() + 1);
+            if (newAnswer) self.resetEdits();
         };
 
         self.request = function (command, data) {
@@ -136,8 +230,11 @@ $(function () {
         self.paste = function () {
             self.request("paste", {heater: self.heater(), text: self.pasted()});
         };
+        self.check = function () {
+            self.request("check", self.editedGains());
+        };
         self.apply = function () {
-            self.request("apply");
+            self.request("apply", self.edited() ? {gains: self.editedGains()} : {});
         };
 
         self.refresh = function () {
@@ -165,6 +262,12 @@ $(function () {
                 if (self.console().length > CONSOLE_LINES) self.console.shift();
                 var pre = document.getElementById("heater_twin_console");
                 if (pre) pre.scrollTop = pre.scrollHeight;
+                if (message.sample) {
+                    self.trace.push(message.sample);
+                    self.traceVersion(self.traceVersion() + 1);
+                }
+                self.cyclesDone(message.cycles_done);
+                self.progress(message.progress);
             } else if (message.progress) {
                 self.progress(message.progress);
             } else if (message.message !== undefined) {

@@ -18,7 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_port.thermistor import KLIPPER_SENSORS, Divider
+from protocol.klipper_mcu.axes import Carriage
 from protocol.klipper_mcu.dictionary import ADC_MAX, CLOCK_FREQ, DEFAULT_SENSOR
+from protocol.klipper_mcu.user_config import UserConfig
 from twin.clock import TICK_S, EventQueue
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
 from twin.linear import SENSOR
@@ -42,6 +44,8 @@ class Wiring:
     sensor_pin: str
     section: str  # printer.cfg section the config printer writes
     max_temp_c: float
+    sensor_type: str | None = None  # None: the board's
+    pullup_ohm: float = PULLUP_OHM
 
 
 WIRING = (Wiring("hotend", "PB4", "PK5", "heater_generic hotend", 300.0),
@@ -116,13 +120,17 @@ class TwinBoard:
     """The twin's heaters behind the MCU's pins; the MCU calls ``adc`` and ``drive`` with world clocks."""
 
     def __init__(self, scenario: Scenario, heaters: tuple[str, ...] = ("hotend", "bed"),
-                 sensor_type: str = DEFAULT_SENSOR, noise_lsb: float = 0.0):
-        if sensor_type not in KLIPPER_SENSORS:
-            raise ValueError(f"unknown sensor_type {sensor_type!r}; valid: {', '.join(KLIPPER_SENSORS)}")
-        self.scenario, self.sensor_type = scenario, sensor_type
+                 sensor_type: str = DEFAULT_SENSOR, noise_lsb: float = 0.0, wirings: tuple[Wiring, ...] = WIRING,
+                 fan_pin: str | None = FAN_PIN):
+        """The heaters named in ``heaters`` on their ``wirings`` (a printer.cfg's: ``for_config``)."""
+        for wiring in wirings:
+            if (wiring.sensor_type or sensor_type) not in KLIPPER_SENSORS:
+                raise ValueError(f"unknown sensor_type {wiring.sensor_type or sensor_type!r}; valid: "
+                                 f"{', '.join(KLIPPER_SENSORS)}")
+        self.scenario, self.sensor_type, self.noise_lsb = scenario, sensor_type, noise_lsb
         self.ambient_c = scenario.ambient_c
-        divider = Divider(KLIPPER_SENSORS[sensor_type], PULLUP_OHM)
-        wirings = [w for w in WIRING if w.heater in heaters]
+        wirings = tuple(w for w in wirings if w.heater in heaters)
+        self.wirings, self.fan_pin = wirings, fan_pin
         streams = np.random.SeedSequence(scenario.seed or 0).spawn(len(wirings))
         self.heaters: dict[str, _Heater] = {}
         for wiring, stream in zip(wirings, streams):
@@ -130,11 +138,13 @@ class TwinBoard:
             preset = str(params.pop("preset", DEFAULT_PLANTS[wiring.heater]))
             plant = make_plant(preset, ambient_c=scenario.ambient_c, initial_c=scenario.initial_c.get(wiring.heater),
                                **params)
-            chain = SensorChain(divider, noise_lsb=noise_lsb, rng=np.random.default_rng(stream))
-            chain.set_ambient(scenario.ambient_c, 0)
-            self.heaters[wiring.heater] = _Heater(wiring, plant, chain)
+            self.heaters[wiring.heater] = _Heater(wiring, plant, self._chain(wiring.sensor_type, wiring.pullup_ohm,
+                                                                             stream))
         self._by_pin = {h.wiring.heater_pin: h for h in self.heaters.values()}
         self._by_sensor = {h.wiring.sensor_pin: h for h in self.heaters.values()}
+        self._ambient_sensors: dict[str, SensorChain] = {}  # thermistors no simulated heater warms
+        self._carriages: dict[str, Carriage] = {}  # by step pin
+        self._endstops: dict[str, tuple[Carriage, int]] = {}  # by pin: its carriage, the level when pressed
         self.tick = 0  # the plants' state is at this plant tick
         self.fan = PinWave()
         self.fan_failed = False
@@ -142,6 +152,37 @@ class TwinBoard:
         for event in scenario.events:
             if event.kind not in ("target", "gains") and (event.heater is None or event.heater in self.heaters):
                 self._actions.push(round(event.at_s / TICK_S), self._apply_event, event)
+
+    @classmethod
+    def for_config(cls, config: UserConfig, scenario: Scenario, noise_lsb: float = 0.0) -> TwinBoard:
+        """The board a user's printer.cfg describes: its heaters, thermistors, fan and axes on their pins."""
+        wirings = tuple(Wiring(h.heater, h.heater_pin, h.sensor_pin, h.section, h.max_temp_c, h.sensor_type,
+                               h.pullup_ohm) for h in config.heaters)
+        board = cls(scenario, tuple(w.heater for w in wirings), noise_lsb=noise_lsb, wirings=wirings,
+                    fan_pin=config.fan_pin)
+        for sensor in config.sensors:
+            if sensor.sensor_type in KLIPPER_SENSORS:  # others (a PT100 amplifier, a chip sensor) read open
+                board._ambient_sensors[sensor.pin] = board._chain(sensor.sensor_type, sensor.pullup_ohm, None)
+        for axis in config.axes:
+            carriage = board.carriage(axis.step_pin)
+            carriage.pins = axis
+            board._endstops[axis.endstop.name] = (carriage, 1 ^ int(axis.endstop.inverted))
+        return board
+
+    def _chain(self, sensor_type: str | None, pullup_ohm: float, stream) -> SensorChain:
+        divider = Divider(KLIPPER_SENSORS[sensor_type or self.sensor_type], pullup_ohm)
+        chain = SensorChain(divider, noise_lsb=self.noise_lsb if stream is not None else 0.0,
+                            rng=np.random.default_rng(stream))
+        chain.set_ambient(self.ambient_c, 0)
+        return chain
+
+    def carriage(self, step_pin: str) -> Carriage:
+        """The carriage on a step pin (one with no endstop, an extruder's, is made on first use)."""
+        return self._carriages.setdefault(step_pin, Carriage(None))
+
+    def endstop(self, pin: str) -> tuple[Carriage | None, int]:
+        """The carriage that presses the switch on ``pin`` and the pin's level when pressed (none: never)."""
+        return self._endstops.get(pin, (None, 1))
 
     # -- what the MCU does to the pins ---------------------------------------------------------
     def __repr__(self) -> str:
@@ -153,6 +194,9 @@ class TwinBoard:
         tick = max(round(clock / TICK_CLOCKS), self.tick)
         self.advance(tick)
         if heater is None:
+            ambient = self._ambient_sensors.get(pin)
+            if ambient is not None:
+                return int(ambient.convert(np.array([self.ambient_c]), np.array([tick]))[0])
             return ADC_MAX
         sensor_c = heater.plant.temps_c()[SENSOR:SENSOR + 1]
         return int(heater.chain.convert(sensor_c, np.array([tick]))[0])
@@ -163,13 +207,13 @@ class TwinBoard:
         heater = self._by_pin.get(pin)
         if heater is not None:
             heater.pin.drive(clock, on, period)
-        elif pin == FAN_PIN:
+        elif pin == self.fan_pin:
             self.fan.drive(clock, on, period)
             self._actions.push(round(clock / TICK_CLOCKS), self._apply_fan)
 
     def reset_pins(self, clock: int) -> None:
         """A board reset: every output low from ``clock`` on."""
-        for pin in (*self._by_pin, FAN_PIN):
+        for pin in (*self._by_pin, *([self.fan_pin] if self.fan_pin else [])):
             self.drive(pin, clock, 0, 1)
 
     def temps_c(self, heater: str) -> tuple[float, float]:

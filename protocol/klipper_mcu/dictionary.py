@@ -23,9 +23,42 @@ PWM_MAX = 255
 STATS_SUMSQ_BASE = 256  # src/basecmd.c SUMSQ_BASE
 MOVE_COUNT = 1024  # src/basecmd.c move_finalize: the most queue slots alloc_chunks hands out
 MCU_NAME = "heater-twin"
-PORTS = "ABCDEFGHJKL"  # the ATmega2560's GPIO ports, 8 pins each: PA0 = 0, ... (src/avr/gpio.c GPIO())
 DEFAULT_SENSOR = "EPCOS 100K B57560G104F"  # the board's thermistors: config/generic-ramps.cfg, extruder and bed
-ADC_PINS = tuple(f"P{port}{n}" for port in "FK" for n in range(8))  # ADC0..15: PF0-7, PK0-7
+
+
+@dataclass(frozen=True)
+class Chip:
+    """An AVR as Klipper's src/avr builds it: its name (the MCU constant), GPIO ports of 8 pins
+    (PA0 = 0, src/avr/gpio.c GPIO()) and its ADC pins."""
+
+    name: str
+    ports: str
+    adc_pins: tuple[str, ...]
+
+    def pin_number(self, name: str) -> int:
+        """The MCU's number of a pin name (PB4 -> 12); ValueError if it has no such pin."""
+        if len(name) == 3 and name[0] == "P" and name[1] in self.ports and name[2] in "01234567":
+            return (ord(name[1]) - ord("A")) * 8 + int(name[2])
+        raise ValueError(f"no pin {name!r} on the {self.name} (P<port><0-7>, ports {', '.join(self.ports)})")
+
+    def pin_name(self, number: int) -> str:
+        port, bit = divmod(number, 8)
+        return f"P{chr(ord('A') + port)}{bit}"
+
+    def has_pin(self, number: int) -> bool:
+        """Whether a pin number is one of the chip's (src/avr/gpio.c: past the last port it is not)."""
+        return 0 <= number < (ord(self.ports[-1]) - ord("A") + 1) * 8 and chr(ord("A") + number // 8) in self.ports
+
+
+ATMEGA2560_PORTS = "ABCDEFGHJKL"
+CHIPS = {chip.name: chip for chip in (
+    Chip("atmega2560", ATMEGA2560_PORTS, tuple(f"P{port}{n}" for port in "FK" for n in range(8))),  # ADC0-15
+    Chip("atmega1284p", "ABCD", tuple(f"PA{n}" for n in range(8))),  # ADC0-7
+    Chip("atmega644p", "ABCD", tuple(f"PA{n}" for n in range(8))),
+)}
+BOARD_CHIP = Chip(MCU_NAME, ATMEGA2560_PORTS, CHIPS["atmega2560"].adc_pins)  # the heater-only board's
+PORTS = BOARD_CHIP.ports
+ADC_PINS = BOARD_CHIP.adc_pins
 
 COMMANDS = (
     "identify offset=%u count=%c",
@@ -90,23 +123,31 @@ PARSER_ERROR = "Command parser error"
 NOT_ADC_PIN = "Not a valid ADC pin"  # src/avr/adc.c
 NOT_OUTPUT_PIN = "Not an output pin"  # src/avr/gpio.c
 NOT_PWM_PIN = "Not a valid PWM pin"  # src/avr/hard_pwm.c
+NOT_INPUT_PIN = "Not a valid input pin"  # src/avr/gpio.c
+STEPPER_ACTIVE = "Can't reset time when stepper active"  # src/stepper.c
+INVALID_COUNT = "Invalid count parameter"
 STATIC_STRINGS = (COMMAND_REQUEST, ADC_OUT_OF_RANGE, TIMER_TOO_CLOSE, RESCHEDULED_IN_PAST, MISSED_DIGITAL_OUT,
                   DIGITAL_OUT_EXCEEDS, CYCLE_WHILE_PENDING, UPDATE_WITH_QUEUE, MISSED_PWM, PWM_EXCEEDS,
                   CLEARED_WHEN_NOT_SHUTDOWN, CONFIG_RESET_NOT_SHUTDOWN, OIDS_ALLOCATED, CANT_ASSIGN_OID, INVALID_OID,
                   ALREADY_FINALIZED, MOVE_QUEUE_OVERFLOW, INVALID_COMMAND, PARSER_ERROR, NOT_ADC_PIN,
-                  NOT_OUTPUT_PIN, NOT_PWM_PIN)
+                  NOT_OUTPUT_PIN, NOT_PWM_PIN, NOT_INPUT_PIN, STEPPER_ACTIVE, INVALID_COUNT)
+
+
+class Shutdown(Exception):
+    """src/sched.c shutdown(): unwinds the handler that called it."""
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
 
 
 def pin_number(name: str) -> int:
-    """The MCU's number of a pin name (PB4 -> 12); ValueError if it has no such pin."""
-    if len(name) == 3 and name[0] == "P" and name[1] in PORTS and name[2] in "01234567":
-        return (ord(name[1]) - ord("A")) * 8 + int(name[2])
-    raise ValueError(f"no pin {name!r} on the twin MCU (P<port><0-7>, ports {', '.join(PORTS)})")
+    """The heater-only board's number of a pin name (PB4 -> 12); ValueError if it has no such pin."""
+    return BOARD_CHIP.pin_number(name)
 
 
 def pin_name(number: int) -> str:
-    port, bit = divmod(number, 8)
-    return f"P{chr(ord('A') + port)}{bit}"
+    return BOARD_CHIP.pin_name(number)
 
 
 @dataclass(frozen=True)
@@ -114,6 +155,7 @@ class Dictionary:
     """The dictionary the MCU serves and parses by: formats by id and by name, static strings."""
 
     version: str
+    chip: Chip = BOARD_CHIP
     commands: dict[str, MessageFormat] = field(default_factory=dict)  # by name
     responses: dict[str, MessageFormat] = field(default_factory=dict)
     static_string_ids: dict[str, int] = field(default_factory=dict)
@@ -132,22 +174,26 @@ class Dictionary:
             "responses": {fmt.text: fmt.msg_id for fmt in self.responses.values()},
             "output": {},
             "enumerations": {
-                "pin": {f"P{port}0": [(ord(port) - ord("A")) * 8, 8] for port in PORTS},
+                "pin": {f"P{port}0": [(ord(port) - ord("A")) * 8, 8] for port in self.chip.ports},
                 "static_string_id": self.static_string_ids,
             },
-            "config": {"CLOCK_FREQ": CLOCK_FREQ, "MCU": MCU_NAME, "ADC_MAX": ADC_MAX, "PWM_MAX": PWM_MAX,
+            "config": {"CLOCK_FREQ": CLOCK_FREQ, "MCU": self.chip.name, "ADC_MAX": ADC_MAX, "PWM_MAX": PWM_MAX,
                        "STATS_SUMSQ_BASE": STATS_SUMSQ_BASE},
         }
         return zlib.compress(json.dumps(doc, sort_keys=True).encode())
 
 
-def build_dictionary(version: str) -> Dictionary:
-    """The twin MCU's dictionary: identify_response 0, identify 1, then the rest in order."""
-    texts = [RESPONSES[0], COMMANDS[0], *COMMANDS[1:], *RESPONSES[1:]]
+def build_dictionary(version: str, chip: Chip = BOARD_CHIP, families: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = ()
+                     ) -> Dictionary:
+    """The twin MCU's dictionary: identify_response 0, identify 1, then the rest in order; ``families``:
+    (commands, responses) beyond the heater board's (a printer.cfg's steppers, endstops, display)."""
+    commands = COMMANDS + tuple(c for family, _ in families for c in family)
+    responses = RESPONSES + tuple(r for _, family in families for r in family)
+    texts = [responses[0], commands[0], *commands[1:], *responses[1:]]
     formats = {text: MessageFormat(text, msg_id) for msg_id, text in enumerate(texts)}
     return Dictionary(
-        version=version,
-        commands={formats[t].name: formats[t] for t in COMMANDS},
-        responses={formats[t].name: formats[t] for t in RESPONSES},
+        version=version, chip=chip,
+        commands={formats[t].name: formats[t] for t in commands},
+        responses={formats[t].name: formats[t] for t in responses},
         static_string_ids={text: number for number, text in enumerate(STATIC_STRINGS, start=1)},
     )

@@ -43,7 +43,8 @@ from protocol.klipper_mcu.codec import (
     frame,
     iter_commands,
 )
-from protocol.klipper_mcu.dictionary import Dictionary
+from protocol.klipper_mcu.dictionary import Dictionary, Shutdown
+from protocol.klipper_mcu.motion import MotionCommands
 
 if TYPE_CHECKING:
     from protocol.klipper_mcu.board import TwinBoard
@@ -52,14 +53,6 @@ LOG = logging.getLogger(__name__)
 STATS_INTERVAL_CLOCKS = 5 * d.CLOCK_FREQ  # src/basecmd.c stats_update: every 5 s
 STATS_TASK_CLOCKS = 100  # the nominal cost the stats report per event handled (the twin has no real one)
 LENIENT_GRACE_CLOCKS = d.CLOCK_FREQ  # default wait for a late event after a missed max_duration (server: wall-based)
-
-
-class Shutdown(Exception):
-    """src/sched.c shutdown(): unwinds the handler that called it."""
-
-    def __init__(self, reason: str):
-        super().__init__(reason)
-        self.reason = reason
 
 
 @dataclass
@@ -129,7 +122,7 @@ class _PwmOut:
     overdue_since: int | None = None
 
 
-class KlipperMcu:
+class KlipperMcu(MotionCommands):
     """One MCU: the host's blocks in, response blocks out; timers on world clocks."""
 
     def __init__(self, board: TwinBoard, dictionary: Dictionary, *, strict: bool = False,
@@ -270,6 +263,8 @@ class KlipperMcu:
                 obj.queue.clear()
                 obj.end_time = obj.overdue_since = None
                 self._to_default(obj)
+            elif hasattr(obj, "shutdown"):  # motion.py's: steppers stop, homing ends
+                obj.shutdown(self.now)
         self._moves_used = 0
         self._send("shutdown", clock=self.mcu_clock(self.now), static_string_id=self._reason_id)
 
@@ -407,8 +402,9 @@ class KlipperMcu:
 
     # -- src/adccmds.c ---------------------------------------------------------------------------------
     def _cmd_config_analog_in(self, args: dict) -> None:
-        pin = d.pin_name(args["pin"] & 0xFF)  # gpio_adc_setup(uint8_t pin)
-        if pin not in d.ADC_PINS:
+        chip = self.dictionary.chip
+        pin = chip.pin_name(args["pin"] & 0xFF)  # gpio_adc_setup(uint8_t pin)
+        if pin not in chip.adc_pins:
             raise Shutdown(d.NOT_ADC_PIN)
         self._alloc(args["oid"], _AnalogIn(args["oid"] & 0xFF, pin))
 
@@ -449,9 +445,25 @@ class KlipperMcu:
         self._add_timer(a.next_begin, self._analog_event, a)
         self._send("analog_in_state", oid=a.oid, next_clock=self.mcu_clock(a.next_begin), value=a.value)
 
+    def _output_pin(self, number: int, reason: str = d.NOT_OUTPUT_PIN) -> str:
+        """gpio_out_setup(uint8_t pin) (gpio_pwm_setup: ``reason`` "Not a valid PWM pin"): the pin's
+        name, or that shutdown for a number that is not one of the chip's (src/avr/gpio.c, hard_pwm.c)."""
+        number &= 0xFF
+        chip = self.dictionary.chip
+        if not chip.has_pin(number):
+            raise Shutdown(reason)
+        return chip.pin_name(number)
+
+    def _input_pin(self, number: int) -> str:
+        """gpio_in_setup(uint8_t pin): the pin's name, or "Not a valid input pin"."""
+        number &= 0xFF
+        if not self.dictionary.chip.has_pin(number):
+            raise Shutdown(d.NOT_INPUT_PIN)
+        return self.dictionary.chip.pin_name(number)
+
     # -- src/gpiocmds.c -------------------------------------------------------------------------------
     def _cmd_config_digital_out(self, args: dict) -> None:
-        pin = _output_pin(args["pin"])
+        pin = self._output_pin(args["pin"])
         self._alloc(args["oid"], _DigitalOut(args["oid"], pin, bool(args["default_value"]), args["max_duration"]))
         self.board.drive(pin, self.now, int(bool(args["value"])), 1)
 
@@ -518,11 +530,11 @@ class KlipperMcu:
             self._add_timer(out.end_time, self._digital_load, out)
 
     def _cmd_set_digital_out(self, args: dict) -> None:
-        self.board.drive(_output_pin(args["pin"]), self.now, int(bool(args["value"] & 0xFF)), 1)
+        self.board.drive(self._output_pin(args["pin"]), self.now, int(bool(args["value"] & 0xFF)), 1)
 
     # -- src/pwmcmds.c ----------------------------------------------------------------------------------
     def _cmd_config_pwm_out(self, args: dict) -> None:
-        pin = _output_pin(args["pin"], d.NOT_PWM_PIN)
+        pin = self._output_pin(args["pin"], d.NOT_PWM_PIN)
         self._alloc(args["oid"], _PwmOut(args["oid"] & 0xFF, pin, args["default_value"] & 0xFFFF, args["max_duration"]))
         self.board.drive(pin, self.now, args["value"] & 0xFFFF, d.PWM_MAX)
 
@@ -551,13 +563,5 @@ class KlipperMcu:
             self._add_timer(out.end_time, self._pwm_event, out)
 
     def _cmd_set_pwm_out(self, args: dict) -> None:
-        self.board.drive(_output_pin(args["pin"], d.NOT_PWM_PIN), self.now, args["value"] & 0xFFFF, d.PWM_MAX)
+        self.board.drive(self._output_pin(args["pin"], d.NOT_PWM_PIN), self.now, args["value"] & 0xFFFF, d.PWM_MAX)
 
-
-def _output_pin(number: int, reason: str = d.NOT_OUTPUT_PIN) -> str:
-    """gpio_out_setup(uint8_t pin) (gpio_pwm_setup: ``reason`` "Not a valid PWM pin"): the pin's
-    name, or that shutdown for a number past the board's ports (src/avr/gpio.c, hard_pwm.c)."""
-    number &= 0xFF
-    if number >= len(d.PORTS) * 8:
-        raise Shutdown(reason)
-    return d.pin_name(number)

@@ -3,6 +3,8 @@ the thermistor type and pull-up the board simulates, and a printer without motio
 
 from __future__ import annotations
 
+import re
+
 from protocol.klipper_mcu.board import FAN_PIN, PULLUP_OHM, TwinBoard
 
 CONFIG_END = "# end of the twin MCU's sections"  # the last line: a reader of the server's stdout stops there
@@ -30,3 +32,24 @@ def printer_cfg(serial: str, board: TwinBoard) -> str:
     if "hotend" in board.heaters:
         lines += ["[fan]", f"pin: {FAN_PIN}", ""]
     return "\n".join([*lines, CONFIG_END])
+
+
+def user_printer_cfg(text: str, serial: str) -> str:
+    """A user's printer.cfg with its [mcu] section's serial set to ``serial`` (added if it has none),
+    ending in CONFIG_END; everything else as the user wrote it."""
+    lines, out, section, done = text.splitlines(), [], "", False
+    for line in lines:
+        header = re.match(r"\s*\[([^\]]+)\]", line)
+        if header:
+            if section == "mcu" and not done:
+                out.append(f"serial: {serial}")
+                done = True
+            section = header.group(1).strip()
+        elif section == "mcu" and re.match(r"serial\s*[:=]", line) and not done:
+            out.append(f"serial: {serial}")
+            done = True
+            continue
+        out.append(line)
+    if section == "mcu" and not done:
+        out.append(f"serial: {serial}")
+    return "\n".join([*out, CONFIG_END])

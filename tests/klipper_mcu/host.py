@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from protocol.klipper_mcu.board import TwinBoard
 from protocol.klipper_mcu.codec import MESSAGE_SEQ_MASK, BlockReader, frame, parse_messages
-from protocol.klipper_mcu.dictionary import CLOCK_FREQ, build_dictionary, pin_number
+from protocol.klipper_mcu.dictionary import CLOCK_FREQ, Dictionary, build_dictionary, pin_number
 from protocol.klipper_mcu.mcu import KlipperMcu
 from twin.scenario import parse_scenario
 
@@ -18,8 +18,8 @@ class TestHost:
 
     __test__ = False  # not a pytest class
 
-    def __init__(self, board: TwinBoard | None = None, *, strict: bool = False):
-        self.dictionary = build_dictionary("test")
+    def __init__(self, board: TwinBoard | None = None, *, strict: bool = False, dictionary: Dictionary | None = None):
+        self.dictionary = dictionary or build_dictionary("test")
         self.board = board or TwinBoard(NO_SCENARIO)
         self.mcu = KlipperMcu(self.board, self.dictionary, strict=strict)
         self.sequence = 0

@@ -64,6 +64,11 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--strict", action="store_true", help="late host events shut the MCU down, as on a real one")
     parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty (replaced if it is one)")
     parser.add_argument("--print-config", action="store_true", help="print the printer.cfg sections and exit")
+    parser.add_argument("--printer-cfg", metavar="FILE", help="serve the board your printer.cfg's [mcu] is: its "
+                        "chip's pins, heaters and thermistors on their pins, steppers and endstops on axes that "
+                        "home; prints the config with [mcu] serial set to the port (docs/klipper.md)")
+    parser.add_argument("--mcu", metavar="CHIP", help="the chip of --printer-cfg's [mcu] (default: what the config "
+                        "says it is compiled for, else the smallest AVR with all its pins)")
     return parser
 
 
@@ -79,33 +84,64 @@ def check_names(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
             parser.error(f"argument {option}: invalid choice: {value!r} (choose from {choices})")
 
 
-def build_board(args: argparse.Namespace):
+def read_config(parser: argparse.ArgumentParser, args: argparse.Namespace):
+    """--printer-cfg read (a one-line error if the twin cannot serve it), or None."""
+    if args.printer_cfg is None:
+        if args.mcu is not None:
+            parser.error("argument --mcu: it names the chip of --printer-cfg, which is not given")
+        return None
+    from pathlib import Path
+
+    from protocol.klipper_mcu.user_config import ConfigError, read_user_config
+
+    try:
+        return read_user_config(Path(args.printer_cfg), args.mcu)
+    except ConfigError as exc:
+        parser.error(f"argument --printer-cfg: {exc}")
+
+
+def build_board(args: argparse.Namespace, config=None):
     """The twin's board (the heavy import: numpy, the plants, the thermistor tables)."""
     from protocol.build import serial_scenario
     from protocol.klipper_mcu.board import TwinBoard
 
     scenario = serial_scenario(args.scenario, args.plant, args.bed_plant)
+    if config is not None:
+        return TwinBoard.for_config(config, scenario, noise_lsb=args.noise_lsb)
     heaters = ("hotend",) if args.no_bed else ("hotend", "bed")
     return TwinBoard(scenario, heaters, sensor_type=args.sensor_type, noise_lsb=args.noise_lsb)
 
 
+def served_config(address: str, board, config) -> str:
+    """The printer.cfg to give klippy: the twin's sections, or the user's with [mcu] serial set to the port."""
+    from protocol.klipper_mcu.printer_cfg import printer_cfg, user_printer_cfg
+
+    return printer_cfg(address, board) if config is None else user_printer_cfg(config.path.read_text(), address)
+
+
+def dictionary_for(config):
+    from protocol.klipper_mcu import motion
+    from protocol.klipper_mcu.dictionary import BOARD_CHIP
+
+    if config is None:
+        return build_dictionary(VERSION, BOARD_CHIP)
+    return build_dictionary(VERSION, config.chip, families=(motion.FAMILY,))
+
+
 def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    config = read_config(parser, args)
     if args.print_config:
         check_names(parser, args)
-        from protocol.klipper_mcu.printer_cfg import printer_cfg
-
-        print(printer_cfg(args.link or "/tmp/twin-mcu", build_board(args)))
+        print(served_config(args.link or "/tmp/twin-mcu", build_board(args, config), config))
         return 0
     sys.setswitchinterval(0.001)  # the reader thread stamps bytes within a millisecond of their arrival
     with McuServer(args.speed, link=args.link) as server:
         print(server.address, flush=True)  # before the twin's import: the port is there for klippy at once
         check_names(parser, args)
-        from protocol.klipper_mcu.printer_cfg import printer_cfg
-
-        board = build_board(args)
+        board = build_board(args, config)
         grace_clocks = round(LENIENT_GRACE_S * args.speed * CLOCK_FREQ)
-        mcu = KlipperMcu(board, build_dictionary(VERSION), strict=args.strict, grace_clocks=grace_clocks)
-        print(printer_cfg(server.address, board), flush=True)
+        mcu = KlipperMcu(board, dictionary_for(config), strict=args.strict, grace_clocks=grace_clocks)
+        print(served_config(server.address, board, config), flush=True)
         mode = "strict" if args.strict else "lenient"
         print(f"twin-klipper-mcu: {server.address}, speed {args.speed:g}, {mode} timing; Ctrl-C stops",
               file=sys.stderr, flush=True)

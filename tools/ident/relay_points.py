@@ -32,11 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_port.marlin.constants import BED_MAXTEMP_C, BED_OVERSHOOT_C, MAX_BED_POWER, PID_MAX, SOFT_PWM_MAX
+from firmware_port.marlin.constants import BED_MAXTEMP_C, BED_OVERSHOOT_C, MAX_BED_POWER, PID_MAX
 from tools.ident.fit import FITTED, HELD, LUMPED_MODELS, MAX_SENSOR_RESPONSIVENESS_PER_S, start_values
 from tools.ident.fopdt import Fopdt, relay_fopdt
 from tools.ident.lsq import least_squares_fit
-from tools.ident.relay_loop import NoOscillation, Relay, RelayCycle, relay_cycle
+from tools.ident.relay_loop import NoOscillation, Relay, RelayCycle, marlin_levels, relay_cycle
 from tools.ident.relay_trace import relay_target_c
 from tools.ident.response import model_response, model_spec
 from tools.ident.result import FitResult
@@ -84,13 +84,6 @@ class RelayPoint:
             a = cycle.t_high_s - cycle.t_low_s
             out.append((min(a - low, 0.0) + max(a - high, 0.0)) / sigma_tu_s)  # zero inside the bracket
         return np.array(out)
-
-
-def _levels(cycle: M303Cycle, power_max: int) -> tuple[float, float]:
-    """The soft-PWM levels (bias +- d) >> 1 of a bias line, as duty."""
-    assert cycle.bias is not None and cycle.d is not None
-    del power_max
-    return ((cycle.bias + cycle.d) >> 1) / SOFT_PWM_MAX, ((cycle.bias - cycle.d) >> 1) / SOFT_PWM_MAX
 
 
 def _asymmetry_s(before: M303Cycle, after: M303Cycle, tu_s: float, max_pow: int) -> tuple[float, float] | None:
@@ -150,7 +143,9 @@ def marlin_points(log: M303Log, heater: str, target_c: float | None = None) -> l
         if not (c.tu_s and c.min_c is not None and c.max_c is not None and c.max_c > c.min_c):
             continue
         before = cycles[i - 1] if i else None
-        on, off = _levels(before or c, log.power_max)
+        levels = before or c
+        assert levels.bias is not None and levels.d is not None
+        on, off = marlin_levels(levels.bias, levels.d)
         note = "" if before else ("levels assumed from its own bias line (the one before is not in the capture; "
                                   "the bias moves by d (t_high - t_low) / Tu a cycle)")
         asym = _asymmetry_s(before, c, c.tu_s, max_pow) if before else None

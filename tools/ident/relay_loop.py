@@ -24,6 +24,7 @@ peaks two apart, the swing a maximum less the minimum before it.
 from __future__ import annotations
 
 import cmath
+import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -37,7 +38,7 @@ from firmware_port.marlin.autotune import MIN_HALF_CYCLE_MS, relay_levels, updat
 from firmware_port.marlin.constants import PID_DT_S, SOFT_PWM_MAX
 from tools.ident.response import spec_lti
 from twin.linear import SENSOR
-from twin.plants import Spec, TransferFunction
+from twin.plants import KELVIN, STEFAN_BOLTZMANN_W_M2_K4, Lumped, Spec, TransferFunction
 
 MARLIN_MIN_HALF_S = MIN_HALF_CYCLE_MS / 1000.0  # each half-cycle lasts at least 5 s
 # Marlin acts on the first reading after a crossing (half a reading period late on average), and
@@ -220,9 +221,28 @@ def relay_cycle(spec: Spec, ambient_c: float, relay: Relay) -> RelayCycle:
     return _one_cycle(loop, on_s, relay.off_duty)[0]
 
 
+def tangent_plant(spec: Spec, ambient_c: float, at_c: float) -> tuple[Spec, float]:
+    """A radiating lumped plant linearised with its block at at_c: the tangent of its loss A (Tb - Ta) +
+    sigma eps area (Tb^4 - Ta^4) there, as a linear loss k (Tb - Ta') with k the loss's slope at at_c and
+    Ta' the ambient that gives the same loss at at_c; (spec, ambient_c) as given for a linear plant. A
+    relay's cycle swings a few C about its target: the neglected curvature, 6 sigma eps area T^2 dT^2 / 2,
+    is under a thousandth of the loss there."""
+    if not isinstance(spec, Lumped) or spec.linear:
+        return spec, ambient_c
+    sigma_eps_a = STEFAN_BOLTZMANN_W_M2_K4 * spec.emissivity * spec.radiating_area_m2
+    tb, ta = at_c + KELVIN, ambient_c + KELVIN
+    loss_w = spec.ambient_xfer_w_k * (at_c - ambient_c) + sigma_eps_a * (tb ** 4 - ta ** 4)
+    radiation_w_k = 4.0 * sigma_eps_a * tb ** 3
+    slope_w_k = spec.ambient_xfer_w_k + radiation_w_k
+    linear = dataclasses.replace(spec, ambient_xfer_w_k=slope_w_k, emissivity=0.0, radiating_area_m2=0.0,
+                                 fan_ambient_xfer_w_k=spec.fan_ambient_xfer_w_k + radiation_w_k)
+    return linear, at_c - loss_w / slope_w_k
+
+
 def _settled(spec: Spec, ambient_c: float, relay: Relay) -> tuple[_Loop, float]:
-    """The relay and the plant run to their limit cycle: the loop at a switch-on, and its time."""
-    plant = _Modal(spec, ambient_c)
+    """The relay and the plant (a radiating one linearised at the relay's target: ``tangent_plant``) run to
+    their limit cycle: the loop at a switch-on, and its time."""
+    plant = _Modal(*tangent_plant(spec, ambient_c, relay.target_c))
     for duty, reach in ((relay.on_duty, "above"), (relay.off_duty, "below")):
         steady_c = plant.reading(plant.steady(duty))
         if (steady_c <= relay.target_c) if reach == "above" else (steady_c >= relay.on_below_c):

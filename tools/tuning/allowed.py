@@ -3,7 +3,8 @@
 One fit of one structure is one answer to "what plant made this log"; the data usually allow several.
 
 1. Structures: every model that applies to the log (``structures``): fopdt, sopdt, two_node, three_node
-   for a trace or an M303 capture; with a trace that spans RADIATING_SPAN_C or more, two_node and
+   for a trace or an M303 capture; with a trace that spans RADIATING_SPAN_C or more (an M303 capture:
+   its status trace and its relay's target, tools/ident/log_fit.py ``radiating_span_c``), two_node and
    three_node with the radiating loss too (below that span radiation and a linear loss cannot be told
    apart); fopdt alone for a PID_CALIBRATE result (two numbers, the gain held).
 2. Evidence: Akaike's criterion of each fit against the best (``evidence``). Residuals already divided
@@ -42,9 +43,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tools.forked import forked_map
-from tools.ident.fit import LUMPED_MODELS, MODELS
+from tools.ident.fit import LUMPED_MODELS, MODELS, RADIATING_SPAN_C
 from tools.ident.fopdt import fopdt_equivalent
-from tools.ident.log_fit import LogFit, LogFitOptions, fit_log
+from tools.ident.log_fit import LogFit, LogFitOptions, fit_log, radiating_span_c
 from tools.ident.lsq import LINEAR_PARAMS
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
@@ -54,7 +55,6 @@ from twin.klipper_twin import KlipperTwin, extruder_setup
 from twin.plants import Plant
 
 EVIDENCE_MARGIN = 6.0  # Akaike units: relative likelihood exp(-margin / 2) = 1/20 of the best fit's
-RADIATING_SPAN_C = 100.0  # a trace spanning this much: the radiating loss is fitted too
 ALIKE_REL = 0.02  # members whose FOPDT equivalents agree within this fold into one
 END_REL = 0.01  # a range end this close to the fitted value is the fit itself
 
@@ -140,7 +140,11 @@ def structures(log: Log, first: LogFit) -> list[tuple[str, str]]:
         return [("fopdt", "linear")]
     pairs = [(model, "linear") for model in MODELS]
     seg = first.segment
-    if first.result.evidence == "trace" and seg is not None and np.ptp(seg.temp_c) >= RADIATING_SPAN_C:
+    if isinstance(log, M303Log) and first.points:  # the relay's target counts: its printed cycles sit there
+        span_c = radiating_span_c(seg, first.target_c)
+    else:
+        span_c = float(np.ptp(seg.temp_c)) if first.result.evidence == "trace" and seg is not None else 0.0
+    if span_c >= RADIATING_SPAN_C:
         pairs += [(model, "radiating") for model in LUMPED_MODELS]
     return pairs
 

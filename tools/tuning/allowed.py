@@ -26,7 +26,8 @@ One fit of one structure is one answer to "what plant made this log"; the data u
    its target (Tu and swing, the result lines' goals), a Klipper Stats heater by the twin's closed loop
    with the printer's own gains and settings through the logged targets of a heat-up (tools/validation
    /compare.py goals: heat-up time 10 %, overshoot 1.5 C, hold 1 C RMS), an open-loop trace by its
-   RMSE (3 C, the open-loop goal).
+   RMSE (3 C, the open-loop goal). An M303 replay that misses says whether the fit itself misses the
+   printed cycles (tools/validation/m303_bias.py ``own_relay_note``: the plant's own relay at their levels).
 5. Alike members fold: one whose FOPDT equivalent (gain, time constant, dead time) lies within
    ALIKE_REL of a member kept before it adds no plant the loop behaves differently on.
 
@@ -51,6 +52,7 @@ from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import Log, M303Log, StatsLog
 from tools.validation import compare, m303_compare
+from tools.validation.m303_bias import own_relay_note
 from twin.klipper_twin import KlipperTwin, extruder_setup
 from twin.plants import Plant
 
@@ -220,7 +222,8 @@ def replay(log: Log, fitted: LogFit, info: compare.HeaterInfo | None) -> Replay:
         tu_goal = "on the 10 s relay floor: not scored" if row.floor else f"within {goal_tu:.0%}"
         return Replay(f"the twin's M303 at {result.anchor_c:g} C against the {row.log.cycles} printed cycles",
                       (("Tu s", row.log.tu_s, row.twin.tu_s, tu_goal),
-                       ("swing C", row.log.swing_c, row.twin.swing_c, f"within {goal_swing:.0%}")), row.passed)
+                       ("swing C", row.log.swing_c, row.twin.swing_c, f"within {goal_swing:.0%}")), row.passed,
+                      "" if row.passed else own_relay_note(fitted, row.goals))
     if isinstance(log, list) and fitted.points:
         return _pid_calibrate_replay(fitted)
     if isinstance(log, StatsLog) and info is not None:

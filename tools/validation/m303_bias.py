@@ -27,7 +27,7 @@ import numpy as np
 
 from firmware_port.marlin.constants import MAX_BED_POWER, PID_MAX
 from tools.ident.log_fit import BED, LogFit
-from tools.ident.relay_loop import BiasCycle, moving_bias_run
+from tools.ident.relay_loop import BiasCycle, NoOscillation, moving_bias_run, relay_cycle
 from tools.ident.relay_points import HEATER_KEYS
 from tools.logs import M303Cycle, M303Log, load_log
 from tools.validation.m303_compare import NoRelay, best_log_fit
@@ -124,3 +124,26 @@ def bias_check(path: str | Path, heater: str | None = None, fit_cycles: int | No
                               _levels(lines[start]), max_pow, len(lines) - first_predicted)
         free_run = _predicted(numbers, lines[first_predicted:], run)
     return BiasCheck(path.name, heater, fitted, k, n, one_step, free_run)
+
+
+def own_relay_note(fitted: LogFit, goals: tuple[float, float]) -> str:
+    """Where a fitted plant's M303 replay misses a capture, whether the fit itself misses the printed cycles:
+    the plant's own relay cycle at each fitted cycle's logged levels (the bias line before it), mean Tu and
+    swing against the printed ones' (within the replay's goals, or not); "" without relay points."""
+    points, result = fitted.points, fitted.result
+    if not points:
+        return ""
+    try:
+        own = [relay_cycle(result.spec(), result.ambient_c, p.relay) for p in points]
+    except NoOscillation as exc:
+        return f"the plant's own relay at the printed cycles' levels does not oscillate: {exc}"
+    tu_log, tu_own = np.mean([p.tu_s for p in points]), np.mean([c.tu_s for c in own])
+    swing_log, swing_own = np.mean([p.swing_c for p in points]), np.mean([c.swing_c for c in own])
+    within = abs(tu_own / tu_log - 1.0) <= goals[0] and abs(swing_own / swing_log - 1.0) <= goals[1]
+    why = ("so the fit reproduces them at their levels: the twin's M303, its bias moving from the run's start, "
+           "cycles at other levels than the capture's" if within
+           else "so the fit misses the printed cycles themselves: no value of its parameters meets them and the rest "
+                "of the capture at once")
+    return (f"the plant's own relay at the printed cycles' logged levels: Tu {tu_own:.4g} s, swing {swing_own:.3g} C "
+            f"(log {tu_log:.4g} s, {swing_log:.3g} C), {why}")
+

@@ -2,12 +2,16 @@
 from a plant fitted to the first cycles: on the twin's own M303 (a known plant) and on the shared captures
 whose bias moves (the result lines' goals of docs/validation.md section 4: Tu 15 %, swing 30 %)."""
 
+import dataclasses
 import math
+import re
 
 import pytest
 
 from tools.docs.validation_m303 import M303_RUNS
-from tools.validation.m303_bias import bias_check
+from tools.ident.log_fit import LogFitOptions, fit_log
+from tools.logs import load_log
+from tools.validation.m303_bias import bias_check, own_relay_note
 from tools.validation.m303_compare import GOALS, run_twin_m303
 from twin.plants import TransferFunction
 
@@ -61,3 +65,23 @@ def test_captures_whose_bias_moves_are_predicted_out_of_sample(hardware_logs, na
     for predicted in (check.one_step, check.free_run):
         assert abs(predicted.tu_error) <= GOAL_TU, predicted
         assert abs(predicted.swing_error) <= GOAL_SWING, predicted
+
+
+def test_a_fit_that_misses_its_own_printed_cycle_says_so(hardware_logs):
+    """The 250 C capture's fits: the plant's own relay at its one printed cycle's levels swings under half
+    the printed 4.69 C, and the note says the fit misses the cycle itself (not the replay's start)."""
+    fitted = fit_log(load_log(hardware_logs / "m303_hotend_S250_trace_marlin8081_partial.txt"),
+                     LogFitOptions(model="three_node"))
+    note = own_relay_note(fitted, GOALS["trace"])
+    swing_c = float(re.search(r"swing ([\d.]+) C \(log", note)[1])
+    assert swing_c < 4.69 / 2 and "the fit misses the printed cycles themselves" in note
+
+
+@pytest.mark.slow
+def test_a_fit_that_meets_its_cycles_blames_the_replays_levels(tmp_path):
+    """The twin's own M303 fitted on all its cycles: its own relay at their levels is within the goals, and
+    the note says so; no relay points, no note."""
+    path, _ = twin_capture(tmp_path)
+    fitted = fit_log(load_log(path), LogFitOptions(model="fopdt"))
+    assert "so the fit reproduces them at their levels" in own_relay_note(fitted, GOALS["results"])
+    assert own_relay_note(dataclasses.replace(fitted, points=[]), GOALS["results"]) == ""

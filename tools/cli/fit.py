@@ -17,7 +17,8 @@ printer's own gains: new gains only where they beat them, else "keep your gains"
 closest candidate as an option), at the relay's target for relay data, else the log's. A fit that
 identifies none of its model's lags is reported and is no plant the log allows (its profiles may be).
 ``--fit-only``: the fit alone, no gains. --loss radiating or auto adds a radiation-like loss to
-two_node/three_node (docs/plants.md).
+two_node/three_node (docs/plants.md); an M303 capture whose status trace and relay target span less than
+100 C cannot tell it from a linear loss, and says so (exit 2).
 
 Exit status: as twin-tune's (below); with --fit-only, 3 where the fit is degenerate.
 """
@@ -118,7 +119,9 @@ def build_parser() -> OneLineParser:
                         help="two_node/three_node heat loss: linear (the default, Marlin's MPC model), radiating "
                              "(plus sigma area (T^4 - Ta^4), an effective area at emissivity 1 fitted within "
                              f"{RADIATING_BOUNDS_M2[0] * 1e4:g}..{RADIATING_BOUNDS_M2[1] * 1e4:g} cm^2) or auto "
-                             "(both, the lower AIC kept)")
+                             "(both, the lower AIC kept); an M303 capture: where its status trace and relay target "
+                             "span 100 C or more (its relay cycles on the plant linearised at the target), else "
+                             "refused")
     return parser
 
 

@@ -55,6 +55,9 @@ RADIATING_START_M2 = 2 * V6_BLOCK_AREA_M2  # twice an E3D V6 block's surface
 # a conductance of 1.5e-5 W/K, nothing beside a hot end's linear loss (0.07 W/K and up); the area is
 # fitted as its logarithm, which on a plant without the term would run towards 0 for ever.
 RADIATING_BOUNDS_M2 = (1e-6, 0.01)
+# A record spanning less than this (C) cannot tell a radiating loss from a linear one: the radiating term is
+# fitted only where the readings (and an M303 capture's relay target) span this much.
+RADIATING_SPAN_C = 100.0
 
 MAX_GUESS_DELAY_S = 60.0  # the start values try dead times up to this
 AMBIENT_SLACK_SIGMAS = 4.0  # initial_c within this many noise sigmas of the first reading, ambient_c below the lowest

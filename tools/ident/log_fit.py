@@ -13,7 +13,8 @@ What each kind of log gives (tools/ident/segments.py, tools/ident/relay_points.p
   only (and the trace up to the last of them) for a prediction of the rest. The heater is the one the
   capture's lines say (tools/logs/m303.py), else the one its relay's target says (relay_heater); the
   target is the command's, else found in the data (relay_target_c); ``LogFit.target_c`` carries it,
-  the temperature a tune of the fitted plant defaults to;
+  the temperature a tune of the fitted plant defaults to; ``loss`` radiating or auto where its status
+  trace and relay target span RADIATING_SPAN_C (``radiating_span_c``), else UserError saying why;
 - Klipper PID_CALIBRATE results: one entry's Tu and swing (fopdt with its static gain held, not
   identified: Klipper's relay prints no bias).
 A segment without a heater step, or with a reading that never moves, is refused (NotFittable);
@@ -29,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.ident.fit import FITTED, LUMPED_MODELS, RADIATING_PARAM, fit_losses, fit_model
+from tools.ident.fit import FITTED, LUMPED_MODELS, RADIATING_PARAM, RADIATING_SPAN_C, RADIATING_START_M2, fit_losses, fit_model
 from tools.ident.plausible import heater_kind, plausible
 from tools.ident.relay_loop import MARLIN_SWITCH_DELAY_S, KLIPPER_SWITCH_DELAY_S
 from tools.ident.relay_points import (
@@ -52,6 +53,9 @@ BED = "heater_bed"
 HEATER_NAMES = ("extruder", BED)  # the heaters a log here can hold
 ASSUMED_POWER_W = {BED: BED_POWER_W}  # else MPC_HEATER_POWER_W; twin/plants.py says where both come from
 MAX_FIT_SAMPLES = 5000  # a longer segment is decimated (Segment.decimated): a fit's cost follows its samples
+# The radiating fit of relay data starts from the linear fit's values with each of these effective areas
+# (m^2): near none (the linear fit itself) and twice a V6 block's; its optimiser can stall from either.
+RADIATING_STARTS_M2 = (1e-5, RADIATING_START_M2)
 MIN_READING_SPAN_C = 0.05  # a segment whose readings span less than this never moved: nothing to fit
 # PID_CALIBRATE states no target: the temperatures the validation assumes (tools/validation/compare.py)
 KLIPPER_TARGET_C = {"extruder": 200.0, BED: 60.0}
@@ -237,15 +241,52 @@ def _m303_fit(log: M303Log, options: LogFitOptions) -> LogFit:
         fitted = _trace_fit(log, options)
         return dataclasses.replace(fitted, notes=notes + fitted.notes, target_c=target_c, target_source=target_source)
     model = options.model or ("three_node" if trace is not None else "fopdt")
+    if options.loss != "linear":
+        _check_radiating_span(options.loss, model, trace, target_c)
     ambient_c, ambient_note, assumed = _ambient(log, options)
     assert ambient_c is not None
     power_w, power_note = _power(model, heater, options)
-    result = fit_points(model, points, ambient_c, power_w=power_w, segment=trace, fixed=dict(options.fixed),
-                        start=_start(options, model, "linear"), on_evaluation=options.on_evaluation)
+
+    def fit(loss: str, start: dict[str, float] | None = None) -> FitResult:
+        return fit_points(model, points, ambient_c, power_w=power_w, segment=trace, fixed=dict(options.fixed),
+                          start={**(start or {}), **(_start(options, model, loss) or {})}, loss=loss,
+                          on_evaluation=options.on_evaluation)
+
+    result, compared = fit("linear"), []
+    if options.loss != "linear":  # from the linear fit's values with a small area and a large one: the better
+        radiating = [fit("radiating", {**result.params, RADIATING_PARAM: area_m2}) for area_m2 in RADIATING_STARTS_M2]
+        fits = {"linear": result, "radiating": min(radiating, key=lambda f: f.rmse_c)}
+        result = fits["radiating"] if options.loss == "radiating" else min(fits.values(), key=aic)
+        if options.loss == "auto":
+            compared = [f"{name} RMS {f.rmse_c:.2f} (in units of the scatter), AIC {aic(f):.0f}"
+                        for name, f in fits.items()]
     notes += [n for n in (ambient_note, power_note) if n]
     return LogFit(heater, segments, chosen if trace is not None else None,
                   _finish(result, heater, assumed, target_c), points, notes, MARLIN_SWITCH_DELAY_S,
-                  segment=trace, target_c=target_c, target_source=target_source)
+                  compared=compared, segment=trace, target_c=target_c, target_source=target_source)
+
+
+def radiating_span_c(trace: Segment | None, target_c: float | None) -> float:
+    """What an M303 capture spans for a radiating loss: its status trace's readings and the relay's target (the
+    printed cycles sit there), lowest to highest; 0 without a trace (the cycles alone sit at one temperature)."""
+    if trace is None:
+        return 0.0
+    readings = trace.temp_c if trace.observed is None else trace.temp_c[trace.observed]
+    high_c = max(float(np.max(readings)), target_c if target_c is not None else -math.inf)
+    return high_c - float(np.min(readings))
+
+
+def _check_radiating_span(loss: str, model: str, trace: Segment | None, target_c: float | None) -> None:
+    """UserError where --loss radiating or auto cannot be fitted to an M303 capture: a model without a loss
+    term, or a capture spanning under RADIATING_SPAN_C (radiation and a linear loss look alike there)."""
+    span_c = radiating_span_c(trace, target_c)
+    if span_c < RADIATING_SPAN_C:
+        what = ("it has no status trace, and its printed cycles sit at one temperature" if trace is None else
+                f"its status trace and relay target span {span_c:.0f} C")
+        raise UserError(f"--loss {loss}: this M303 capture cannot tell a radiating loss from a linear one: {what} "
+                        f"(it takes {RADIATING_SPAN_C:g} C or more)")
+    if model not in LUMPED_MODELS:
+        raise UserError(f"--loss {loss}: needs --model two_node or three_node: {model} has no heat-loss term")
 
 
 def _pid_results_fit(results: PidCalibrateResults, options: LogFitOptions) -> LogFit:

@@ -24,6 +24,7 @@ peaks two apart, the swing a maximum less the minimum before it.
 from __future__ import annotations
 
 import cmath
+import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -33,11 +34,11 @@ import numpy as np
 
 from firmware_port.klipper.heater import REPORT_TIME
 from firmware_port.klipper.pid_calibrate import TUNE_PID_DELTA
-from firmware_port.marlin.autotune import MIN_HALF_CYCLE_MS
-from firmware_port.marlin.constants import PID_DT_S
+from firmware_port.marlin.autotune import MIN_HALF_CYCLE_MS, relay_levels, update_bias
+from firmware_port.marlin.constants import PID_DT_S, SOFT_PWM_MAX
 from tools.ident.response import spec_lti
 from twin.linear import SENSOR
-from twin.plants import Spec, TransferFunction
+from twin.plants import KELVIN, STEFAN_BOLTZMANN_W_M2_K4, Lumped, Spec, TransferFunction
 
 MARLIN_MIN_HALF_S = MIN_HALF_CYCLE_MS / 1000.0  # each half-cycle lasts at least 5 s
 # Marlin acts on the first reading after a crossing (half a reading period late on average), and
@@ -216,7 +217,32 @@ def relay_cycle(spec: Spec, ambient_c: float, relay: Relay) -> RelayCycle:
     """The limit cycle of the relay on the plant at ambient_c, as the firmware would report it (after
     CYCLES cycles from the steady state at the on level's reading of the target, or as soon as a cycle
     repeats the last within CONVERGED_S)."""
-    plant = _Modal(spec, ambient_c)
+    loop, on_s = _settled(spec, ambient_c, relay)
+    return _one_cycle(loop, on_s, relay.off_duty)[0]
+
+
+def tangent_plant(spec: Spec, ambient_c: float, at_c: float) -> tuple[Spec, float]:
+    """A radiating lumped plant linearised with its block at at_c: the tangent of its loss A (Tb - Ta) +
+    sigma eps area (Tb^4 - Ta^4) there, as a linear loss k (Tb - Ta') with k the loss's slope at at_c and
+    Ta' the ambient that gives the same loss at at_c; (spec, ambient_c) as given for a linear plant. A
+    relay's cycle swings a few C about its target: the neglected curvature, 6 sigma eps area T^2 dT^2 / 2,
+    is under a thousandth of the loss there."""
+    if not isinstance(spec, Lumped) or spec.linear:
+        return spec, ambient_c
+    sigma_eps_a = STEFAN_BOLTZMANN_W_M2_K4 * spec.emissivity * spec.radiating_area_m2
+    tb, ta = at_c + KELVIN, ambient_c + KELVIN
+    loss_w = spec.ambient_xfer_w_k * (at_c - ambient_c) + sigma_eps_a * (tb ** 4 - ta ** 4)
+    radiation_w_k = 4.0 * sigma_eps_a * tb ** 3
+    slope_w_k = spec.ambient_xfer_w_k + radiation_w_k
+    linear = dataclasses.replace(spec, ambient_xfer_w_k=slope_w_k, emissivity=0.0, radiating_area_m2=0.0,
+                                 fan_ambient_xfer_w_k=spec.fan_ambient_xfer_w_k + radiation_w_k)
+    return linear, at_c - loss_w / slope_w_k
+
+
+def _settled(spec: Spec, ambient_c: float, relay: Relay) -> tuple[_Loop, float]:
+    """The relay and the plant (a radiating one linearised at the relay's target: ``tangent_plant``) run to
+    their limit cycle: the loop at a switch-on, and its time."""
+    plant = _Modal(*tangent_plant(spec, ambient_c, relay.target_c))
     for duty, reach in ((relay.on_duty, "above"), (relay.off_duty, "below")):
         steady_c = plant.reading(plant.steady(duty))
         if (steady_c <= relay.target_c) if reach == "above" else (steady_c >= relay.on_below_c):
@@ -233,9 +259,17 @@ def relay_cycle(spec: Spec, ambient_c: float, relay: Relay) -> RelayCycle:
         on_s = next_on_s
         if abs(halves[0] - last[0]) + abs(halves[1] - last[1]) <= CONVERGED_S:
             break  # a cycle as long as the last, half by half: the limit cycle
+    return loop, on_s
+
+
+def _one_cycle(loop: _Loop, on_s: float, off_duty: float) -> tuple[RelayCycle, float]:
+    """The cycle from the switch-on at on_s (the loop there) as the firmware reports it, the heater
+    switched to off_duty once the rule is met; and the next switch-on's time (the loop left there, the
+    switch itself to the caller: its level may change)."""
+    relay = loop.relay
     off_s = loop.first_time(on_s + relay.min_half_s, True, relay.target_c)
     low_heating = loop.extreme(on_s, off_s, False)
-    loop.switch(off_s, relay.off_duty)
+    loop.switch(off_s, off_duty)
     next_on_s = loop.first_time(off_s + relay.min_half_s, False, relay.on_below_c)
     high = loop.extreme(off_s, next_on_s, True)
     if relay.peaks == "marlin":  # both reset to the target, min over the whole cycle
@@ -243,7 +277,44 @@ def relay_cycle(spec: Spec, ambient_c: float, relay: Relay) -> RelayCycle:
         high = max(high, relay.target_c)
     else:
         low = low_heating
-    return RelayCycle(next_on_s - on_s, off_s - on_s, next_on_s - off_s, low, high)
+    return RelayCycle(next_on_s - on_s, off_s - on_s, next_on_s - off_s, low, high), next_on_s
+
+
+class BiasCycle(NamedTuple):
+    """One cycle of Marlin's relay with its bias moving: the bias and d it ran at, what it printed, and
+    the bias and d Marlin's rule gives after it (printed on the same line)."""
+
+    bias: int
+    d: int
+    cycle: RelayCycle
+    next_bias: int
+    next_d: int
+
+
+def marlin_levels(bias: int, d: int) -> tuple[float, float]:
+    """Marlin's relay levels (bias +- d) >> 1 on 0..SOFT_PWM_MAX, as duty."""
+    on, off = relay_levels(bias, d)
+    return on / SOFT_PWM_MAX, off / SOFT_PWM_MAX
+
+
+def moving_bias_run(spec: Spec, ambient_c: float, target_c: float, before: tuple[int, int], start: tuple[int, int],
+                    max_pow: int, cycles: int) -> list[BiasCycle]:
+    """Marlin's M303 relay on the plant with its bias moving as Marlin moves it: the limit cycle at the
+    levels of ``before`` (bias, d: the cycle that ran before), then ``cycles`` cycles from a switch-on,
+    the first at the levels of ``start``, each next at the bias and d Marlin's rule gives from the
+    cycle's t_high and t_low in whole ms (firmware_port/marlin/autotune.py ``update_bias``, clamped
+    within max_pow)."""
+    loop, on_s = _settled(spec, ambient_c, Relay.marlin(target_c, *marlin_levels(*before)))
+    bias, d = start
+    out = []
+    for _ in range(cycles):
+        on_duty, off_duty = marlin_levels(bias, d)
+        loop.switch(on_s, on_duty)
+        cycle, on_s = _one_cycle(loop, on_s, off_duty)
+        next_bias, next_d = update_bias(bias, d, round(cycle.t_high_s * 1000), round(cycle.t_low_s * 1000), max_pow)
+        out.append(BiasCycle(bias, d, cycle, next_bias, next_d))
+        bias, d = next_bias, next_d
+    return out
 
 
 def _start_state(plant: _Modal, relay: Relay) -> np.ndarray:

@@ -32,11 +32,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_port.marlin.constants import BED_MAXTEMP_C, BED_OVERSHOOT_C, MAX_BED_POWER, PID_MAX, SOFT_PWM_MAX
-from tools.ident.fit import FITTED, HELD, LUMPED_MODELS, MAX_SENSOR_RESPONSIVENESS_PER_S, start_values
+from firmware_port.marlin.constants import BED_MAXTEMP_C, BED_OVERSHOOT_C, MAX_BED_POWER, PID_MAX
+from tools.ident.fit import (
+    FITTED,
+    HELD,
+    LUMPED_MODELS,
+    MAX_SENSOR_RESPONSIVENESS_PER_S,
+    RADIATING_BOUNDS_M2,
+    RADIATING_EMISSIVITY,
+    RADIATING_PARAM,
+    RADIATING_START_M2,
+    start_values,
+)
 from tools.ident.fopdt import Fopdt, relay_fopdt
 from tools.ident.lsq import least_squares_fit
-from tools.ident.relay_loop import NoOscillation, Relay, RelayCycle, relay_cycle
+from tools.ident.relay_loop import NoOscillation, Relay, RelayCycle, marlin_levels, relay_cycle
 from tools.ident.relay_trace import relay_target_c
 from tools.ident.response import model_response, model_spec
 from tools.ident.result import FitResult
@@ -84,13 +94,6 @@ class RelayPoint:
             a = cycle.t_high_s - cycle.t_low_s
             out.append((min(a - low, 0.0) + max(a - high, 0.0)) / sigma_tu_s)  # zero inside the bracket
         return np.array(out)
-
-
-def _levels(cycle: M303Cycle, power_max: int) -> tuple[float, float]:
-    """The soft-PWM levels (bias +- d) >> 1 of a bias line, as duty."""
-    assert cycle.bias is not None and cycle.d is not None
-    del power_max
-    return ((cycle.bias + cycle.d) >> 1) / SOFT_PWM_MAX, ((cycle.bias - cycle.d) >> 1) / SOFT_PWM_MAX
 
 
 def _asymmetry_s(before: M303Cycle, after: M303Cycle, tu_s: float, max_pow: int) -> tuple[float, float] | None:
@@ -150,7 +153,9 @@ def marlin_points(log: M303Log, heater: str, target_c: float | None = None) -> l
         if not (c.tu_s and c.min_c is not None and c.max_c is not None and c.max_c > c.min_c):
             continue
         before = cycles[i - 1] if i else None
-        on, off = _levels(before or c, log.power_max)
+        levels = before or c
+        assert levels.bias is not None and levels.d is not None
+        on, off = marlin_levels(levels.bias, levels.d)
         note = "" if before else ("levels assumed from its own bias line (the one before is not in the capture; "
                                   "the bias moves by d (t_high - t_low) / Tu a cycle)")
         asym = _asymmetry_s(before, c, c.tu_s, max_pow) if before else None
@@ -201,18 +206,23 @@ def fopdt_guess(points: Sequence[RelayPoint], ambient_c: float) -> Fopdt:
 
 def fit_points(model: str, points: Sequence[RelayPoint], ambient_c: float, *, power_w: float | None = None,
                segment: Segment | None = None, fixed: dict[str, float] | None = None,
-               start: dict[str, float] | None = None,
+               start: dict[str, float] | None = None, loss: str = "linear",
                on_evaluation: Callable[[], None] | None = None) -> FitResult:
     """Fit a model to relay points (and to a status trace, if given: each reading counted with the
     scatter of a printed extreme); ambient_c held; power_w and ``fixed`` held for lumped models;
-    ``start`` overrides start values of fitted parameters."""
+    ``start`` overrides start values of fitted parameters. loss "radiating" (a lumped model): the
+    radiation-like term too, its area fitted at RADIATING_EMISSIVITY (tools/ident/fit.py), the relay
+    cycles on the plant linearised at their target (tools/ident/relay_loop.py ``tangent_plant``)."""
     if not points:
         raise NotFittable("no printed relay cycle with its period and swing to fit")
-    held = {**HELD[model], "ambient_c": float(ambient_c), **(fixed or {})}
+    radiating = loss == "radiating"
+    held = {**HELD[model], "ambient_c": float(ambient_c), **({"emissivity": RADIATING_EMISSIVITY} if radiating else {}),
+            **(fixed or {})}
     if power_w is not None and model in LUMPED_MODELS:
         held["power_w"] = float(power_w)
-    fitted = [name for name in FITTED[model] if name not in held]
-    guess = {k: v for k, v in start_values(model, fopdt_guess(points, ambient_c), held).items() if k in fitted}
+    fitted = [name for name in FITTED[model] + ((RADIATING_PARAM,) if radiating else ()) if name not in held]
+    guess = {k: v for k, v in {**start_values(model, fopdt_guess(points, ambient_c), held),
+                                RADIATING_PARAM: RADIATING_START_M2}.items() if k in fitted}
     start = {**guess, **{k: v for k, v in (start or {}).items() if k in guess}}
     sigma_trace_c = CYCLE_SCATTER_SWING_REL * float(np.mean([p.swing_c for p in points])) / math.sqrt(2.0)
     seen = None
@@ -230,7 +240,8 @@ def fit_points(model: str, points: Sequence[RelayPoint], ambient_c: float, *, po
 
     est = least_squares_fit(residuals, start, bounds={"delay_s": (0.0, math.inf),
                                                       "sensor_responsiveness_per_s":
-                                                          (0.0, MAX_SENSOR_RESPONSIVENESS_PER_S)},
+                                                          (0.0, MAX_SENSOR_RESPONSIVENESS_PER_S),
+                                                      RADIATING_PARAM: RADIATING_BOUNDS_M2},
                             known_sigma=True, on_evaluation=on_evaluation)
     params, std = est.values, est.std_errors
     if model == "sopdt" and {"lag1_s", "lag2_s"} <= params.keys() and params["lag2_s"] > params["lag1_s"]:  # the two lags are interchangeable
@@ -238,5 +249,5 @@ def fit_points(model: str, points: Sequence[RelayPoint], ambient_c: float, *, po
             d["lag1_s"], d["lag2_s"] = d["lag2_s"], d["lag1_s"]
     if segment is None:
         held.setdefault("initial_c", points[0].relay.target_c)
-    return FitResult(model, params, std, held, est.residuals_c, evidence="relay results" if segment is None
+    return FitResult(model, params, std, held, est.residuals_c, loss, evidence="relay results" if segment is None
                      else "relay results and status trace")

@@ -3,7 +3,8 @@
 One fit of one structure is one answer to "what plant made this log"; the data usually allow several.
 
 1. Structures: every model that applies to the log (``structures``): fopdt, sopdt, two_node, three_node
-   for a trace or an M303 capture; with a trace that spans RADIATING_SPAN_C or more, two_node and
+   for a trace or an M303 capture; with a trace that spans RADIATING_SPAN_C or more (an M303 capture:
+   its status trace and its relay's target, tools/ident/log_fit.py ``radiating_span_c``), two_node and
    three_node with the radiating loss too (below that span radiation and a linear loss cannot be told
    apart); fopdt alone for a PID_CALIBRATE result (two numbers, the gain held).
 2. Evidence: Akaike's criterion of each fit against the best (``evidence``). Residuals already divided
@@ -25,7 +26,8 @@ One fit of one structure is one answer to "what plant made this log"; the data u
    its target (Tu and swing, the result lines' goals), a Klipper Stats heater by the twin's closed loop
    with the printer's own gains and settings through the logged targets of a heat-up (tools/validation
    /compare.py goals: heat-up time 10 %, overshoot 1.5 C, hold 1 C RMS), an open-loop trace by its
-   RMSE (3 C, the open-loop goal).
+   RMSE (3 C, the open-loop goal). An M303 replay that misses says whether the fit itself misses the
+   printed cycles (tools/validation/m303_bias.py ``own_relay_note``: the plant's own relay at their levels).
 5. Alike members fold: one whose FOPDT equivalent (gain, time constant, dead time) lies within
    ALIKE_REL of a member kept before it adds no plant the loop behaves differently on.
 
@@ -42,19 +44,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tools.forked import forked_map
-from tools.ident.fit import LUMPED_MODELS, MODELS
+from tools.ident.fit import LUMPED_MODELS, MODELS, RADIATING_SPAN_C
 from tools.ident.fopdt import fopdt_equivalent
-from tools.ident.log_fit import LogFit, LogFitOptions, fit_log
+from tools.ident.log_fit import LogFit, LogFitOptions, fit_log, radiating_span_c
 from tools.ident.lsq import LINEAR_PARAMS
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import Log, M303Log, StatsLog
 from tools.validation import compare, m303_compare
+from tools.validation.m303_bias import own_relay_note
 from twin.klipper_twin import KlipperTwin, extruder_setup
 from twin.plants import Plant
 
 EVIDENCE_MARGIN = 6.0  # Akaike units: relative likelihood exp(-margin / 2) = 1/20 of the best fit's
-RADIATING_SPAN_C = 100.0  # a trace spanning this much: the radiating loss is fitted too
 ALIKE_REL = 0.02  # members whose FOPDT equivalents agree within this fold into one
 END_REL = 0.01  # a range end this close to the fitted value is the fit itself
 
@@ -140,7 +142,11 @@ def structures(log: Log, first: LogFit) -> list[tuple[str, str]]:
         return [("fopdt", "linear")]
     pairs = [(model, "linear") for model in MODELS]
     seg = first.segment
-    if first.result.evidence == "trace" and seg is not None and np.ptp(seg.temp_c) >= RADIATING_SPAN_C:
+    if isinstance(log, M303Log) and first.points:  # the relay's target counts: its printed cycles sit there
+        span_c = radiating_span_c(seg, first.target_c)
+    else:
+        span_c = float(np.ptp(seg.temp_c)) if first.result.evidence == "trace" and seg is not None else 0.0
+    if span_c >= RADIATING_SPAN_C:
         pairs += [(model, "radiating") for model in LUMPED_MODELS]
     return pairs
 
@@ -216,7 +222,8 @@ def replay(log: Log, fitted: LogFit, info: compare.HeaterInfo | None) -> Replay:
         tu_goal = "on the 10 s relay floor: not scored" if row.floor else f"within {goal_tu:.0%}"
         return Replay(f"the twin's M303 at {result.anchor_c:g} C against the {row.log.cycles} printed cycles",
                       (("Tu s", row.log.tu_s, row.twin.tu_s, tu_goal),
-                       ("swing C", row.log.swing_c, row.twin.swing_c, f"within {goal_swing:.0%}")), row.passed)
+                       ("swing C", row.log.swing_c, row.twin.swing_c, f"within {goal_swing:.0%}")), row.passed,
+                      "" if row.passed else own_relay_note(fitted, row.goals))
     if isinstance(log, list) and fitted.points:
         return _pid_calibrate_replay(fitted)
     if isinstance(log, StatsLog) and info is not None:

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from tools.cli.fit import main
-from tools.ident.log_fit import MAX_FIT_SAMPLES, LogFitOptions, fit_log
+from tools.ident.fit import RADIATING_BOUNDS_M2, RADIATING_PARAM, RADIATING_SPAN_C
+from tools.ident.log_fit import MAX_FIT_SAMPLES, LogFitOptions, fit_log, radiating_span_c
 from tools.ident.segments import Segment
 from tools.logs import load_log, results_only
 from tools.tuning.defaults import EXIT_NO_MODEL
@@ -106,3 +107,34 @@ def test_fit_cycles_needs_an_m303_capture(hardware_logs):
     with pytest.raises(ValueError, match="--fit-cycles needs an M303 capture"):
         fit_log(load_log(hardware_logs / "klipper_heattest_onionheater_heattest_200.csv"),
                 LogFitOptions(fit_cycles=2))
+
+
+S250 = "m303_hotend_S250_trace_marlin8081_partial.txt"
+ARTILLERY_BED = "m303_bed_artillery_genius_pro_S60_configs641.txt"
+
+
+def test_loss_radiating_is_fitted_on_an_m303_capture_that_spans_it(hardware_logs):
+    """The 250 C capture (its status trace 24..117 C, its relay at 250 C): --loss radiating fits the area with
+    its relay cycles and trace, no worse than the linear fit it nests (it starts from it); --loss auto fits
+    both and says so; neither is the linear fit passed off under another name."""
+    log = load_log(hardware_logs / S250)
+    assert radiating_span_c(fit_log(log).segment, 250.0) >= RADIATING_SPAN_C
+    linear = fit_log(log, LogFitOptions())
+    radiating = fit_log(log, LogFitOptions(loss="radiating"))
+    assert linear.result.loss == "linear" and RADIATING_PARAM not in linear.result.params
+    assert radiating.result.loss == "radiating" and radiating.result.values["emissivity"] == 1.0
+    assert RADIATING_BOUNDS_M2[0] <= radiating.result.params[RADIATING_PARAM] <= RADIATING_BOUNDS_M2[1]
+    assert radiating.result.rmse_c <= linear.result.rmse_c + 1e-3
+    auto = fit_log(log, LogFitOptions(loss="auto"))
+    assert [line.split()[0] for line in auto.compared] == ["linear", "radiating"]
+
+
+@pytest.mark.parametrize("name, loss, why", [
+    (ENDER, "radiating", "its status trace and relay target span 8 C"),
+    (ARTILLERY_BED, "auto", "it has no status trace, and its printed cycles sit at one temperature")])
+def test_loss_radiating_is_refused_where_an_m303_capture_cannot_tell(capsys, hardware_logs, name, loss, why):
+    """An M303 capture spanning less than RADIATING_SPAN_C: --loss radiating or auto is refused in one line
+    naming the option and why (exit 2), never silently fitted linear."""
+    code, out, err = _twin_fit(capsys, str(hardware_logs / name), "--fit-only", "--loss", loss)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+    assert f"--loss {loss}: this M303 capture cannot tell a radiating loss from a linear one: {why}" in err

@@ -6,6 +6,7 @@ hang guard of minutes; no wall-clock time is asserted."""
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -25,6 +26,12 @@ MACROS = ROOT / "tools" / "klipper_host" / "twin_tune.cfg"
 WAIT_S = 900.0  # hang guard: PID_CALIBRATE at 10 x and a default twin-tune on a loaded 2-core machine
 SECTION = "heater_generic hotend"
 READY_LINE = "ready for TWIN_TUNE and TWIN_APPLY"
+DOC = ROOT / "docs" / "klipper.md"
+TRANSCRIPT_BEGIN, TRANSCRIPT_END = "<!-- twin_tune transcript: begin -->\n```text\n", "```\n<!-- twin_tune transcript: end -->"
+TEMPERATURES = "B:... T0:... (PID_CALIBRATE's temperatures, one line a second)"
+# a line of twin-tune's progress: how many a run prints turns on its plants, so the doc's are not compared
+PROGRESS_LINE = re.compile(r"^// TWIN_TUNE: [^:]+ \d+/\d+$")
+NUMBER = re.compile(r"\d+(\.\d+)?")
 
 
 class Printer:
@@ -52,14 +59,16 @@ class Printer:
         return first
 
     def console(self) -> list[str]:
-        return [entry["message"] for entry in http(self.base + "/server/gcode_store?count=1000")["gcode_store"]]
+        """The console's lines (a response of several lines is one entry of the store)."""
+        store = http(self.base + "/server/gcode_store?count=1000")["gcode_store"]
+        return [line for entry in store for line in entry["message"].split("\n")]
 
     def wait_line(self, text: str, first: int) -> list[str]:
         """The console from line ``first`` on, once a line there contains ``text`` (fails on a hang)."""
         deadline = time.monotonic() + WAIT_S
         while True:
             lines = self.console()[first:]
-            if any(text in line for line in lines):
+            if any(text in line for line in lines if not line.startswith("RESPOND ")):  # not the agent's command
                 return lines
             assert self.agent is None or self.agent.poll() is None, self.agent_err()
             assert time.monotonic() < deadline, f"no console line with {text!r}: {lines[-20:]}"
@@ -102,6 +111,33 @@ def printer(klipper, spawn, tmp_path) -> Printer:
     return printer
 
 
+def transcript(console: list[str]) -> list[str]:
+    """The console as the user sees it: the responses and the TWIN_ commands typed; the agent's own
+    commands (RESPOND, PID_CALIBRATE, RESTART) left out, PID_CALIBRATE's temperature lines as one line,
+    and the idle timeout's M84, which the twin's printer without steppers does not know."""
+    out: list[str] = []
+    for line in console:
+        if line.startswith("B:"):
+            line = TEMPERATURES
+        elif not line.startswith(("//", "!!", "TWIN_")) or line == '// Unknown command:"M84"':
+            continue
+        if not out or out[-1] != line:
+            out.append(line)
+    return out
+
+
+def comparable(lines: list[str]) -> list[str]:
+    """Lines to compare with the doc's: numbers masked (gains, temperatures and dates differ run to run within
+    the band test_klippy.py holds them to), progress lines out."""
+    return [NUMBER.sub("N", line) for line in lines if not PROGRESS_LINE.match(line)]
+
+
+def doc_transcript() -> list[str]:
+    text = DOC.read_text()
+    start = text.index(TRANSCRIPT_BEGIN) + len(TRANSCRIPT_BEGIN)
+    return text[start:text.index(TRANSCRIPT_END)].splitlines()
+
+
 def errors(lines: list[str]) -> list[str]:
     return [line for line in lines if line.startswith("!!")]
 
@@ -132,7 +168,9 @@ def test_twin_tune_then_twin_apply_holds_the_gains(printer):
     assert "\n#pid_Kp: 22.2\n" in config  # the regular part's gains commented out, as SAVE_CONFIG does
     backups = list(printer.session.config_path.parent.glob("printer-*.cfg"))
     assert [b.read_text() for b in backups] == [original]
-    (printer.workdir / "transcript.txt").write_text("\n".join(printer.console()) + "\n")
+    lines = transcript(printer.console())
+    (printer.workdir / "transcript.txt").write_text("\n".join(lines) + "\n")
+    assert comparable(lines) == comparable(doc_transcript()), f"docs/klipper.md's transcript; this run's is {lines}"
 
 
 @pytest.mark.parametrize("script, message", [

@@ -183,8 +183,9 @@ class Agent:
         self.respond(f"TWIN_APPLY: [{section}] pid_Kp={options['pid_kp']} pid_Ki={options['pid_ki']} "
                      f"pid_Kd={options['pid_kd']} written to {config.name}'s SAVE_CONFIG block "
                      f"(old file: {backup.name}), restarting")
+        seen = self.ws.klippy_ready_count
         self.ws.call("printer.restart")
-        wait_ready(self.ws, READY_TIMEOUT_S)
+        wait_ready(self.ws, READY_TIMEOUT_S, seen)
         settings = self.ws.call("printer.objects.query", {"objects": {"configfile": ["settings"]}})
         held = settings["status"]["configfile"]["settings"].get(section.lower(), {})
         got = {k: held.get(k) for k in options if k != "control"}

@@ -5,8 +5,11 @@
         ws.call("connection.register_remote_method", {"method_name": "twin_tune"})
         method, params = ws.methods.get(timeout=60)   # klippy's action_call_remote_method("twin_tune", ...)
 
-A reader thread sorts what arrives: answers to ``call`` (by id) and Moonraker's calls of a registered
-remote method (a message with a method and no id, put on ``methods``); notifications are dropped.
+A reader thread sorts what arrives: answers to ``call`` (by id), Moonraker's calls of a registered
+remote method (a message with a method and no id, put on ``methods``), and notify_klippy_ready,
+counted in ``klippy_ready_count`` (Moonraker sends it once klippy is ready and Moonraker has
+subscribed to its G-code output and registered the agents' methods again; printer.info says ready
+before that, and a RESPOND then never reaches the console); other notifications are dropped.
 Every wait has a timeout; a closed socket fails the calls waiting on it with MoonrakerError.
 """
 
@@ -20,6 +23,7 @@ import threading
 import websocket  # websocket-client: the 'moonraker' extra
 
 NOTIFICATION_PREFIX = "notify_"  # Moonraker's broadcasts (status updates, gcode responses, ...)
+KLIPPY_READY = "notify_klippy_ready"
 
 
 class MoonrakerError(RuntimeError):
@@ -41,6 +45,8 @@ class MoonrakerSocket:
         self._pending: dict[int, queue.Queue] = {}
         self.methods: queue.Queue = queue.Queue()  # (method, params); (None, reason) once the socket closed
         self.closed = threading.Event()
+        self.klippy_ready_count = 0
+        self.klippy_ready = threading.Condition()
         self._reader = threading.Thread(target=self._read, name="moonraker-ws", daemon=True)
         self._reader.start()
 
@@ -81,6 +87,15 @@ class MoonrakerSocket:
             raise MoonrakerError(error.get("message", str(error)) if isinstance(error, dict) else str(error))
         return reply.get("result")
 
+    def wait_klippy_ready(self, seen: int, timeout_s: float) -> None:
+        """Wait for a notify_klippy_ready after the ``seen``-th; MoonrakerError on a timeout or a closed socket."""
+        with self.klippy_ready:
+            if not self.klippy_ready.wait_for(lambda: self.klippy_ready_count > seen or self.closed.is_set(),
+                                              timeout_s):
+                raise MoonrakerError(f"Moonraker never said klippy was ready again within {timeout_s:g} s")
+        if self.klippy_ready_count <= seen:
+            raise MoonrakerError("Moonraker's websocket closed while klippy was restarting")
+
     def _read(self) -> None:
         reason = "closed"
         try:
@@ -94,6 +109,8 @@ class MoonrakerSocket:
         with self._lock:
             self.closed.set()
             waiting = list(self._pending.values())
+        with self.klippy_ready:
+            self.klippy_ready.notify_all()
         for answer in waiting:
             answer.put({"error": {"message": f"Moonraker's websocket closed: {reason}"}})
         self.methods.put((None, reason))
@@ -104,5 +121,9 @@ class MoonrakerSocket:
                 answer = self._pending.get(message["id"])
             if answer is not None:
                 answer.put(message)
+        elif message.get("method") == KLIPPY_READY:
+            with self.klippy_ready:
+                self.klippy_ready_count += 1
+                self.klippy_ready.notify_all()
         elif "method" in message and not message["method"].startswith(NOTIFICATION_PREFIX):
             self.methods.put((message["method"], message.get("params") or {}))

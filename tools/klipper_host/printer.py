@@ -73,20 +73,32 @@ def parse_request(heater: Heater, params: dict) -> TuneRequest:
     return TuneRequest(target_c, from_log == "1")
 
 
-def wait_ready(ws: MoonrakerSocket, timeout_s: float) -> None:
-    """Poll printer.info until klippy is ready; MoonrakerError with its state on a timeout or a closed socket."""
+def wait_ready(ws: MoonrakerSocket, timeout_s: float, seen: int | None = None) -> None:
+    """klippy ready with Moonraker's connection to it set up: at once if printer.info says ready now and
+    ``seen`` is None; else after a notify_klippy_ready past the ``seen``-th (or the count at the call)
+    and printer.info ready. MoonrakerError with its state on a timeout or a closed socket."""
     deadline = time.monotonic() + timeout_s
-    state = "unknown"
-    while True:
-        try:
-            info = ws.call("printer.info", timeout_s=max(1.0, deadline - time.monotonic()))
-            state = f"{info['state']}: {info.get('state_message', '').strip()}"
-            if info["state"] == "ready":
-                return
-        except MoonrakerError as exc:
-            if ws.closed.is_set():
-                raise
-            state = str(exc)
+    if seen is None:
+        seen = ws.klippy_ready_count
+        if _info_state(ws, deadline)[0] == "ready":
+            return
+    ws.wait_klippy_ready(seen, max(0.0, deadline - time.monotonic()))
+    _poll_ready(ws, deadline)
+
+
+def _info_state(ws: MoonrakerSocket, deadline: float) -> tuple[str, str]:
+    """klippy's state and message from printer.info, or ('', the error) while Moonraker cannot ask it."""
+    try:
+        info = ws.call("printer.info", timeout_s=max(1.0, deadline - time.monotonic()))
+    except MoonrakerError as exc:
+        if ws.closed.is_set():
+            raise
+        return "", str(exc)
+    return info["state"], info.get("state_message", "").strip()
+
+
+def _poll_ready(ws: MoonrakerSocket, deadline: float) -> None:
+    while (state := _info_state(ws, deadline))[0] != "ready":
         if time.monotonic() > deadline:
-            raise MoonrakerError(f"klippy is not ready ({state})")
+            raise MoonrakerError(f"klippy is not ready ({': '.join(state)})")
         time.sleep(POLL_S)

@@ -1,13 +1,16 @@
 """twin-tune on a klippy.log for the agent: run as a child process (``--json`` for the answer,
 ``--progress lines`` for the console), and a one-line summary of its proof.
 
-The child gets SIGTERM if the agent dies (Linux's PR_SET_PDEATHSIG), so no tune runs on unattended.
+The child gets SIGTERM if the agent dies (Linux's PR_SET_PDEATHSIG), so no tune runs on unattended,
+and runs at nice 10: a minute of full CPU must not starve klippy on the printer's host (klippy loses
+its MCU after a few seconds without running; at 10 x real time in the tests, after 0.4 s).
 """
 
 from __future__ import annotations
 
 import ctypes
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -17,6 +20,7 @@ from pathlib import Path
 from tools.klipper_host.printer import Heater
 
 PR_SET_PDEATHSIG = 1
+NICE = 10
 PROGRESS = "progress: "
 REPORT_FILE = "twin-tune.txt"
 
@@ -25,8 +29,10 @@ class TuneFailed(RuntimeError):
     """twin-tune gave no answer: its own one-line reason (exit status 1-3) or an internal error."""
 
 
-def _die_with_parent() -> None:
+def _child_setup() -> None:
+    """In the child before twin-tune starts: SIGTERM when the agent's job thread dies; a lower priority."""
     ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    os.nice(NICE)
 
 
 def twin_tune_command(log: Path, heater: Heater, target_c: float, loop: str, answer: Path,
@@ -46,7 +52,7 @@ def run_twin_tune(log: Path, heater: Heater, target_c: float, loop: str, workdir
     command = twin_tune_command(log, heater, target_c, loop, answer, extra)
     with open(workdir / REPORT_FILE, "w") as report:
         proc = subprocess.Popen(command, stdout=report, stderr=subprocess.PIPE, text=True,
-                                preexec_fn=_die_with_parent, cwd=Path(__file__).resolve().parents[2])
+                                preexec_fn=_child_setup, cwd=Path(__file__).resolve().parents[2])
         assert proc.stderr is not None
         last_step, last_line = "", ""
         for line in proc.stderr:

@@ -228,3 +228,24 @@ def test_the_agent_dying_mid_tune_is_said_when_it_is_back(printer):
     assert printer.session.config_path.read_text() == original and printer.gains() == before
     first = printer.send("TWIN_APPLY")
     assert errors(printer.wait_line("!!", first)) == ["!! TWIN_APPLY: no answer to apply: run TWIN_TUNE first"]
+
+
+
+def test_klippy_shut_down_mid_tune_is_one_line_once_it_is_back(printer):
+    """An emergency stop under PID_CALIBRATE (a front end's button: Moonraker's /printer/emergency_stop, which
+    does not wait for the running command): the agent's PID_CALIBRATE fails, and once klippy is ready again
+    (FIRMWARE_RESTART) the console gets one line of the agent's after klippy's own; no tune ran, nothing was
+    applied."""
+    original, before = printer.session.config_path.read_text(), printer.gains()
+    first = printer.send("TWIN_TUNE HEATER=hotend TARGET=210")
+    printer.wait_line("T0:", first)  # PID_CALIBRATE is heating
+    assert http(printer.base + "/printer/emergency_stop", {}) == "ok"
+    time.sleep(1.0)  # the shutdown reaches Moonraker's clients; the agent's PID_CALIBRATE fails
+    assert http(printer.base + "/printer/firmware_restart", {}) == "ok"
+    lines = printer.wait_line("!! TWIN_TUNE: stopped", first)
+    assert errors(lines) == ["!! pid_calibrate interrupted",  # klippy's own, as it stops the command
+                             "!! TWIN_TUNE: stopped: pid_calibrate interrupted, nothing was applied"]
+    assert not any("TWIN_TUNE: the twin tunes" in line for line in lines)
+    assert printer.session.config_path.read_text() == original and printer.gains() == before
+    first = printer.send("TWIN_APPLY")  # the agent serves on, and has no answer
+    assert errors(printer.wait_line("!!", first)) == ["!! TWIN_APPLY: no answer to apply: run TWIN_TUNE first"]

@@ -87,8 +87,11 @@ class Printer:
 def printer(klipper, spawn, tmp_path) -> Printer:
     try:
         command = venv_command(MOONRAKER_VENV_ENV)
+        import websocket  # noqa: F401  the agent's client: the 'moonraker' extra
     except Missing as exc:
         unavailable(str(exc))
+    except ImportError:
+        unavailable("no websocket-client for twin-moonraker-agent: pip install -e '.[moonraker]'")
     session = klipper(extra_config=f"[include {MACROS}]\n")
     port = free_port()
     (tmp_path / "moonraker.conf").write_text(CONFIG.format(port=port, socket=session.api_path))
@@ -249,3 +252,20 @@ def test_klippy_shut_down_mid_tune_is_one_line_once_it_is_back(printer):
     assert printer.session.config_path.read_text() == original and printer.gains() == before
     first = printer.send("TWIN_APPLY")  # the agent serves on, and has no answer
     assert errors(printer.wait_line("!!", first)) == ["!! TWIN_APPLY: no answer to apply: run TWIN_TUNE first"]
+
+
+def test_from_log_tunes_on_the_log_as_it_is(printer):
+    """FROM_LOG=1 after the printer heated (a SET_HEATER_TEMPERATURE held a while): no PID_CALIBRATE, a verdict."""
+    first = printer.send("SET_HEATER_TEMPERATURE HEATER=hotend TARGET=210")
+    query = printer.base + "/printer/objects/query?" + SECTION.replace(" ", "%20") + "&toolhead"
+    deadline = time.monotonic() + WAIT_S
+    start_s = None
+    while (status := http(query)["status"])["toolhead"]["estimated_print_time"] < (start_s or float("inf")) + 60:
+        if start_s is None and status[SECTION]["temperature"] > 205.0:
+            start_s = status["toolhead"]["estimated_print_time"]  # then a minute of holding
+        assert time.monotonic() < deadline, f"the hotend never held 210 C: {status}"
+        time.sleep(0.2)
+    first = printer.send("TWIN_TUNE HEATER=hotend TARGET=210 FROM_LOG=1")
+    lines = printer.wait_line("// TWIN_TUNE: proof:", first)
+    assert errors(lines) == [] and not any(line.startswith("PID_CALIBRATE") for line in lines)
+    assert any(line.startswith("// TWIN_TUNE: verdict: ") for line in lines)

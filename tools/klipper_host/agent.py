@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import queue
 import sys
 import threading
 import urllib.error
@@ -220,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{AGENT_NAME} agent: Moonraker closed the connection", file=sys.stderr)
         return 1
 
-    return run_cli(build_parser(), run, argv, errors=(MoonrakerError, UserError, queue.Empty))
+    return run_cli(build_parser(), run, argv, errors=(MoonrakerError, UserError))
 
 
 if __name__ == "__main__":

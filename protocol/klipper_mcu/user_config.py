@@ -225,7 +225,7 @@ def _axes(parser: configparser.RawConfigParser, get: _Getter) -> list[AxisPins]:
     for section in parser.sections():
         if not section.startswith("stepper_") or not parser.has_option(section, "step_pin"):
             continue
-        rail = re.sub(r"\d+$", "", section)  # stepper_z1 -> stepper_z
+        rail = _rail(parser, section)
         if not parser.has_option(section, "endstop_pin"):
             continue
         endstop = parse_pin(parser.get(section, "endstop_pin"))
@@ -244,6 +244,15 @@ def _axes(parser: configparser.RawConfigParser, get: _Getter) -> list[AxisPins]:
         homes_positive = _homes_up(parser, rail) or at >= high - (high - low) / 4
         axes.append(AxisPins(section, step.name, direction.inverted, endstop, step_mm, at, low, high, homes_positive))
     return axes
+
+
+def _rail(parser: configparser.RawConfigParser, section: str) -> str:
+    """Where a stepper's positions are: its own section, else its rail's first (stepper_z1 -> stepper_z), else a
+    delta's stepper_a (klippy's defaults for stepper_b and stepper_c)."""
+    for candidate in (section, re.sub(r"\d+$", "", section), "stepper_a"):
+        if parser.has_option(candidate, "position_endstop") or parser.has_option(candidate, "position_max"):
+            return candidate
+    return section
 
 
 def _homes_up(parser: configparser.RawConfigParser, section: str) -> bool:

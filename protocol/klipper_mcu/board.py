@@ -20,7 +20,7 @@ import numpy as np
 from firmware_port.thermistor import KLIPPER_SENSORS, Divider
 from protocol.klipper_mcu.axes import Carriage
 from protocol.klipper_mcu.dictionary import ADC_MAX, CLOCK_FREQ, DEFAULT_SENSOR
-from protocol.klipper_mcu.user_config import UserConfig
+from protocol.klipper_mcu.user_config import ConfigError, UserConfig
 from twin.clock import TICK_S, EventQueue
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
 from twin.linear import SENSOR
@@ -156,6 +156,10 @@ class TwinBoard:
     @classmethod
     def for_config(cls, config: UserConfig, scenario: Scenario, noise_lsb: float = 0.0) -> TwinBoard:
         """The board a user's printer.cfg describes: its heaters, thermistors, fan and axes on their pins."""
+        for heater in config.heaters:
+            if heater.sensor_type not in KLIPPER_SENSORS:
+                raise ConfigError(f"{config.path}: [{heater.section}] sensor_type {heater.sensor_type!r}: the twin "
+                                  f"simulates these thermistors: {', '.join(KLIPPER_SENSORS)}")
         wirings = tuple(Wiring(h.heater, h.heater_pin, h.sensor_pin, h.section, h.max_temp_c, h.sensor_type,
                                h.pullup_ohm) for h in config.heaters)
         board = cls(scenario, tuple(w.heater for w in wirings), noise_lsb=noise_lsb, wirings=wirings,

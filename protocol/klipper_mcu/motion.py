@@ -67,6 +67,9 @@ RESPONSES = (
     "spi_transfer_response oid=%c response=%*s",
 )
 FAMILY = (COMMANDS, RESPONSES)
+# A timer that reschedules itself sooner than this cannot keep up on an AVR: it falls behind until
+# src/avr/timer.c shuts the MCU down ("Rescheduled timer in the past"); the twin says so at once (10 us)
+MIN_PERIOD_CLOCKS = 160
 
 
 @dataclass(eq=False)
@@ -207,7 +210,9 @@ class MotionCommands:
         if not endstop.sample_count:
             endstop.homing, endstop.trsync = False, None
             return
-        endstop.sample_ticks, endstop.rest_ticks = args["sample_ticks"], max(args["rest_ticks"], 1)
+        if args["rest_ticks"] < MIN_PERIOD_CLOCKS:
+            raise Shutdown(d.RESCHEDULED_IN_PAST)
+        endstop.sample_ticks, endstop.rest_ticks = args["sample_ticks"], args["rest_ticks"]
         endstop.pin_value, endstop.reason = args["pin_value"] & 0xFF, args["trigger_reason"] & 0xFF
         endstop.trsync = self._lookup(args["trsync_oid"], _Trsync)
         endstop.homing = True
@@ -266,6 +271,8 @@ class MotionCommands:
         trsync.expire_timer += 1
         trsync.can_trigger, trsync.reason, trsync.overdue_since = True, 0, None
         trsync.expire_reason, trsync.report_ticks = args["expire_reason"] & 0xFF, args["report_ticks"]
+        if 0 < trsync.report_ticks < MIN_PERIOD_CLOCKS:
+            raise Shutdown(d.RESCHEDULED_IN_PAST)
         if trsync.report_ticks:
             self._add_timer(self.world_clock(args["report_clock"]), self._trsync_report, trsync)
 

@@ -13,9 +13,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from protocol.klipper_mcu import dictionary as d
-from protocol.klipper_mcu.codec import MESSAGE_PAYLOAD_MAX, MESSAGE_SYNC, BlockReader, decode_vlq, frame, parse_messages
-from protocol.klipper_mcu.dictionary import pin_number
+from protocol.klipper_mcu import motion
+from protocol.klipper_mcu.codec import BUFFER_FORMATS, MESSAGE_PAYLOAD_MAX, MESSAGE_SYNC, BlockReader, decode_vlq, frame, parse_messages
+from protocol.klipper_mcu.dictionary import CHIPS, build_dictionary, pin_number
 from tests.klipper_mcu.host import S, TestHost
+from tests.klipper_mcu.test_motion import configure_x, ender3_host
 
 U32_MAX = 2**32 - 1
 EXTREMES = (0, 1, 0x7F, 0x80, 0xFF, 0x100, 0xFFFF, 0x10000, 2**31 - 1, 2**31, U32_MAX)
@@ -177,8 +179,10 @@ def _blocks(commands: dict) -> st.SearchStrategy[bytes]:
     """A frame of one or more commands with values at their extremes, a random payload (overlong
     integers, unknown ids), a broken one (CRC, length, sequence, sync) or bytes between frames."""
     value = st.sampled_from(EXTREMES) | st.integers(0, U32_MAX)
+    data = st.binary(max_size=MESSAGE_PAYLOAD_MAX)  # a buffer parameter (a display's or an SPI device's bytes)
     command = st.sampled_from(sorted(commands)).flatmap(
-        lambda name: st.fixed_dictionaries({p: value for p, _ in commands[name].params}).map(
+        lambda name: st.fixed_dictionaries({p: data if f in BUFFER_FORMATS else value
+                                            for p, f in commands[name].params}).map(
             lambda values, fmt=commands[name]: fmt.encode(**values)))
     good = st.lists(command, min_size=1, max_size=4).map(b"".join).filter(lambda p: len(p) <= MESSAGE_PAYLOAD_MAX)
     payload = good | st.binary(max_size=MESSAGE_PAYLOAD_MAX)
@@ -216,7 +220,24 @@ def _damage(block: bytes, how: str, sequence: int) -> bytes:
 @given(frames=st.lists(st.tuples(_blocks(TestHost().dictionary.commands), st.integers(0, S // 10)), max_size=12),
        configure=st.booleans())
 def test_no_frame_crashes_hangs_or_grows_the_mcu(strict, frames, configure):
-    host = configured(strict) if configure else TestHost(strict=strict)
+    fuzz(configured(strict) if configure else TestHost(strict=strict), frames)
+
+
+MOTION_COMMANDS = build_dictionary("test", CHIPS["atmega1284p"], families=(motion.FAMILY,)).commands
+
+
+@pytest.mark.parametrize("strict", [False, True])
+@given(frames=st.lists(st.tuples(_blocks(MOTION_COMMANDS), st.integers(0, S // 10)), max_size=12),
+       configure=st.booleans())
+def test_no_frame_crashes_hangs_or_grows_a_printer_cfg_board(tmp_path_factory, strict, frames, configure):
+    """The same on a printer.cfg's board, steppers, endstops, trsyncs, displays and SPI included."""
+    host, config = ender3_host(tmp_path_factory.mktemp("cfg"), strict=strict)
+    if configure:
+        configure_x(host, config.chip)
+    fuzz(host, frames)
+
+
+def fuzz(host: TestHost, frames) -> None:
     responses = {fmt.msg_id: fmt for fmt in host.dictionary.responses.values()}
     reader = BlockReader()
     clock, sequence = 2 * S, host.sequence

@@ -120,3 +120,13 @@ def test_the_served_config_changes_only_the_serial_line():
     assert served[-1] == CONFIG_END and len(served) == len(original) + 1
     assert [(a, b) for a, b in zip(original, served) if a != b] == [("serial: /dev/ttyUSB0", "serial: /run/twin/mcu")]
     assert "serial: /run/twin/mcu" in user_printer_cfg("[mcu]\nbaud: 250000\n[printer]\n", "/run/twin/mcu")
+
+
+def test_a_thermistor_the_twin_does_not_simulate_is_one_line(tmp_path):
+    from protocol.klipper_mcu.board import TwinBoard
+    from tests.klipper_mcu.host import NO_SCENARIO
+
+    config = read_user_config(write(tmp_path, ENDER3.replace("sensor_type: EPCOS 100K B57560G104F\nsensor_pin: PA7",
+                                                             "sensor_type: MAX6675\nsensor_pin: PA7")))
+    with pytest.raises(ConfigError, match=r"\[extruder\] sensor_type 'MAX6675': the twin simulates these thermistors"):
+        TwinBoard.for_config(config, NO_SCENARIO)

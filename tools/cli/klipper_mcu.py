@@ -16,6 +16,7 @@ import textwrap
 from protocol.klipper_mcu.dictionary import CLOCK_FREQ, DEFAULT_SENSOR, build_dictionary
 from protocol.klipper_mcu.mcu import KlipperMcu
 from protocol.klipper_mcu.server import McuServer
+from protocol.klipper_mcu.user_config import ConfigError
 from tools.cli.numbers import ranged_float
 from tools.entry import OneLineParser, run_main
 from twin.limits import UserError
@@ -163,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(format="twin-klipper-mcu: %(levelname)s: %(message)s", stream=sys.stderr)
-    return run_main("twin-klipper-mcu", lambda: run(parser, args), errors=(ScenarioError, UserError))
+    return run_main("twin-klipper-mcu", lambda: run(parser, args), errors=(ScenarioError, UserError, ConfigError))
 
 
 if __name__ == "__main__":

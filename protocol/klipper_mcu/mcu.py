@@ -44,6 +44,7 @@ from protocol.klipper_mcu.codec import (
     iter_commands,
 )
 from protocol.klipper_mcu.dictionary import Dictionary, Shutdown
+from protocol.klipper_mcu.lateness import Lateness
 from protocol.klipper_mcu.motion import MotionCommands
 
 if TYPE_CHECKING:
@@ -53,31 +54,6 @@ LOG = logging.getLogger(__name__)
 STATS_INTERVAL_CLOCKS = 5 * d.CLOCK_FREQ  # src/basecmd.c stats_update: every 5 s
 STATS_TASK_CLOCKS = 100  # the nominal cost the stats report per event handled (the twin has no real one)
 LENIENT_GRACE_CLOCKS = d.CLOCK_FREQ  # default wait for a late event after a missed max_duration (server: wall-based)
-
-
-@dataclass
-class Lateness:
-    """Lenient mode's forgiven timing faults since the MCU started (``reported``: as last logged)."""
-
-    late_events: int = 0  # events the host scheduled in the past
-    max_late_clocks: int = 0  # the latest of them
-    forgiven_deadlines: int = 0  # missed max_duration deadlines whose next event came within the grace
-    max_overdue_clocks: int = 0  # the longest a pin stayed at its default before that event came
-    reported: tuple[int, int] = (0, 0)
-
-    def line(self) -> str:
-        ms = 1000 / d.CLOCK_FREQ
-        return (f"lenient timing: {self.late_events} late events (up to {self.max_late_clocks * ms:.1f} ms late), "
-                f"{self.forgiven_deadlines} max_duration misses forgiven (up to {self.max_overdue_clocks * ms:.1f} ms "
-                "after it); MCU clock")
-
-    def changed(self) -> bool:
-        """True once per change of the counts (the stats timer logs the line then)."""
-        now = (self.late_events, self.forgiven_deadlines)
-        if now == self.reported:
-            return False
-        self.reported = now
-        return True
 
 
 @dataclass(eq=False)

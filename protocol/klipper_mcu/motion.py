@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from protocol.klipper_mcu.board import TwinBoard
-    from protocol.klipper_mcu.mcu import Lateness
+    from protocol.klipper_mcu.lateness import Lateness
 
 COMMANDS = (
     "config_stepper oid=%c step_pin=%c dir_pin=%c invert_step=%c step_pulse_ticks=%u",

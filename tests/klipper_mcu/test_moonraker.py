@@ -59,21 +59,26 @@ def moonraker(klipper, spawn, tmp_path):
         command = venv_command(MOONRAKER_VENV_ENV)
     except Missing as exc:
         unavailable(str(exc))
-    session = klipper()
+    return start_moonraker(command, klipper(), spawn, tmp_path, START_TIMEOUT_S)
+
+
+def start_moonraker(command, session, spawn, folder, wait_s: float) -> str:
+    """Moonraker on a free port in ``folder``, on the session's klippy socket; its base URL once it sees klippy
+    ready (a hang guard of ``wait_s``)."""
     port = free_port()
-    (tmp_path / "moonraker.conf").write_text(CONFIG.format(port=port, socket=session.api_path))
-    with open(tmp_path / "moonraker.out", "w") as out:
-        proc = spawn([str(command), "-d", str(tmp_path / "data"), "-c", str(tmp_path / "moonraker.conf"),
-                      "-l", str(tmp_path / "moonraker.log")], stdout=out, stderr=subprocess.STDOUT)
+    (folder / "moonraker.conf").write_text(CONFIG.format(port=port, socket=session.api_path))
+    with open(folder / "moonraker.out", "w") as out:
+        proc = spawn([str(command), "-d", str(folder / "data"), "-c", str(folder / "moonraker.conf"),
+                      "-l", str(folder / "moonraker.log")], stdout=out, stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + START_TIMEOUT_S
+    deadline = time.monotonic() + wait_s
     while True:
         try:
             if http(base + "/printer/info")["state"] == "ready":
                 return base
         except (OSError, urllib.error.URLError, KeyError):
             pass
-        assert proc.poll() is None, (tmp_path / "moonraker.out").read_text()
+        assert proc.poll() is None, (folder / "moonraker.out").read_text()
         assert time.monotonic() < deadline, "Moonraker never saw klippy ready"
         time.sleep(0.2)
 

@@ -11,13 +11,12 @@ import signal
 import subprocess
 import sys
 import time
-import urllib.error
 from pathlib import Path
 
 import pytest
 
 from tests.conftest import unavailable
-from tests.klipper_mcu.test_moonraker import CONFIG, free_port, http
+from tests.klipper_mcu.test_moonraker import http, start_moonraker
 from tools.klipper_host.session import MOONRAKER_VENV_ENV, ROOT, Missing, venv_command
 
 pytestmark = pytest.mark.slow
@@ -93,22 +92,7 @@ def printer(klipper, spawn, tmp_path) -> Printer:
     except ImportError:
         unavailable("no websocket-client for twin-moonraker-agent: pip install -e '.[moonraker]'")
     session = klipper(extra_config=f"[include {MACROS}]\n")
-    port = free_port()
-    (tmp_path / "moonraker.conf").write_text(CONFIG.format(port=port, socket=session.api_path))
-    with open(tmp_path / "moonraker.out", "w") as out:
-        proc = spawn([str(command), "-d", str(tmp_path / "data"), "-c", str(tmp_path / "moonraker.conf"),
-                      "-l", str(tmp_path / "moonraker.log")], stdout=out, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + WAIT_S
-    while True:
-        try:
-            if http(base + "/printer/info")["state"] == "ready":
-                break
-        except (OSError, urllib.error.URLError, KeyError):
-            pass
-        assert proc.poll() is None, (tmp_path / "moonraker.out").read_text()
-        assert time.monotonic() < deadline, "Moonraker never saw klippy ready"
-        time.sleep(0.2)
+    base = start_moonraker(command, session, spawn, tmp_path, WAIT_S)
     printer = Printer(session, base, spawn, tmp_path)
     printer.start_agent()
     return printer

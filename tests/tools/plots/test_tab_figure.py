@@ -12,17 +12,8 @@ import pytest
 
 from tools.cli.tune_work import describe
 from tools.plots import tab_figure
-from tools.tuning.evaluate import preset_problem
-from tools.tuning.tuner import proven, tune
 
-pytestmark = pytest.mark.slow  # the tune and its proof: about 5 s on a quiet machine
-YOURS = np.array([12.0, 0.4, 100.0])  # Kp, Ki, Kd on Marlin's scale: a printer's, to beat
-
-
-@pytest.fixture(scope="module")
-def tuned():
-    result = tune(preset_problem("hotend_cartridge", 210), method="rules", seed=0, yours=YOURS)
-    return result, proven(result, 1, cross_check_s=0)
+pytestmark = pytest.mark.slow  # the tune and its proof (conftest.py's tuned): about 5 s on a quiet machine
 
 
 def _draw(result, proof):

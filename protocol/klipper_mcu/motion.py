@@ -76,7 +76,8 @@ MIN_PERIOD_CLOCKS = 160
 class _Stepper:
     oid: int
     carriage: Carriage
-    last_clock: int  # the last step's world clock (from the MCU's clock 0 at boot; reset_step_clock sets it)
+    last_clock32: int = 0  # the last step's 32-bit MCU clock (reset_step_clock sets it): a move's first step is
+    # 32-bit arithmetic on it, as in src/stepper.c, placed at the world clock nearest to now
     next_dir: int = 1
     need_reset: bool = False  # stopped by a trigger: moves are dropped until reset_step_clock
 
@@ -138,7 +139,6 @@ class MotionCommands:
     if TYPE_CHECKING:  # what the mixin uses of KlipperMcu
         board: TwinBoard
         now: int
-        boot_clock: int
         strict: bool
         grace_clocks: int
         lateness: Lateness
@@ -157,7 +157,7 @@ class MotionCommands:
     def _cmd_config_stepper(self, args: dict) -> None:
         pin = self._output_pin(args["step_pin"])
         self._output_pin(args["dir_pin"])
-        self._alloc(args["oid"], _Stepper(args["oid"] & 0xFF, self.board.carriage(pin), self.boot_clock))
+        self._alloc(args["oid"], _Stepper(args["oid"] & 0xFF, self.board.carriage(pin)))
 
     def _cmd_queue_step(self, args: dict) -> None:
         stepper = self._lookup(args["oid"], _Stepper)
@@ -166,9 +166,11 @@ class MotionCommands:
             raise Shutdown(d.INVALID_COUNT)
         if stepper.need_reset:
             return
-        move = Move(stepper.last_clock, args["interval"], count, to_signed(args["add"], 16), stepper.next_dir)
+        interval = args["interval"]
+        first = self.world_clock((stepper.last_clock32 + interval) & 0xFFFFFFFF)
+        move = Move(first - interval, interval, count, to_signed(args["add"], 16), stepper.next_dir)
         stepper.carriage.moves.append(move)
-        stepper.last_clock = move.step_clock(count)
+        stepper.last_clock32 = self.mcu_clock(move.step_clock(count))
         for endstop in self._endstops_on(stepper.carriage):
             self._endstop_rearm(endstop)
 
@@ -180,7 +182,7 @@ class MotionCommands:
         last = stepper.carriage.last_step_clock()
         if last is not None and last > self.now:
             raise Shutdown(d.STEPPER_ACTIVE)
-        stepper.last_clock = self.world_clock(args["clock"])
+        stepper.last_clock32 = args["clock"] & 0xFFFFFFFF
         stepper.need_reset = False
 
     def _cmd_stepper_get_position(self, args: dict) -> None:

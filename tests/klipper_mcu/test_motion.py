@@ -50,7 +50,7 @@ def home_x(host: TestHost, start: int, *, steps: int = 12000, interval: int = 40
     """A homing move towards x=0 from mid-travel (x's dir pin is inverted: MCU dir 1 is klippy's negative)."""
     host.send(start, f"trsync_start oid=2 report_clock={start} report_ticks={REPORT_TICKS} expire_reason={COMMS_TIMEOUT}",
               "stepper_stop_on_trigger oid=0 trsync_oid=2",
-              f"trsync_set_timeout oid=2 clock={start + 100 * S}",
+              f"trsync_set_timeout oid=2 clock={(start + 100 * S) & 0xFFFFFFFF}",
               f"endstop_home oid=1 clock={start} sample_ticks=240 sample_count=4 rest_ticks=400 pin_value=1 "
               f"trsync_oid=2 trigger_reason={ENDSTOP_HIT}",
               f"reset_step_clock oid=0 clock={start}", "set_next_step_dir oid=0 dir=1",
@@ -118,3 +118,20 @@ def test_pins_the_chip_lacks_are_klippers_shutdowns(tmp_path):
     host, config = ender3_host(tmp_path)
     host.send(0, "allocate_oids count=2", f"config_endstop oid=0 pin={8 * 4} pull_up=1")  # PE0: no port E
     assert host.mcu.shutdown_reason == d.NOT_INPUT_PIN
+
+
+def test_steps_after_the_clock_passes_half_its_32_bits(tmp_path):
+    """klippy resets a stopped stepper's clock to 0 and then sends the first step as an interval from it, modulo
+    2**32: 134 s after boot at 16 MHz that interval is past 2**31, and the step is still now, not 268 s away."""
+    host, config = ender3_host(tmp_path)
+    configure_x(host, config.chip)
+    start = 3 << 30
+    host.send(start, f"trsync_start oid=2 report_clock={start} report_ticks={REPORT_TICKS} expire_reason={COMMS_TIMEOUT}",
+              "stepper_stop_on_trigger oid=0 trsync_oid=2", f"trsync_set_timeout oid=2 clock={(start + 100 * S) & 0xFFFFFFFF}",
+              f"endstop_home oid=1 clock={start} sample_ticks=240 sample_count=4 rest_ticks=400 pin_value=1 "
+              f"trsync_oid=2 trigger_reason={ENDSTOP_HIT}",
+              "reset_step_clock oid=0 clock=0", "set_next_step_dir oid=0 dir=1",
+              f"queue_step oid=0 interval={start + 400} count=1 add=0", "queue_step oid=0 interval=400 count=11999 add=0")
+    host.run(start + 12000 * 400 + S)
+    assert host.named("trsync_state")[-1] == {"oid": 2, "can_trigger": 0, "trigger_reason": ENDSTOP_HIT,
+                                              "clock": start + 9400 * 400 + 3 * 240}

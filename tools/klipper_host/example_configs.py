@@ -5,8 +5,9 @@ home and heat under the registry's klippy, each with only [mcu]'s serial line ch
 
 For each config/printer-*.cfg in klippy's package: the twin's refusal (one line), or a session at
 --speed x real time: ready, G28, M104/M109 S200 and M140/M190 S60 (a config without a bed: the hotend
-only). One line per config, then the counts. A config that fails on a busy machine is retried
-slower, as the tests do (KlipperSession.missed_schedule). Minutes per config at 10 x.
+only). One line per config, then the counts. Under a few busy loops, homing at 10 x can miss
+klippy's 25 ms trsync window ("Communication timeout during homing"): give --speed 1 to tell that
+from the twin. About 40 s per served config at 10 x.
 """
 
 from __future__ import annotations

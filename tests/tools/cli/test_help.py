@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[3]
 MODULES = ("tools.cli.sim", "tools.cli.serial", "tools.cli.klipper_mcu", "tools.cli.fit", "tools.cli.compare", "tools.cli.tune",
            "tools.cli.firmware_report", "tools.cli.benchfuncs", "tools.bench", "tools.seeds.__main__",
            "tools.docs.rules_table", "tools.docs.optimtable", "tools.docs.crossval", "tools.docs.mpc_report",
-           "tools.docs.kalico_table",
+           "tools.docs.kalico_table", "tools.klipper_host.agent",
            "tools.docs.validation", "tools.validation.golden", "tools.validation.golden_m306",
            "tools.validation.plant_check", "tools.tuning.ultimate")
 

@@ -163,7 +163,8 @@ def gain_line(candidate: Sequence[ProofRow], reference: Sequence[ProofRow], plan
     if trips:
         parts.append(f"trips {trips} -> 0")
         better.append(parts[-1])
-    line = f"{', '.join(parts)}, on all {len(candidate)} {plants} (worst seed)"
+    where = f"all {len(candidate)} {plants}" if len(candidate) > 1 else f"the one {plants.replace('plants', 'plant', 1)}"
+    line = f"{', '.join(parts)}, on {where} (worst seed)"
     if hold_c >= hold_r + 0.005:  # a worse hold, as printed: say what it buys
         cost_c, cost_r = ensemble_cost(candidate, ensemble), ensemble_cost(reference, ensemble)
         better.append(f"objective {cost_r:.4g} -> {cost_c:.4g} s (heat-up time, overshoot beyond 3 C, hold, chatter)")

@@ -115,3 +115,10 @@ def test_a_search_that_found_your_gains_is_no_option():
     verdict = judge(found + other + yours, "yours", ["de", "de #2"], ENSEMBLE)
     assert verdict.kind == KEEP and verdict.shown == "de #2" and "the closest, de #2," in verdict.why
     assert verdict.trade.startswith("overshoot 2.0 -> 1.0 C, hold 0.10 -> 0.20 C")
+
+
+def test_one_plant_is_one_plant_in_the_words():
+    one = Ensemble((Member("fopdt", (), 1.0, 0),), "mean_std", kind="plants the log allows")
+    verdict = judge([row("fopdt", "de", hold=0.05, overshoot=1.0, cost=250.0), row("fopdt", "yours")], "yours", ["de"],
+                    one)
+    assert verdict.kind == NEW and verdict.why.endswith(", on the one plant the log allows (worst seed)")

@@ -19,8 +19,7 @@ import itertools
 import json
 import queue
 import threading
-
-import websocket  # websocket-client: the 'moonraker' extra
+from types import ModuleType
 
 NOTIFICATION_PREFIX = "notify_"  # Moonraker's broadcasts (status updates, gcode responses, ...)
 KLIPPY_READY = "notify_klippy_ready"
@@ -30,14 +29,25 @@ class MoonrakerError(RuntimeError):
     """Moonraker answered a call with an error (its message), did not answer in time, or the socket closed."""
 
 
+def _websocket() -> ModuleType:
+    """websocket-client (the 'moonraker' extra), imported when a socket is made: --help and the tests of the
+    rest run without it."""
+    try:
+        import websocket
+    except ImportError:
+        raise MoonrakerError("no websocket-client for twin-moonraker-agent: pip install -e '.[moonraker]'") from None
+    return websocket
+
+
 class MoonrakerSocket:
     """One websocket connection to Moonraker; ``close()`` (or ``with``) ends it and its reader thread."""
 
     def __init__(self, url: str, connect_timeout_s: float = 30.0):
         self.url = url
+        websocket = self._websocket = _websocket()
         try:
             self._ws = websocket.create_connection(url, timeout=connect_timeout_s)
-        except (OSError, websocket.WebSocketException) as exc:
+        except (OSError, self._websocket.WebSocketException) as exc:
             raise MoonrakerError(f"cannot connect to Moonraker at {url}: {exc}") from None
         self._ws.settimeout(None)  # the reader blocks until a message or close()
         self._ids = itertools.count(1)
@@ -77,7 +87,7 @@ class MoonrakerSocket:
             reply = answer.get(timeout=timeout_s)
         except queue.Empty:
             raise MoonrakerError(f"no answer from Moonraker to {method} within {timeout_s:g} s") from None
-        except (OSError, websocket.WebSocketException) as exc:
+        except (OSError, self._websocket.WebSocketException) as exc:
             raise MoonrakerError(f"lost Moonraker's websocket during {method}: {exc}") from None
         finally:
             with self._lock:
@@ -104,7 +114,7 @@ class MoonrakerSocket:
                 if not text:
                     break
                 self._dispatch(json.loads(text))
-        except (OSError, websocket.WebSocketException, ValueError) as exc:
+        except (OSError, self._websocket.WebSocketException, ValueError) as exc:
             reason = str(exc) or type(exc).__name__
         with self._lock:
             self.closed.set()

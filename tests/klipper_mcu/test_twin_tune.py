@@ -22,7 +22,7 @@ from tools.klipper_host.session import MOONRAKER_VENV_ENV, ROOT, Missing, venv_c
 pytestmark = pytest.mark.slow
 
 MACROS = ROOT / "tools" / "klipper_host" / "twin_tune.cfg"
-WAIT_S = 900.0  # hang guard: PID_CALIBRATE at 10 x and a default twin-tune on a loaded 2-core machine
+WAIT_S = 900.0  # hang guard: PID_CALIBRATE at 10 x, or the longest step of a twin-tune, on a loaded 2-core machine
 SECTION = "heater_generic hotend"
 READY_LINE = "ready for TWIN_TUNE and TWIN_APPLY"
 DOC = ROOT / "docs" / "klipper.md"
@@ -63,14 +63,18 @@ class Printer:
         return [line for entry in store for line in entry["message"].split("\n")]
 
     def wait_line(self, text: str, first: int) -> list[str]:
-        """The console from line ``first`` on, once a line there contains ``text`` (fails on a hang)."""
-        deadline = time.monotonic() + WAIT_S
+        """The console from line ``first`` on, once a line there contains ``text``. A hang guard of WAIT_S
+        without a new console line: the agent prints each of twin-tune's steps, and on a busy machine a
+        tune (at nice 10) takes what it takes."""
+        deadline, seen = time.monotonic() + WAIT_S, 0
         while True:
             lines = self.console()[first:]
             if any(text in line for line in lines if not line.startswith("RESPOND ")):  # not the agent's command
                 return lines
             assert self.agent is None or self.agent.poll() is None, self.agent_err()
-            assert time.monotonic() < deadline, f"no console line with {text!r}: {lines[-20:]}"
+            if len(lines) > seen:
+                deadline, seen = time.monotonic() + WAIT_S, len(lines)
+            assert time.monotonic() < deadline, f"no console line with {text!r}, none new for {WAIT_S:g} s: {lines[-20:]}"
             time.sleep(0.2)
 
     def agent_err(self) -> str:

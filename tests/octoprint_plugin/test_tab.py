@@ -138,10 +138,17 @@ class Tab:
         return self.text("heater_twin_verdict")
 
     def bar(self) -> tuple[int, str]:
-        """The run's bar as shown: (percent, its words), (-1, '') when hidden."""
-        if not self.element("heater_twin_progress").is_displayed():
+        """The run's bar as shown: (percent, its words), (-1, '') when hidden. Read in one script, so the page
+        cannot change between its visibility, its percent and its words (three WebDriver calls raced the run's end:
+        the bar seen shown, then its percent read as 0 after the answer had hidden it)."""
+        shown = self.driver.execute_script(
+            "var bar = document.getElementById('heater_twin_progress');"
+            "if (!bar.offsetParent) return null;"
+            "return [bar.getAttribute('data-percent'), document.getElementById('heater_twin_step').innerText.trim()];"
+        )
+        if shown is None:
             return -1, ""
-        return int(self.element("heater_twin_progress").get_attribute("data-percent")), self.text("heater_twin_step")
+        return int(shown[0]), shown[1]
 
     def mid_autotune(self) -> tuple[int, int]:
         """Wait until M303 is under way, its graph drawn and some but not all of its cycles done; (cycles done,

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from protocol.klipper_mcu import dictionary as d
 from protocol.klipper_mcu.axes import Carriage, Move
 from protocol.klipper_mcu.codec import to_signed
-from protocol.klipper_mcu.dictionary import Shutdown
+from protocol.klipper_mcu.dictionary import Chip, Shutdown
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -68,8 +68,8 @@ RESPONSES = (
 )
 FAMILY = (COMMANDS, RESPONSES)
 # A timer that reschedules itself sooner than this cannot keep up on an AVR: it falls behind until
-# src/avr/timer.c shuts the MCU down ("Rescheduled timer in the past"); the twin says so at once (10 us)
-MIN_PERIOD_CLOCKS = 160
+# src/avr/timer.c shuts the MCU down ("Rescheduled timer in the past"); the twin says so at once
+MIN_PERIOD_S = 10e-6
 
 
 @dataclass(eq=False)
@@ -138,6 +138,7 @@ class MotionCommands:
 
     if TYPE_CHECKING:  # what the mixin uses of KlipperMcu
         board: TwinBoard
+        chip: Chip
         now: int
         strict: bool
         grace_clocks: int
@@ -212,7 +213,7 @@ class MotionCommands:
         if not endstop.sample_count:
             endstop.homing, endstop.trsync = False, None
             return
-        if args["rest_ticks"] < MIN_PERIOD_CLOCKS:
+        if args["rest_ticks"] < self.chip.clocks(MIN_PERIOD_S):
             raise Shutdown(d.RESCHEDULED_IN_PAST)
         endstop.sample_ticks, endstop.rest_ticks = args["sample_ticks"], args["rest_ticks"]
         endstop.pin_value, endstop.reason = args["pin_value"] & 0xFF, args["trigger_reason"] & 0xFF
@@ -273,7 +274,7 @@ class MotionCommands:
         trsync.expire_timer += 1
         trsync.can_trigger, trsync.reason, trsync.overdue_since = True, 0, None
         trsync.expire_reason, trsync.report_ticks = args["expire_reason"] & 0xFF, args["report_ticks"]
-        if 0 < trsync.report_ticks < MIN_PERIOD_CLOCKS:
+        if 0 < trsync.report_ticks < self.chip.clocks(MIN_PERIOD_S):
             raise Shutdown(d.RESCHEDULED_IN_PAST)
         if trsync.report_ticks:
             self._add_timer(self.world_clock(args["report_clock"]), self._trsync_report, trsync)

@@ -41,10 +41,19 @@ class Chip:
     pwm_max: int = PWM_MAX
     port_pins: int = 8
     mcu: str = ""  # "" : the name
+    buses: tuple[tuple[str, str, str], ...] = ()  # (spi_bus or i2c_bus, its name, BUS_PINS_<name>), numbered in order
 
     @property
     def mcu_constant(self) -> str:
         return self.mcu or self.name
+
+    def bus_enumerations(self) -> dict[str, dict[str, int]]:
+        """{"spi_bus": {name: number}, "i2c_bus": ...}: each kind's buses numbered in their order."""
+        enumerations: dict[str, dict[str, int]] = {}
+        for param, name, _ in self.buses:
+            kind = enumerations.setdefault(param, {})
+            kind[name] = len(kind)
+        return enumerations
 
     def clocks(self, seconds: float) -> int:
         """A duration in this MCU's timer clocks."""
@@ -79,24 +88,40 @@ def _pins(spec: str) -> tuple[str, ...]:
     return tuple(names)
 
 
-def _stm32(name: str, mcu: str, clock_mhz: int, ports: str, adc: str = "PA0-7 PB0-1 PC0-5") -> Chip:
+def _buses(spi: str, i2c: str) -> tuple[tuple[str, str, str], ...]:
+    """Bus enumerations from "name:PIN,PIN,PIN name:..." lists (src/avr/spi.c, i2c.c; src/stm32/spi.c, i2c.c)."""
+    return tuple((param, *bus.split(":", 1)) for param, buses in (("spi_bus", spi), ("i2c_bus", i2c))  # type: ignore[misc]
+                 for bus in buses.split())
+
+
+STM32_SPI = "spi2:PB14,PB15,PB13 spi1:PA6,PA7,PA5 spi1a:PB4,PB5,PB3"
+STM32_I2C = "i2c1:PB6,PB7 i2c1a:PB8,PB9 i2c2:PB10,PB11"
+STM32_F4_SPI = STM32_SPI + " spi2a:PC2,PC3,PB10 spi3:PB4,PB5,PB3 spi3a:PC11,PC12,PC10"
+
+
+def _stm32(name: str, mcu: str, clock_mhz: int, ports: str, adc: str = "PA0-7 PB0-1 PC0-5", spi: str = STM32_SPI,
+           i2c: str = STM32_I2C) -> Chip:
     """An STM32 as src/stm32 builds it: 16 pins a port, a 12-bit ADC (ADC_MAX 4095) on ``adc``'s pins
-    (src/stm32/adc.c, stm32f0_adc.c, stm32h7_adc.c adc_pins), hardware PWM to 1 << 15 (hard_pwm.c MAX_PWM)."""
+    (src/stm32/adc.c, stm32f0_adc.c, stm32h7_adc.c adc_pins), hardware PWM to 1 << 15 (hard_pwm.c MAX_PWM), the
+    SPI and I2C buses klippy 0.12's firmware names."""
     return Chip(name, ports, _pins(adc), clock_freq=clock_mhz * 1_000_000, adc_max=4095, pwm_max=1 << 15,
-                port_pins=16, mcu=mcu)
+                port_pins=16, mcu=mcu, buses=_buses(spi, i2c))
 
 
 ATMEGA2560_PORTS = "ABCDEFGHJKL"
 CHIPS = {chip.name: chip for chip in (
-    Chip("atmega2560", ATMEGA2560_PORTS, _pins("PF0-7 PK0-7")),  # ADC0-15
-    Chip("atmega1284p", "ABCD", _pins("PA0-7")),  # ADC0-7
-    Chip("atmega644p", "ABCD", _pins("PA0-7")),
+    Chip("atmega2560", ATMEGA2560_PORTS, _pins("PF0-7 PK0-7"), buses=_buses("spi:PB3,PB2,PB1", "twi:PD0,PD1")),
+    Chip("atmega1284p", "ABCD", _pins("PA0-7"), buses=_buses("spi:PB6,PB5,PB7", "twi:PC0,PC1")),  # ADC0-7
+    Chip("atmega644p", "ABCD", _pins("PA0-7"), buses=_buses("spi:PB6,PB5,PB7", "twi:PC0,PC1")),
     # src/stm32/Kconfig: CLOCK_FREQ (an external crystal) and MCU; the ports their CMSIS headers define
-    _stm32("stm32f103", "stm32f103xe", 72, "ABCDEFG"),
+    _stm32("stm32f103", "stm32f103xe", 72, "ABCDEFG", spi=STM32_SPI + " spi3:PB4,PB5,PB3"),
     _stm32("stm32f070", "stm32f070xb", 48, "ABCDF"),
-    _stm32("stm32f401", "stm32f401xc", 84, "ABCDEH"),
-    _stm32("stm32f407", "stm32f407xx", 168, "ABCDEFGHI", "PA0-7 PB0-1 PC0-5 PF3-10"),
-    _stm32("stm32f446", "stm32f446xx", 180, "ABCDEFGH", "PA0-7 PB0-1 PC0-5 PF3-10"),
+    _stm32("stm32f401", "stm32f401xc", 84, "ABCDEH", spi=STM32_F4_SPI + " spi4:PE13,PE14,PE12",
+           i2c=STM32_I2C + " i2c3:PA8,PC9"),
+    _stm32("stm32f407", "stm32f407xx", 168, "ABCDEFGHI", "PA0-7 PB0-1 PC0-5 PF3-10", STM32_F4_SPI + " spi2b:PI2,PI3,PI1",
+           STM32_I2C + " i2c3:PA8,PC9 i2c2a:PH4,PH5 i2c3a:PH7,PH8"),
+    _stm32("stm32f446", "stm32f446xx", 180, "ABCDEFGH", "PA0-7 PB0-1 PC0-5 PF3-10", STM32_F4_SPI + " spi4:PE13,PE14,PE12",
+           STM32_I2C + " i2c3:PA8,PC9"),
     _stm32("stm32g0b1", "stm32g0b1xx", 64, "ABCDEF", "PA0-7 PB0-2 PB10-12 PC4-5"),
     _stm32("stm32h743", "stm32h743xx", 400, "ABCDEFGHIJK", "PA0-7 PB0-1 PC0-5 PF3-14 PH2-5"),
 )}
@@ -220,9 +245,11 @@ class Dictionary:
             "enumerations": {
                 "pin": {f"P{port}0": [self.chip.pin_number(f"P{port}0"), self.chip.port_pins] for port in self.chip.ports},
                 "static_string_id": self.static_string_ids,
+                **self.chip.bus_enumerations(),
             },
             "config": {"CLOCK_FREQ": self.chip.clock_freq, "MCU": self.chip.mcu_constant, "ADC_MAX": self.chip.adc_max,
-                       "PWM_MAX": self.chip.pwm_max, "STATS_SUMSQ_BASE": STATS_SUMSQ_BASE},
+                       "PWM_MAX": self.chip.pwm_max, "STATS_SUMSQ_BASE": STATS_SUMSQ_BASE,
+                       **{f"BUS_PINS_{name}": pins for _, name, pins in self.chip.buses}},
         }
         return zlib.compress(json.dumps(doc, sort_keys=True).encode())
 

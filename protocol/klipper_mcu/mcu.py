@@ -45,12 +45,15 @@ from protocol.klipper_mcu.codec import (
 )
 from protocol.klipper_mcu.dictionary import Dictionary, Shutdown
 from protocol.klipper_mcu.lateness import Lateness
+from protocol.klipper_mcu import motion, peripherals
 from protocol.klipper_mcu.motion import MotionCommands
+from protocol.klipper_mcu.peripherals import PeripheralCommands
 
 if TYPE_CHECKING:
     from protocol.klipper_mcu.board import TwinBoard
 
 LOG = logging.getLogger(__name__)
+PRINTER_FAMILIES = (motion.FAMILY, peripherals.FAMILY)  # what a printer.cfg's board serves beyond the heaters
 STATS_INTERVAL_S = 5.0  # src/basecmd.c stats_update: every 5 s
 STATS_TASK_CLOCKS = 100  # the nominal cost the stats report per event handled (the twin has no real one)
 DEFAULT_GRACE_S = 1.0  # default wait for a late event after a missed max_duration (server: wall-based)
@@ -98,7 +101,7 @@ class _PwmOut:
     overdue_since: int | None = None
 
 
-class KlipperMcu(MotionCommands):
+class KlipperMcu(MotionCommands, PeripheralCommands):
     """One MCU: the host's blocks in, response blocks out; timers on world clocks."""
 
     def __init__(self, board: TwinBoard, dictionary: Dictionary, *, strict: bool = False,
@@ -114,7 +117,7 @@ class KlipperMcu(MotionCommands):
         self.lateness = Lateness(self.chip.clock_freq)
         self.boots = 0
         self._handlers: dict[str, Callable[[dict], None]] = {
-            name: getattr(self, "_cmd_" + name) for name in dictionary.commands}
+            name: getattr(self, "_cmd_" + name, None) or self._accepted(name) for name in dictionary.commands}
         self.boot(0)
 
     def __repr__(self) -> str:

@@ -121,12 +121,12 @@ def served_config(address: str, board, config) -> str:
 
 
 def dictionary_for(config):
-    from protocol.klipper_mcu import motion
     from protocol.klipper_mcu.dictionary import BOARD_CHIP
+    from protocol.klipper_mcu.mcu import PRINTER_FAMILIES
 
     if config is None:
         return build_dictionary(VERSION, BOARD_CHIP)
-    return build_dictionary(VERSION, config.chip, families=(motion.FAMILY,))
+    return build_dictionary(VERSION, config.chip, families=PRINTER_FAMILIES)
 
 
 def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:

@@ -21,17 +21,6 @@ HOTEND = "heater_generic hotend"
 WAIT_S = 900.0  # hang guard for a wait that the MCU's clock decides (at 10 x: 1200 s of printer time)
 
 
-def print_time(api: KlippyApi) -> float:
-    return api.query("toolhead")["toolhead"]["estimated_print_time"]
-
-
-def wait_print_time(api: KlippyApi, until_s: float) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while print_time(api) < until_s:
-        assert time.monotonic() < deadline, f"klippy's print time never reached {until_s} s"
-        time.sleep(0.05)
-
-
 def wait_shutdown(api: KlippyApi) -> str:
     """klippy's state message once it is shut down."""
     deadline = time.monotonic() + WAIT_S
@@ -51,7 +40,7 @@ def test_klippy_reaches_ready_on_the_twin_mcu(klipper):
     session = klipper()
     mcu = session.api.query("mcu")["mcu"]
     assert mcu["mcu_constants"]["CLOCK_FREQ"] == 16_000_000 and mcu["mcu_constants"]["MCU"] == "heater-twin"
-    wait_print_time(session.api, print_time(session.api) + 3.0)  # the first reports come 1.5 s after the config
+    session.api.wait_print_time(session.api.print_time() + 3.0, WAIT_S)  # the first reports come 1.5 s after the config
     # every sensor at the twin's 25 C ambient: 8 conversions of floor(1024 R / (R + 4700)) = 978, which klippy
     # normalises by 8 x ADC_MAX (1023) and converts with the EPCOS curve
     ambient_c = calc_temp(KLIPPER_SENSORS["EPCOS 100K B57560G104F"], 4700.0, 8 * 978 / (8 * 1023))
@@ -62,10 +51,10 @@ def test_klippy_reaches_ready_on_the_twin_mcu(klipper):
 def test_set_heater_temperature_holds_within_1c(klipper):
     api = klipper().api
     api.gcode("SET_HEATER_TEMPERATURE HEATER=hotend TARGET=200")
-    start_s = print_time(api)
-    wait_print_time(api, start_s + 150.0)  # the example gains settle within 150 s on hotend_stock
+    start_s = api.print_time()
+    api.wait_print_time(start_s + 150.0, WAIT_S)  # the example gains settle within 150 s on hotend_stock
     temps = []
-    while print_time(api) < start_s + 210.0:
+    while api.print_time() < start_s + 210.0:
         temps.append(api.query(HOTEND)[HOTEND]["temperature"])
         time.sleep(0.05)
     assert len(temps) > 20

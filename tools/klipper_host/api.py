@@ -108,6 +108,19 @@ class KlippyApi:
         """objects/query of the named printer objects, all their fields."""
         return self.call("objects/query", {"objects": dict.fromkeys(objects)})["status"]
 
+    def print_time(self) -> float:
+        """klippy's estimated print time: the MCU's clock in seconds, as klippy's clock sync sees it."""
+        return self.query("toolhead")["toolhead"]["estimated_print_time"]
+
+    def wait_print_time(self, until_s: float, timeout_s: float) -> None:
+        """Until klippy's print time reaches ``until_s`` (KlippyError after ``timeout_s`` of wall time: a hang
+        guard, the wait itself is the MCU clock's)."""
+        deadline = time.monotonic() + timeout_s
+        while self.print_time() < until_s:
+            if time.monotonic() > deadline:
+                raise KlippyError(f"klippy's print time never reached {until_s:.1f} s")
+            time.sleep(0.05)
+
     def _next_message(self, deadline: float, what: str) -> dict:
         while TERMINATOR not in self._buffer:
             left = deadline - time.monotonic()

@@ -1,0 +1,24 @@
+"""python -m tools.klipper_host.soak: a line per run and the count (no klippy: the runs are replaced by their
+outcomes), and its flags checked in one line."""
+
+from __future__ import annotations
+
+import pytest
+
+from tools.klipper_host import soak
+
+
+def test_the_count_is_the_runs_that_held_and_calibrated(monkeypatch, capsys):
+    outcomes = iter([(True, "hold within 0.40 C (ok)"), (False, "failed: Timeout on connect"), (True, "ok")])
+    monkeypatch.setattr(soak, "run_once", lambda speed: next(outcomes))
+    assert soak.main(["--speed", "20", "--runs", "3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == ["run 1: hold within 0.40 C (ok)", "run 2: failed: Timeout on connect", "run 3: ok",
+                     "2 of 3 runs held 180 s within 1 C and calibrated at 20 x"]
+
+
+@pytest.mark.parametrize("flags", [["--speed", "0"], ["--runs", "0"], ["--speed", "fast"]])
+def test_bad_flags_are_one_line(flags, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        soak.main(flags)
+    assert exit_.value.code == 2 and len(capsys.readouterr().err.strip().splitlines()[-1:]) == 1

@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from protocol.klipper_mcu import dictionary as d
-from protocol.klipper_mcu.axes import Carriage, Move
+from protocol.klipper_mcu.axes import Carriage, Move, Switch
 from protocol.klipper_mcu.codec import to_signed
 from protocol.klipper_mcu.dictionary import Shutdown
+from protocol.klipper_mcu.probe import Probe
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -89,7 +90,7 @@ class _Stepper:
 class _Endstop:
     oid: int
     pin: str
-    carriage: Carriage | None  # the switch's carriage (None: a switch the twin never presses)
+    switch: Switch | Probe | None  # what presses it (None: a switch the twin never presses)
     pressed_level: int  # the pin's level when pressed (the config's ``!`` inverts it)
     homing: bool = False
     pin_value: int = 0
@@ -103,7 +104,7 @@ class _Endstop:
     timer: int = 0
 
     def level(self, clock: int) -> int:
-        pressed = self.carriage is not None and self.carriage.endstop_pressed(clock)
+        pressed = self.switch is not None and self.switch.pressed(clock)
         return self.pressed_level if pressed else 1 - self.pressed_level
 
     def shutdown(self, clock: int) -> None:
@@ -169,7 +170,7 @@ class MotionCommands:
         interval = args["interval"]
         first = self.world_clock((stepper.last_clock32 + interval) & 0xFFFFFFFF)
         move = Move(first - interval, interval, count, to_signed(args["add"], 16), stepper.next_dir)
-        stepper.carriage.moves.append(move)
+        stepper.carriage.queue(move, self.now)
         stepper.last_clock32 = self.mcu_clock(move.step_clock(count))
         for endstop in self._endstops_on(stepper.carriage):
             self._endstop_rearm(endstop)
@@ -202,8 +203,11 @@ class MotionCommands:
     # -- src/endstop.c -------------------------------------------------------------------------------
     def _cmd_config_endstop(self, args: dict) -> None:
         pin = self._input_pin(args["pin"])
-        carriage, pressed_level = self.board.endstop(pin)
-        self._alloc(args["oid"], _Endstop(args["oid"] & 0xFF, pin, carriage, pressed_level))
+        switch, pressed_level = self.board.endstop(pin)
+        endstop = _Endstop(args["oid"] & 0xFF, pin, switch, pressed_level)
+        self._alloc(args["oid"], endstop)
+        if isinstance(switch, Probe):  # a command to the probe changes it: sample again from there
+            switch.on_change = lambda: self._endstop_rearm(endstop)
 
     def _cmd_endstop_home(self, args: dict) -> None:
         endstop = self._lookup(args["oid"], _Endstop)
@@ -222,7 +226,8 @@ class MotionCommands:
         self._endstop_rearm(endstop)
 
     def _endstops_on(self, carriage: Carriage) -> list[_Endstop]:
-        return [o for o in self._oids or () if isinstance(o, _Endstop) and o.homing and o.carriage is carriage]
+        return [o for o in self._oids or ()
+                if isinstance(o, _Endstop) and o.homing and o.switch is not None and o.switch.moves_with(carriage)]
 
     def _endstop_rearm(self, endstop: _Endstop) -> None:
         """The next sample at which the pin can match: where the queued moves press (or release) the
@@ -232,10 +237,10 @@ class MotionCommands:
         start = max(endstop.next_wake, self.now)
         if endstop.level(start) == endstop.pin_value:
             at: int | None = start
-        elif endstop.carriage is None or endstop.pressed_level != endstop.pin_value:
+        elif endstop.switch is None or endstop.pressed_level != endstop.pin_value:
             at = None  # a switch the twin never presses (or homing on release): it never matches
         else:
-            at = endstop.carriage.pressed_from(start)
+            at = endstop.switch.pressed_from(start)
         if at is None:
             return
         ticks = endstop.rest_ticks

@@ -1,4 +1,5 @@
-"""The sensor chain: true sensor-node temperature -> NTC resistance -> divider -> 10-bit ADC sample.
+"""The sensor chain: true sensor-node temperature -> NTC resistance -> divider -> ADC sample (10-bit,
+an AVR's, unless told: a 32-bit board's is 12-bit).
 
 This is the real part's physics (``firmware_port.thermistor``'s beta / Steinhart-Hart models),
 not the firmware's table: the firmware only ever sees the integer samples made here. A
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmware_port.thermistor import ADC_COUNTS, ADC_MAX, Divider
+from firmware_port.thermistor import ADC_COUNTS, Divider
 from twin.limits import NOISE_MAX_LSB, checked
 from twin.linear import TICK_S
 
@@ -35,11 +36,14 @@ class SensorChain:
         rng: np.random.Generator | None = None,
         detached_tau_s: float = DETACHED_TAU_S,
         gradient_fraction: float = 0.0,
+        adc_counts: int = ADC_COUNTS,
     ):
+        """``adc_counts``: the ADC's full scale (1024 for 10 bits); noise is in its LSB."""
         noise_lsb = checked("noise_lsb", noise_lsb, 0.0, NOISE_MAX_LSB, "LSB")
         if not 0.0 <= gradient_fraction < 1.0:
             raise ValueError(f"gradient_fraction must be within [0, 1), got {gradient_fraction!r}")
         self.gradient_fraction = float(gradient_fraction)
+        self.adc_counts = int(adc_counts)
         self.divider = divider
         self.noise_lsb = noise_lsb
         self.rng = rng if rng is not None else np.random.default_rng(0)
@@ -83,7 +87,7 @@ class SensorChain:
         else:
             temps_c = sensor_c - self.gradient_fraction * (sensor_c - self._ambient_c)
         r = self.divider.part.resistance_ohm(temps_c)
-        return ADC_COUNTS * r / (r + self.divider.pullup_ohm)
+        return self.adc_counts * r / (r + self.divider.pullup_ohm)
 
     def convert(self, sensor_c: np.ndarray, ticks: np.ndarray) -> np.ndarray:
         """ADC conversions (int array, the shape of ``sensor_c``) of the sensor node at the ticks.
@@ -101,19 +105,19 @@ class SensorChain:
         of lanes draws one stream and scales it per lane."""
         sensor_c = np.asarray(sensor_c, dtype=float)
         if self.fault == OPEN:
-            return np.full(sensor_c.shape, ADC_MAX)
+            return np.full(sensor_c.shape, self.adc_counts - 1)
         if self.fault == SHORT:
             return np.zeros(sensor_c.shape, dtype=int)
         analog = self.analog(sensor_c, ticks)
         if noise is not None:
             analog = analog + noise
-        return np.clip(np.floor(analog), 0, ADC_MAX).astype(np.int64)
+        return np.clip(np.floor(analog), 0, self.adc_counts - 1).astype(np.int64)
 
     def lsb_per_c(self, temp_c: float) -> float:
         """ADC counts per kelvin at temp_c (the divider's slope, a central difference over 0.1 C):
         how finely a noiseless chain resolves that temperature."""
         r = self.divider.part.resistance_ohm(np.array([temp_c - 0.05, temp_c + 0.05]))
-        analog = ADC_COUNTS * r / (r + self.divider.pullup_ohm)
+        analog = self.adc_counts * r / (r + self.divider.pullup_ohm)
         return float(abs(analog[0] - analog[1]) / 0.1)
 
     def samples(self, sensor_c: np.ndarray, ticks: np.ndarray) -> list[int]:

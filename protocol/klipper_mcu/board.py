@@ -1,8 +1,8 @@
 """The printer behind the twin MCU's pins: the twin's plants, thermistor chains and scenario faults.
 
-Time is the world's MCU clock: ``CLOCK_FREQ`` ticks per second since the twin started, which a
-board reset does not restart (the hotend keeps its heat while the MCU reboots). The plants step
-on their own tick (1.024 ms = 16384 MCU clocks, exactly) and are advanced lazily, only as far as
+Time is the world's MCU clock: the chip's ``clock_freq`` ticks per second since the twin started,
+which a board reset does not restart (the hotend keeps its heat while the MCU reboots). The plants
+step on their own tick (1.024 ms: 16384 clocks of a 16 MHz AVR, 73728 of a 72 MHz STM32, exactly) and are advanced lazily, only as far as
 an ADC sample needs: a pin change the MCU makes at a clock the plants have not reached yet is
 therefore exact however late the wall clock delivered it. Each heater pin's input per plant tick
 is its exact on-fraction (``PinWave``); a fan pin's duty sets the hotend plant's part fan.
@@ -19,7 +19,7 @@ import numpy as np
 
 from firmware_port.thermistor import KLIPPER_SENSORS, Divider
 from protocol.klipper_mcu.axes import Carriage, Switch
-from protocol.klipper_mcu.dictionary import ADC_MAX, CLOCK_FREQ, DEFAULT_SENSOR
+from protocol.klipper_mcu.dictionary import BOARD_CHIP, DEFAULT_SENSOR, Chip
 from protocol.klipper_mcu.probe import Probe
 from protocol.klipper_mcu.user_config import ConfigError, UserConfig
 from twin.clock import TICK_S, EventQueue
@@ -29,8 +29,17 @@ from twin.plants import Plant, make_plant
 from twin.scenario import Event, Scenario
 from twin.sensor import DETACHED, OPEN, SHORT, SensorChain
 
-TICK_CLOCKS = round(TICK_S * CLOCK_FREQ)  # 16384 MCU clocks per plant tick
-assert TICK_CLOCKS == TICK_S * CLOCK_FREQ, "the plant tick must be a whole number of MCU clocks"
+
+
+def tick_clocks(chip: Chip) -> int:
+    """The chip's MCU clocks per plant tick (ValueError: not a whole number of them)."""
+    clocks = chip.clocks(TICK_S)
+    if clocks != TICK_S * chip.clock_freq:
+        raise ValueError(f"the {chip.name}'s {chip.clock_freq} Hz clock has no whole number of clocks per plant tick")
+    return clocks
+
+
+TICK_CLOCKS = tick_clocks(BOARD_CHIP)  # 16384: the heater-only board's
 RUN_TICKS = 1024  # the longest plant run: an idle MCU (no ADC query) is caught up in such runs
 PULLUP_OHM = 4700.0  # klippy/extras/thermistor.py default pullup_resistor
 DEFAULT_PLANTS = {"hotend": "hotend_stock", "bed": "bed"}  # twin/plants.py DEFAULT_HOTEND, DEFAULT_BED
@@ -59,7 +68,8 @@ class PinWave:
     every ``period`` clocks (soft PWM restarts its cycle at each change, src/gpiocmds.c); a steady
     level is (0, 1) or (1, 1), a hardware PWM value v is (v, PWM_MAX)."""
 
-    def __init__(self) -> None:
+    def __init__(self, tick_clocks: int) -> None:
+        self.tick_clocks = tick_clocks
         self.starts = np.zeros(1, dtype=np.int64)
         self.on = np.zeros(1, dtype=np.int64)
         self.period = np.ones(1, dtype=np.int64)
@@ -76,14 +86,14 @@ class PinWave:
 
     def fractions(self, first_tick: int, n_ticks: int) -> np.ndarray:
         """The pin's on-fraction over each of n plant ticks from first_tick."""
-        edges = (first_tick + np.arange(n_ticks + 1, dtype=np.int64)) * TICK_CLOCKS
+        edges = (first_tick + np.arange(n_ticks + 1, dtype=np.int64)) * self.tick_clocks
         seg = np.maximum(np.searchsorted(self.starts, edges, side="right") - 1, 0)
         if seg[0] == seg[-1] and self.on[seg[0]] in (0, self.period[seg[0]]):
             return np.full(n_ticks, float(self.on[seg[0]] > 0))
         base = np.concatenate(([0], np.cumsum(_on_clocks(np.diff(self.starts), self.on[:-1], self.period[:-1]))))
         since = np.maximum(edges - self.starts[seg], 0)
         on_clocks = base[seg] + _on_clocks(since, self.on[seg], self.period[seg])
-        return np.diff(on_clocks) / TICK_CLOCKS
+        return np.diff(on_clocks) / self.tick_clocks
 
     def duty(self) -> float:
         """The duty of the last change (what a fan's speed follows)."""
@@ -104,9 +114,9 @@ def _on_clocks(since: np.ndarray, on: np.ndarray, period: np.ndarray) -> np.ndar
 class _Heater:
     """One heater's plant, thermistor chain, pin and wiring fault."""
 
-    def __init__(self, wiring: Wiring, plant: Plant, chain: SensorChain):
+    def __init__(self, wiring: Wiring, plant: Plant, chain: SensorChain, tick_clocks: int):
         self.wiring, self.plant, self.chain = wiring, plant, chain
-        self.pin = PinWave()
+        self.pin = PinWave(tick_clocks)
         self.mode = NORMAL
 
     def heater_input(self, first_tick: int, n_ticks: int) -> np.ndarray:
@@ -122,14 +132,16 @@ class TwinBoard:
 
     def __init__(self, scenario: Scenario, heaters: tuple[str, ...] = ("hotend", "bed"),
                  sensor_type: str = DEFAULT_SENSOR, noise_lsb: float = 0.0, wirings: tuple[Wiring, ...] = WIRING,
-                 fan_pin: str | None = FAN_PIN):
-        """The heaters named in ``heaters`` on their ``wirings`` (a printer.cfg's: ``for_config``)."""
+                 fan_pin: str | None = FAN_PIN, chip: Chip = BOARD_CHIP):
+        """The heaters named in ``heaters`` on their ``wirings`` (a printer.cfg's: ``for_config``), behind the
+        ``chip``'s ADC and clock."""
         for wiring in wirings:
             if (wiring.sensor_type or sensor_type) not in KLIPPER_SENSORS:
                 raise ValueError(f"unknown sensor_type {wiring.sensor_type or sensor_type!r}; valid: "
                                  f"{', '.join(KLIPPER_SENSORS)}")
         self.scenario, self.sensor_type, self.noise_lsb = scenario, sensor_type, noise_lsb
         self.ambient_c = scenario.ambient_c
+        self.chip, self.tick_clocks = chip, tick_clocks(chip)
         wirings = tuple(w for w in wirings if w.heater in heaters)
         self.wirings, self.fan_pin = wirings, fan_pin
         streams = np.random.SeedSequence(scenario.seed or 0).spawn(len(wirings))
@@ -140,7 +152,7 @@ class TwinBoard:
             plant = make_plant(preset, ambient_c=scenario.ambient_c, initial_c=scenario.initial_c.get(wiring.heater),
                                **params)
             self.heaters[wiring.heater] = _Heater(wiring, plant, self._chain(wiring.sensor_type, wiring.pullup_ohm,
-                                                                             stream))
+                                                                             stream), self.tick_clocks)
         self._by_pin = {h.wiring.heater_pin: h for h in self.heaters.values()}
         self._by_sensor = {h.wiring.sensor_pin: h for h in self.heaters.values()}
         self._ambient_sensors: dict[str, SensorChain] = {}  # thermistors no simulated heater warms
@@ -148,7 +160,7 @@ class TwinBoard:
         self._endstops: dict[str, tuple[Switch | Probe, int]] = {}  # by pin: its switch, the level when pressed
         self.probe: Probe | None = None  # a BLTouch's control pin drives it
         self.tick = 0  # the plants' state is at this plant tick
-        self.fan = PinWave()
+        self.fan = PinWave(self.tick_clocks)
         self.fan_failed = False
         self._actions = EventQueue()  # (plant tick, action): scenario events and fan changes
         for event in scenario.events:
@@ -165,7 +177,7 @@ class TwinBoard:
         wirings = tuple(Wiring(h.heater, h.heater_pin, h.sensor_pin, h.section, h.max_temp_c, h.sensor_type,
                                h.pullup_ohm) for h in config.heaters)
         board = cls(scenario, tuple(w.heater for w in wirings), noise_lsb=noise_lsb, wirings=wirings,
-                    fan_pin=config.fan_pin)
+                    fan_pin=config.fan_pin, chip=config.chip)
         for sensor in config.sensors:
             if sensor.sensor_type in KLIPPER_SENSORS:  # others (a PT100 amplifier, a chip sensor) read open
                 board._ambient_sensors[sensor.pin] = board._chain(sensor.sensor_type, sensor.pullup_ohm, None)
@@ -183,7 +195,7 @@ class TwinBoard:
     def _chain(self, sensor_type: str | None, pullup_ohm: float, stream) -> SensorChain:
         divider = Divider(KLIPPER_SENSORS[sensor_type or self.sensor_type], pullup_ohm)
         chain = SensorChain(divider, noise_lsb=self.noise_lsb if stream is not None else 0.0,
-                            rng=np.random.default_rng(stream))
+                            rng=np.random.default_rng(stream), adc_counts=self.chip.adc_max + 1)
         chain.set_ambient(self.ambient_c, 0)
         return chain
 
@@ -200,27 +212,27 @@ class TwinBoard:
         return f"TwinBoard({', '.join(f'{name} {h.plant!r}' for name, h in self.heaters.items())}, {self.sensor_type})"
 
     def adc(self, pin: str, clock: int) -> int:
-        """One conversion of the pin at world clock ``clock``; an unwired pin reads open (ADC_MAX)."""
+        """One conversion of the pin at world clock ``clock``; an unwired pin reads open (the chip's ADC_MAX)."""
         heater = self._by_sensor.get(pin)
-        tick = max(round(clock / TICK_CLOCKS), self.tick)
+        tick = max(round(clock / self.tick_clocks), self.tick)
         self.advance(tick)
         if heater is None:
             ambient = self._ambient_sensors.get(pin)
             if ambient is not None:
                 return int(ambient.convert(np.array([self.ambient_c]), np.array([tick]))[0])
-            return ADC_MAX
+            return self.chip.adc_max
         sensor_c = heater.plant.temps_c()[SENSOR:SENSOR + 1]
         return int(heater.chain.convert(sensor_c, np.array([tick]))[0])
 
     def drive(self, pin: str, clock: int, on: int, period: int) -> None:
         """The MCU changes a pin at ``clock`` (see PinWave); clocks the plants passed are taken as now."""
-        clock = max(clock, self.tick * TICK_CLOCKS)
+        clock = max(clock, self.tick * self.tick_clocks)
         heater = self._by_pin.get(pin)
         if heater is not None:
             heater.pin.drive(clock, on, period)
         elif pin == self.fan_pin:
             self.fan.drive(clock, on, period)
-            self._actions.push(round(clock / TICK_CLOCKS), self._apply_fan)
+            self._actions.push(round(clock / self.tick_clocks), self._apply_fan)
         elif self.probe is not None and pin == self.probe.pins.control_pin:
             self.probe.command(on / period)
 
@@ -253,9 +265,9 @@ class TwinBoard:
             for heater in self.heaters.values():
                 heater.plant.relinearise()
                 heater.plant.advance(heater.heater_input(self.tick, n))
-                heater.pin.forget_before((self.tick + n) * TICK_CLOCKS)
+                heater.pin.forget_before((self.tick + n) * self.tick_clocks)
             self.tick += n
-        self.fan.forget_before(self.tick * TICK_CLOCKS)
+        self.fan.forget_before(self.tick * self.tick_clocks)
 
     def _apply_fan(self) -> None:
         hotend = self.heaters.get("hotend")

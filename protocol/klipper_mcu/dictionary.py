@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 from protocol.klipper_mcu.codec import MessageFormat
 
-# The board: an ATmega2560 as Klipper builds it (src/avr): 16 MHz timer, 10-bit ADC, 8-bit PWM.
+# The heater-only board: an ATmega2560 as Klipper builds it (src/avr): 16 MHz timer, 10-bit ADC, 8-bit PWM.
 CLOCK_FREQ = 16_000_000
 ADC_MAX = 1023
 PWM_MAX = 255
@@ -28,33 +28,102 @@ DEFAULT_SENSOR = "EPCOS 100K B57560G104F"  # the board's thermistors: config/gen
 
 @dataclass(frozen=True)
 class Chip:
-    """An AVR as Klipper's src/avr builds it: its name (the MCU constant), GPIO ports of 8 pins
-    (PA0 = 0, src/avr/gpio.c GPIO()) and its ADC pins."""
+    """An MCU as Klipper builds it: its name (what --mcu and a config's "compiled for" say), its GPIO ports
+    of ``port_pins`` pins each (src/avr/gpio.c GPIO(): PA0 = 0, 8 a port; src/stm32/internal.h: 16 a port),
+    its ADC pins (src/avr/adc.c, src/stm32/adc.c adc_pins), its timer's CLOCK_FREQ, ADC_MAX and PWM_MAX
+    (the hardware PWM's full scale) and its MCU constant (the Kconfig CONFIG_MCU string klippy shows)."""
 
     name: str
     ports: str
     adc_pins: tuple[str, ...]
+    clock_freq: int = CLOCK_FREQ
+    adc_max: int = ADC_MAX
+    pwm_max: int = PWM_MAX
+    port_pins: int = 8
+    mcu: str = ""  # "" : the name
+    buses: tuple[tuple[str, str, str], ...] = ()  # (spi_bus or i2c_bus, its name, BUS_PINS_<name>), numbered in order
+
+    @property
+    def mcu_constant(self) -> str:
+        return self.mcu or self.name
+
+    def bus_enumerations(self) -> dict[str, dict[str, int]]:
+        """{"spi_bus": {name: number}, "i2c_bus": ...}: each kind's buses numbered in their order."""
+        enumerations: dict[str, dict[str, int]] = {}
+        for param, name, _ in self.buses:
+            kind = enumerations.setdefault(param, {})
+            kind[name] = len(kind)
+        return enumerations
+
+    def clocks(self, seconds: float) -> int:
+        """A duration in this MCU's timer clocks."""
+        return round(seconds * self.clock_freq)
 
     def pin_number(self, name: str) -> int:
-        """The MCU's number of a pin name (PB4 -> 12); ValueError if it has no such pin."""
-        if len(name) == 3 and name[0] == "P" and name[1] in self.ports and name[2] in "01234567":
-            return (ord(name[1]) - ord("A")) * 8 + int(name[2])
-        raise ValueError(f"no pin {name!r} on the {self.name} (P<port><0-7>, ports {', '.join(self.ports)})")
+        """The MCU's number of a pin name (PB4 -> 12 on an AVR, 20 on an STM32); ValueError if it has no
+        such pin."""
+        if len(name) in (3, 4) and name[0] == "P" and name[1] in self.ports and name[2:].isdigit():
+            bit = int(name[2:])
+            if bit < self.port_pins and name[2:] == str(bit):
+                return (ord(name[1]) - ord("A")) * self.port_pins + bit
+        raise ValueError(f"no pin {name!r} on the {self.name} (P<port><0-{self.port_pins - 1}>, ports "
+                         f"{', '.join(self.ports)})")
 
     def pin_name(self, number: int) -> str:
-        port, bit = divmod(number, 8)
+        port, bit = divmod(number, self.port_pins)
         return f"P{chr(ord('A') + port)}{bit}"
 
     def has_pin(self, number: int) -> bool:
         """Whether a pin number is one of the chip's (src/avr/gpio.c: past the last port it is not)."""
-        return 0 <= number < (ord(self.ports[-1]) - ord("A") + 1) * 8 and chr(ord("A") + number // 8) in self.ports
+        return (0 <= number < (ord(self.ports[-1]) - ord("A") + 1) * self.port_pins
+                and chr(ord("A") + number // self.port_pins) in self.ports)
+
+
+def _pins(spec: str) -> tuple[str, ...]:
+    """Pin names from ranges: "PA0-7 PC4" -> PA0..PA7, PC4."""
+    names: list[str] = []
+    for part in spec.split():
+        first, _, last = part.partition("-")
+        names += [f"{first[:2]}{n}" for n in range(int(first[2:]), int(last or first[2:]) + 1)]
+    return tuple(names)
+
+
+def _buses(spi: str, i2c: str) -> tuple[tuple[str, str, str], ...]:
+    """Bus enumerations from "name:PIN,PIN,PIN name:..." lists (src/avr/spi.c, i2c.c; src/stm32/spi.c, i2c.c)."""
+    return tuple((param, *bus.split(":", 1)) for param, buses in (("spi_bus", spi), ("i2c_bus", i2c))  # type: ignore[misc]
+                 for bus in buses.split())
+
+
+STM32_SPI = "spi2:PB14,PB15,PB13 spi1:PA6,PA7,PA5 spi1a:PB4,PB5,PB3"
+STM32_I2C = "i2c1:PB6,PB7 i2c1a:PB8,PB9 i2c2:PB10,PB11"
+STM32_F4_SPI = STM32_SPI + " spi2a:PC2,PC3,PB10 spi3:PB4,PB5,PB3 spi3a:PC11,PC12,PC10"
+
+
+def _stm32(name: str, mcu: str, clock_mhz: int, ports: str, adc: str = "PA0-7 PB0-1 PC0-5", spi: str = STM32_SPI,
+           i2c: str = STM32_I2C) -> Chip:
+    """An STM32 as src/stm32 builds it: 16 pins a port, a 12-bit ADC (ADC_MAX 4095) on ``adc``'s pins
+    (src/stm32/adc.c, stm32f0_adc.c, stm32h7_adc.c adc_pins), hardware PWM to 1 << 15 (hard_pwm.c MAX_PWM), the
+    SPI and I2C buses klippy 0.12's firmware names."""
+    return Chip(name, ports, _pins(adc), clock_freq=clock_mhz * 1_000_000, adc_max=4095, pwm_max=1 << 15,
+                port_pins=16, mcu=mcu, buses=_buses(spi, i2c))
 
 
 ATMEGA2560_PORTS = "ABCDEFGHJKL"
 CHIPS = {chip.name: chip for chip in (
-    Chip("atmega2560", ATMEGA2560_PORTS, tuple(f"P{port}{n}" for port in "FK" for n in range(8))),  # ADC0-15
-    Chip("atmega1284p", "ABCD", tuple(f"PA{n}" for n in range(8))),  # ADC0-7
-    Chip("atmega644p", "ABCD", tuple(f"PA{n}" for n in range(8))),
+    Chip("atmega2560", ATMEGA2560_PORTS, _pins("PF0-7 PK0-7"), buses=_buses("spi:PB3,PB2,PB1", "twi:PD0,PD1")),
+    Chip("atmega1284p", "ABCD", _pins("PA0-7"), buses=_buses("spi:PB6,PB5,PB7", "twi:PC0,PC1")),  # ADC0-7
+    Chip("atmega644p", "ABCD", _pins("PA0-7"), buses=_buses("spi:PB6,PB5,PB7", "twi:PC0,PC1")),
+    # src/stm32/Kconfig: CLOCK_FREQ (an external crystal) and MCU; the ports their CMSIS headers define
+    _stm32("stm32f103", "stm32f103xe", 72, "ABCDEFG", spi=STM32_SPI + " spi3:PB4,PB5,PB3"),
+    _stm32("stm32f070", "stm32f070xb", 48, "ABCDF"),
+    _stm32("stm32f401", "stm32f401xc", 84, "ABCDEH", spi=STM32_F4_SPI + " spi4:PE13,PE14,PE12",
+           i2c=STM32_I2C + " i2c3:PA8,PC9"),
+    _stm32("stm32f407", "stm32f407xx", 168, "ABCDEFGHI", "PA0-7 PB0-1 PC0-5 PF3-10", STM32_F4_SPI + " spi2b:PI2,PI3,PI1",
+           STM32_I2C + " i2c3:PA8,PC9 i2c2a:PH4,PH5 i2c3a:PH7,PH8"),
+    _stm32("stm32f446", "stm32f446xx", 180, "ABCDEFGH", "PA0-7 PB0-1 PC0-5 PF3-10", STM32_F4_SPI + " spi4:PE13,PE14,PE12",
+           STM32_I2C + " i2c3:PA8,PC9"),
+    _stm32("stm32g0b1", "stm32g0b1xx", 64, "ABCDEF", "PA0-7 PB0-2 PB10-12 PC4-5"),
+    _stm32("stm32h743", "stm32h743xx", 400, "ABCDEFGHIJK", "PA0-7 PB0-1 PC0-5 PF3-14 PH2-5"),
 )}
 BOARD_CHIP = Chip(MCU_NAME, ATMEGA2560_PORTS, CHIPS["atmega2560"].adc_pins)  # the heater-only board's
 PORTS = BOARD_CHIP.ports
@@ -174,11 +243,13 @@ class Dictionary:
             "responses": {fmt.text: fmt.msg_id for fmt in self.responses.values()},
             "output": {},
             "enumerations": {
-                "pin": {f"P{port}0": [(ord(port) - ord("A")) * 8, 8] for port in self.chip.ports},
+                "pin": {f"P{port}0": [self.chip.pin_number(f"P{port}0"), self.chip.port_pins] for port in self.chip.ports},
                 "static_string_id": self.static_string_ids,
+                **self.chip.bus_enumerations(),
             },
-            "config": {"CLOCK_FREQ": CLOCK_FREQ, "MCU": self.chip.name, "ADC_MAX": ADC_MAX, "PWM_MAX": PWM_MAX,
-                       "STATS_SUMSQ_BASE": STATS_SUMSQ_BASE},
+            "config": {"CLOCK_FREQ": self.chip.clock_freq, "MCU": self.chip.mcu_constant, "ADC_MAX": self.chip.adc_max,
+                       "PWM_MAX": self.chip.pwm_max, "STATS_SUMSQ_BASE": STATS_SUMSQ_BASE,
+                       **{f"BUS_PINS_{name}": pins for _, name, pins in self.chip.buses}},
         }
         return zlib.compress(json.dumps(doc, sort_keys=True).encode())
 

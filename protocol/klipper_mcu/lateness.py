@@ -5,13 +5,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from protocol.klipper_mcu import dictionary as d
-
 
 @dataclass
 class Lateness:
     """Lenient mode's forgiven timing faults since the MCU started (``reported``: as last logged)."""
 
+    clock_freq: int  # the MCU's clocks per second
     late_events: int = 0  # events the host scheduled in the past
     max_late_clocks: int = 0  # the latest of them
     forgiven_deadlines: int = 0  # missed max_duration deadlines whose next event came within the grace
@@ -19,7 +18,7 @@ class Lateness:
     reported: tuple[int, int] = (0, 0)
 
     def line(self) -> str:
-        ms = 1000 / d.CLOCK_FREQ
+        ms = 1000 / self.clock_freq
         return (f"lenient timing: {self.late_events} late events (up to {self.max_late_clocks * ms:.1f} ms late), "
                 f"{self.forgiven_deadlines} max_duration misses forgiven (up to {self.max_overdue_clocks * ms:.1f} ms "
                 "after it); MCU clock")

@@ -45,15 +45,18 @@ from protocol.klipper_mcu.codec import (
 )
 from protocol.klipper_mcu.dictionary import Dictionary, Shutdown
 from protocol.klipper_mcu.lateness import Lateness
+from protocol.klipper_mcu import motion, peripherals
 from protocol.klipper_mcu.motion import MotionCommands
+from protocol.klipper_mcu.peripherals import PeripheralCommands
 
 if TYPE_CHECKING:
     from protocol.klipper_mcu.board import TwinBoard
 
 LOG = logging.getLogger(__name__)
-STATS_INTERVAL_CLOCKS = 5 * d.CLOCK_FREQ  # src/basecmd.c stats_update: every 5 s
+PRINTER_FAMILIES = (motion.FAMILY, peripherals.FAMILY)  # what a printer.cfg's board serves beyond the heaters
+STATS_INTERVAL_S = 5.0  # src/basecmd.c stats_update: every 5 s
 STATS_TASK_CLOCKS = 100  # the nominal cost the stats report per event handled (the twin has no real one)
-LENIENT_GRACE_CLOCKS = d.CLOCK_FREQ  # default wait for a late event after a missed max_duration (server: wall-based)
+DEFAULT_GRACE_S = 1.0  # default wait for a late event after a missed max_duration (server: wall-based)
 
 
 @dataclass(eq=False)
@@ -98,20 +101,23 @@ class _PwmOut:
     overdue_since: int | None = None
 
 
-class KlipperMcu(MotionCommands):
+class KlipperMcu(MotionCommands, PeripheralCommands):
     """One MCU: the host's blocks in, response blocks out; timers on world clocks."""
 
     def __init__(self, board: TwinBoard, dictionary: Dictionary, *, strict: bool = False,
-                 grace_clocks: int = LENIENT_GRACE_CLOCKS):
-        self.board, self.dictionary, self.strict, self.grace_clocks = board, dictionary, strict, grace_clocks
+                 grace_clocks: int | None = None):
+        """``grace_clocks``: lenient mode's wait for a late event (default DEFAULT_GRACE_S of the chip's clock)."""
+        self.board, self.dictionary, self.strict = board, dictionary, strict
+        self.chip = dictionary.chip
+        self.grace_clocks = self.chip.clocks(DEFAULT_GRACE_S) if grace_clocks is None else grace_clocks
         self._identify = dictionary.data()
         self._by_id = dictionary.by_id
         self._output = bytearray()
         self.shutdown_reason: str | None = None  # the reason reported since the last shutdown
-        self.lateness = Lateness()
+        self.lateness = Lateness(self.chip.clock_freq)
         self.boots = 0
         self._handlers: dict[str, Callable[[dict], None]] = {
-            name: getattr(self, "_cmd_" + name) for name in dictionary.commands}
+            name: getattr(self, "_cmd_" + name, None) or self._accepted(name) for name in dictionary.commands}
         self.boot(0)
 
     def __repr__(self) -> str:
@@ -135,7 +141,7 @@ class KlipperMcu(MotionCommands):
         self._events_handled = 0
         self._output.clear()
         self.board.reset_pins(clock)
-        self._add_timer(clock + STATS_INTERVAL_CLOCKS, self._stats, None)
+        self._add_timer(clock + self.chip.clocks(STATS_INTERVAL_S), self._stats, None)
 
     def receive(self, data: bytes, clock: int) -> None:
         """Bytes from the host, arriving at world clock ``clock``: timers due first, then each block."""
@@ -268,7 +274,7 @@ class KlipperMcu(MotionCommands):
         if isinstance(out, _DigitalOut):
             self.board.drive(out.pin, self.now, int(out.default_on), 1)
         else:
-            self.board.drive(out.pin, self.now, out.default_value, d.PWM_MAX)
+            self.board.drive(out.pin, self.now, out.default_value, self.chip.pwm_max)
 
     def _deadline_missed(self, out: _DigitalOut | _PwmOut, reason: str) -> None:
         """max_duration passed with no next value: the pin to its default at once; in strict mode
@@ -280,7 +286,7 @@ class KlipperMcu(MotionCommands):
         self._to_default(out)
         out.overdue_since = self.now
         LOG.warning("lenient MCU: %s at clock %d: %s at its default, shutdown unless an event comes within %.0f ms",
-                    reason, self.mcu_clock(self.now), out.pin, self.grace_clocks * 1000 / d.CLOCK_FREQ)
+                    reason, self.mcu_clock(self.now), out.pin, self.grace_clocks * 1000 / self.chip.clock_freq)
         self._add_timer(self.now + self.grace_clocks, self._overdue, out, reason)
 
     def _overdue(self, out: _DigitalOut | _PwmOut, version: int, reason: str) -> None:
@@ -296,14 +302,14 @@ class KlipperMcu(MotionCommands):
         self.lateness.forgiven_deadlines += 1
         self.lateness.max_overdue_clocks = max(self.lateness.max_overdue_clocks, overdue)
         LOG.warning("lenient MCU: %s's next event came %.1f ms after its max_duration (forgiven)",
-                    out.pin, overdue * 1000 / d.CLOCK_FREQ)
+                    out.pin, overdue * 1000 / self.chip.clock_freq)
 
     def _stats(self) -> None:
         count = self._events_handled
         task = STATS_TASK_CLOCKS
         self._send("stats", count=count, sum=count * task, sumsq=count * -(-task * task // d.STATS_SUMSQ_BASE))
         self._events_handled = 0
-        self._add_timer(self.now + STATS_INTERVAL_CLOCKS, self._stats, None)
+        self._add_timer(self.now + self.chip.clocks(STATS_INTERVAL_S), self._stats, None)
         if self.lateness.changed():
             LOG.warning(self.lateness.line())
 
@@ -512,7 +518,7 @@ class KlipperMcu(MotionCommands):
     def _cmd_config_pwm_out(self, args: dict) -> None:
         pin = self._output_pin(args["pin"], d.NOT_PWM_PIN)
         self._alloc(args["oid"], _PwmOut(args["oid"] & 0xFF, pin, args["default_value"] & 0xFFFF, args["max_duration"]))
-        self.board.drive(pin, self.now, args["value"] & 0xFFFF, d.PWM_MAX)
+        self.board.drive(pin, self.now, args["value"] & 0xFFFF, self.chip.pwm_max)
 
     def _cmd_queue_pwm_out(self, args: dict) -> None:
         out = self._lookup(args["oid"], _PwmOut)
@@ -526,7 +532,7 @@ class KlipperMcu(MotionCommands):
             return
         _, value = out.queue.popleft()
         self._moves_used -= 1
-        self.board.drive(out.pin, self.now, value, d.PWM_MAX)
+        self.board.drive(out.pin, self.now, value, self.chip.pwm_max)
         limited = value != out.default_value and out.max_duration
         out.end_time = None
         if out.queue:
@@ -539,5 +545,5 @@ class KlipperMcu(MotionCommands):
             self._add_timer(out.end_time, self._pwm_event, out)
 
     def _cmd_set_pwm_out(self, args: dict) -> None:
-        self.board.drive(self._output_pin(args["pin"], d.NOT_PWM_PIN), self.now, args["value"] & 0xFFFF, d.PWM_MAX)
+        self.board.drive(self._output_pin(args["pin"], d.NOT_PWM_PIN), self.now, args["value"] & 0xFFFF, self.chip.pwm_max)
 

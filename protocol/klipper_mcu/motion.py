@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from protocol.klipper_mcu import dictionary as d
 from protocol.klipper_mcu.axes import Carriage, Move, Switch
 from protocol.klipper_mcu.codec import to_signed
-from protocol.klipper_mcu.dictionary import Shutdown
+from protocol.klipper_mcu.dictionary import Chip, Shutdown
 from protocol.klipper_mcu.probe import Probe
 
 if TYPE_CHECKING:
@@ -43,34 +43,16 @@ COMMANDS = (
     "trsync_start oid=%c report_clock=%u report_ticks=%u expire_reason=%c",
     "trsync_set_timeout oid=%c clock=%u",
     "trsync_trigger oid=%c reason=%c",
-    "config_st7920 oid=%c cs_pin=%u sclk_pin=%u sid_pin=%u sync_delay_ticks=%u cmd_delay_ticks=%u",
-    "st7920_send_cmds oid=%c cmds=%*s",
-    "st7920_send_data oid=%c data=%*s",
-    "config_buttons oid=%c button_count=%c",
-    "buttons_add oid=%c pos=%c pin=%u pull_up=%c",
-    "buttons_query oid=%c clock=%u rest_ticks=%u retransmit_count=%c invert=%c",
-    "buttons_ack oid=%c count=%c",
-    "config_hd44780 oid=%c rs_pin=%u e_pin=%u d4_pin=%u d5_pin=%u d6_pin=%u d7_pin=%u delay_ticks=%u",
-    "hd44780_send_cmds oid=%c cmds=%*s",
-    "hd44780_send_data oid=%c data=%*s",
-    "config_spi oid=%c pin=%u cs_active_high=%c",
-    "config_spi_without_cs oid=%c",
-    "spi_set_bus oid=%c spi_bus=%u mode=%u rate=%u",
-    "spi_set_software_bus oid=%c miso_pin=%u mosi_pin=%u sclk_pin=%u mode=%u rate=%u",
-    "spi_transfer oid=%c data=%*s",
-    "spi_send oid=%c data=%*s",
 )
 RESPONSES = (
     "stepper_position oid=%c pos=%i",
     "endstop_state oid=%c homing=%c next_clock=%u pin_value=%c",
     "trsync_state oid=%c can_trigger=%c trigger_reason=%c clock=%u",
-    "buttons_state oid=%c ack_count=%c state=%*s",
-    "spi_transfer_response oid=%c response=%*s",
 )
 FAMILY = (COMMANDS, RESPONSES)
 # A timer that reschedules itself sooner than this cannot keep up on an AVR: it falls behind until
-# src/avr/timer.c shuts the MCU down ("Rescheduled timer in the past"); the twin says so at once (10 us)
-MIN_PERIOD_CLOCKS = 160
+# src/avr/timer.c shuts the MCU down ("Rescheduled timer in the past"); the twin says so at once
+MIN_PERIOD_S = 10e-6
 
 
 @dataclass(eq=False)
@@ -127,18 +109,12 @@ class _Trsync:
         self.can_trigger = False
 
 
-@dataclass(eq=False)
-class _Accepted:
-    """A display or a set of buttons: configured, nothing else."""
-
-    oid: int
-
-
 class MotionCommands:
     """KlipperMcu's handlers for FAMILY's commands (a mixin: the oids, timers and output are the MCU's)."""
 
     if TYPE_CHECKING:  # what the mixin uses of KlipperMcu
         board: TwinBoard
+        chip: Chip
         now: int
         strict: bool
         grace_clocks: int
@@ -216,7 +192,7 @@ class MotionCommands:
         if not endstop.sample_count:
             endstop.homing, endstop.trsync = False, None
             return
-        if args["rest_ticks"] < MIN_PERIOD_CLOCKS:
+        if args["rest_ticks"] < self.chip.clocks(MIN_PERIOD_S):
             raise Shutdown(d.RESCHEDULED_IN_PAST)
         endstop.sample_ticks, endstop.rest_ticks = args["sample_ticks"], args["rest_ticks"]
         endstop.pin_value, endstop.reason = args["pin_value"] & 0xFF, args["trigger_reason"] & 0xFF
@@ -278,7 +254,7 @@ class MotionCommands:
         trsync.expire_timer += 1
         trsync.can_trigger, trsync.reason, trsync.overdue_since = True, 0, None
         trsync.expire_reason, trsync.report_ticks = args["expire_reason"] & 0xFF, args["report_ticks"]
-        if 0 < trsync.report_ticks < MIN_PERIOD_CLOCKS:
+        if 0 < trsync.report_ticks < self.chip.clocks(MIN_PERIOD_S):
             raise Shutdown(d.RESCHEDULED_IN_PAST)
         if trsync.report_ticks:
             self._add_timer(self.world_clock(args["report_clock"]), self._trsync_report, trsync)
@@ -336,63 +312,3 @@ class MotionCommands:
             self._stop_stepper(stepper)
         trsync.steppers.clear()
         self._send_trsync_state(trsync)
-
-    # -- src/lcd_st7920.c, src/buttons.c: accepted -------------------------------------------------
-    def _cmd_config_st7920(self, args: dict) -> None:
-        for name in ("cs_pin", "sclk_pin", "sid_pin"):
-            self._output_pin(args[name])
-        self._alloc(args["oid"], _Accepted(args["oid"] & 0xFF))
-
-    def _cmd_st7920_send_cmds(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-
-    def _cmd_st7920_send_data(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-
-    def _cmd_config_buttons(self, args: dict) -> None:
-        self._alloc(args["oid"], _Accepted(args["oid"] & 0xFF))
-
-    def _cmd_buttons_add(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-        self._input_pin(args["pin"])
-
-    def _cmd_buttons_query(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-
-    def _cmd_buttons_ack(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-
-    # -- src/lcd_hd44780.c, src/spicmds.c: accepted (an SPI device answers zeros) ---------------------
-    def _cmd_config_hd44780(self, args: dict) -> None:
-        for name in ("rs_pin", "e_pin", "d4_pin", "d5_pin", "d6_pin", "d7_pin"):
-            self._output_pin(args[name])
-        self._alloc(args["oid"], _Accepted(args["oid"] & 0xFF))
-
-    def _cmd_hd44780_send_cmds(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-
-    def _cmd_hd44780_send_data(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-
-    def _cmd_config_spi(self, args: dict) -> None:
-        self._output_pin(args["pin"])
-        self._alloc(args["oid"], _Accepted(args["oid"] & 0xFF))
-
-    def _cmd_config_spi_without_cs(self, args: dict) -> None:
-        self._alloc(args["oid"], _Accepted(args["oid"] & 0xFF))
-
-    def _cmd_spi_set_bus(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-
-    def _cmd_spi_set_software_bus(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-        for name in ("miso_pin", "mosi_pin", "sclk_pin"):
-            self._output_pin(args[name])
-
-    def _cmd_spi_transfer(self, args: dict) -> None:
-        device = self._lookup(args["oid"], _Accepted)
-        self._send("spi_transfer_response", oid=device.oid, response=bytes(len(args["data"])))
-
-    def _cmd_spi_send(self, args: dict) -> None:
-        self._lookup(args["oid"], _Accepted)
-

@@ -1,8 +1,8 @@
 """The twin MCU on a pseudo-terminal, its clock paced by the wall clock.
 
-The MCU's clock runs at ``speed`` x real time: ``CLOCK_FREQ * speed`` ticks per wall second,
-counted from the moment the pty was made. A reader thread stamps the host's bytes with the wall
-clock as they arrive, and the MCU takes each chunk at its stamp: a stall of the serving loop (or
+The MCU's clock runs at ``speed`` x real time: its chip's ``clock_freq * speed`` ticks per wall
+second, counted from the moment the pty was made. A reader thread stamps the host's bytes with the
+wall clock as they arrive, and the MCU takes each chunk at its stamp: a stall of the serving loop (or
 of the heavy imports before it starts) is not a late host. The loop sleeps until the MCU's next
 timer or the host's next bytes, then runs the MCU up to the clock the wall says it is now; each
 timer still runs at its own clock (mcu.py). As a USB board, the MCU is not reset when a host
@@ -24,7 +24,6 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from protocol.klipper_mcu.dictionary import CLOCK_FREQ
 from protocol.klipper_mcu.mcu import KlipperMcu
 from protocol.pty import Pty
 
@@ -44,7 +43,7 @@ class McuServer:
         self._start_s = clock()
         self.path, self.link = self._pty.path, self._pty.link
         self._arrived = threading.Condition()
-        self._events: deque[tuple[int, bytes | int]] = deque()  # (world clock, bytes or a change of holders)
+        self._events: deque[tuple[float, bytes | int]] = deque()  # (wall s since start, bytes or a change of holders)
         self._holders = 0
         self._unsent = bytearray()
         self._closing = threading.Event()
@@ -58,9 +57,11 @@ class McuServer:
     def address(self) -> str:
         return self.link or self.path
 
-    def world_clock(self) -> int:
-        """The MCU world clock the wall says it is now."""
-        return int((self.clock() - self._start_s) * self.speed * CLOCK_FREQ)
+    def world_clock(self, mcu: KlipperMcu, wall_s: float | None = None) -> int:
+        """The MCU world clock the wall says it is now (or was at ``wall_s`` since the start)."""
+        if wall_s is None:
+            wall_s = self.clock() - self._start_s
+        return int(wall_s * self.speed * mcu.chip.clock_freq)
 
     def serve_forever(self, mcu: KlipperMcu) -> None:
         while True:
@@ -70,7 +71,7 @@ class McuServer:
         """Wait for the MCU's next timer or the host; then the host's bytes at their stamps, the
         MCU's timers up to now, and its output to the host."""
         due = mcu.next_timer()
-        wait_s = MAX_WAIT_S if due is None else (due - self.world_clock()) / (CLOCK_FREQ * self.speed)
+        wait_s = MAX_WAIT_S if due is None else (due - self.world_clock(mcu)) / (mcu.chip.clock_freq * self.speed)
         if self._unsent and self._holders:
             wait_s = min(wait_s, FLUSH_WAIT_S)
         with self._arrived:
@@ -78,14 +79,14 @@ class McuServer:
                 self._arrived.wait(min(wait_s, MAX_WAIT_S))
             events = list(self._events)
             self._events.clear()
-            now = self.world_clock()  # under the lock: every chunk stamped before now is in events
-        for clock, item in events:
+            now = self.world_clock(mcu)  # under the lock: every chunk stamped before now is in events
+        for wall_s, item in events:
             if isinstance(item, int):
                 self._holders += item
                 if not self._holders:
                     self._unsent.clear()
             else:
-                mcu.receive(item, clock)
+                mcu.receive(item, self.world_clock(mcu, wall_s))
         mcu.run_until(now)
         output = mcu.take_output()
         if self._holders:
@@ -105,7 +106,7 @@ class McuServer:
 
     def _push(self, item: bytes | int) -> None:
         with self._arrived:
-            self._events.append((self.world_clock(), item))
+            self._events.append((self.clock() - self._start_s, item))
             self._arrived.notify()
 
     def _read_loop(self) -> None:

@@ -6,7 +6,8 @@ or ``key = value``, ``#`` and ``;`` comments, indented continuation lines, ``[in
 relative to the including file, and the SAVE_CONFIG block (``#*# `` lines after its marker)
 over the rest. Pins lose their ``^ ~ !`` modifiers (the MCU sees the bare pin; ``!`` is kept as
 ``inverted``). The chip: ``--mcu``, else the config's "compiled for ..." comment (Klipper's
-example configs say it), else the smallest AVR whose ports hold every pin.
+example configs say it), else the smallest AVR whose ports hold every pin, else the first STM32 of
+dictionary.CHIPS (the stm32f103 of most 32-bit printers' boards) that has them all.
 """
 
 from __future__ import annotations
@@ -222,7 +223,8 @@ def _chip(path: Path, chip_name: str | None, pins: list[str]) -> Chip:
         if not fitting:
             raise ConfigError(f"{path}: no chip the twin knows has every pin of [mcu] ({', '.join(sorted(set(pins)))}); "
                               f"the twin serves {', '.join(CHIPS)}")
-        return min(fitting, key=lambda c: len(c.ports))
+        avrs = [c for c in fitting if c.port_pins == 8]
+        return min(avrs, key=lambda c: len(c.ports)) if avrs else fitting[0]
     if chip_name not in CHIPS:
         raise ConfigError(f"{path}: the twin cannot serve an MCU compiled for {chip_name}; it serves {', '.join(CHIPS)}")
     chip = CHIPS[chip_name]

@@ -13,7 +13,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from protocol.klipper_mcu import dictionary as d
-from protocol.klipper_mcu import motion
+from protocol.klipper_mcu.mcu import PRINTER_FAMILIES
 from protocol.klipper_mcu.codec import BUFFER_FORMATS, MESSAGE_PAYLOAD_MAX, MESSAGE_SYNC, BlockReader, decode_vlq, frame, parse_messages
 from protocol.klipper_mcu.dictionary import CHIPS, build_dictionary, pin_number
 from tests.klipper_mcu.host import S, TestHost
@@ -223,11 +223,11 @@ def test_no_frame_crashes_hangs_or_grows_the_mcu(strict, frames, configure):
     fuzz(configured(strict) if configure else TestHost(strict=strict), frames)
 
 
-MOTION_COMMANDS = build_dictionary("test", CHIPS["atmega1284p"], families=(motion.FAMILY,)).commands
+PRINTER_COMMANDS = build_dictionary("test", CHIPS["atmega1284p"], families=PRINTER_FAMILIES).commands
 
 
 @pytest.mark.parametrize("strict", [False, True])
-@given(frames=st.lists(st.tuples(_blocks(MOTION_COMMANDS), st.integers(0, S // 10)), max_size=12),
+@given(frames=st.lists(st.tuples(_blocks(PRINTER_COMMANDS), st.integers(0, S // 10)), max_size=12),
        configure=st.booleans())
 def test_no_frame_crashes_hangs_or_grows_a_printer_cfg_board(tmp_path_factory, strict, frames, configure):
     """The same on a printer.cfg's board, steppers, endstops, trsyncs, displays and SPI included."""

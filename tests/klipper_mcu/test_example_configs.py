@@ -4,14 +4,15 @@ counts say how far the served ones got (no klippy: the sessions are replaced by 
 from __future__ import annotations
 
 from tools.klipper_host import example_configs
+from protocol.klipper_mcu.dictionary import CHIPS
 from tests.klipper_mcu.test_user_config import ENDER3
 
 
 def test_a_refused_config_is_its_reason(tmp_path):
     path = tmp_path / "printer-stm32.cfg"
-    path.write_text(ENDER3.replace("atmega1284p", "stm32f103"))
+    path.write_text(ENDER3.replace("atmega1284p", "sam4e8e"))
     assert example_configs.run_config(path, 10.0) == (
-        "refused", "the twin cannot serve an MCU compiled for stm32f103; it serves atmega2560, atmega1284p, atmega644p")
+        "refused", f"the twin cannot serve an MCU compiled for sam4e8e; it serves {', '.join(CHIPS)}")
 
 
 def test_the_counts_say_how_far_the_served_configs_got(tmp_path, monkeypatch, capsys):

@@ -10,7 +10,7 @@ import pytest
 from protocol.klipper_mcu.board import TICK_CLOCKS, TwinBoard
 from protocol.klipper_mcu.codec import frame
 from protocol.klipper_mcu.dictionary import ADC_OUT_OF_RANGE, COMMAND_REQUEST, TIMER_TOO_CLOSE, pin_number
-from protocol.klipper_mcu.mcu import STATS_INTERVAL_CLOCKS
+from protocol.klipper_mcu.mcu import STATS_INTERVAL_S
 from tests.klipper_mcu.host import NO_SCENARIO, S, TestHost
 from twin.clock import TICK_S
 from twin.plants import make_plant
@@ -190,7 +190,7 @@ def test_clock_wraps_at_32_bits():
     host.run(start + 2 * S)
     first = host.named("analog_in_state")[0]
     assert first["next_clock"] == (start + S + 4_800_000) & 0xFFFFFFFF
-    assert len(host.named("stats")) == (start + 2 * S) // STATS_INTERVAL_CLOCKS
+    assert len(host.named("stats")) == (start + 2 * S) // round(STATS_INTERVAL_S * S)
 
 
 def test_a_scenario_fault_cuts_the_heater():

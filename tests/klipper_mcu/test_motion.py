@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from protocol.klipper_mcu import dictionary as d
-from protocol.klipper_mcu import motion
+from protocol.klipper_mcu.mcu import PRINTER_FAMILIES
 from protocol.klipper_mcu.axes import Move
 from protocol.klipper_mcu.board import TwinBoard
 from protocol.klipper_mcu.dictionary import build_dictionary
@@ -34,7 +34,7 @@ def ender3_host(tmp_path, *, strict: bool = False) -> tuple[TestHost, object]:
     path.write_text(ENDER3)
     config = read_user_config(path)
     board = TwinBoard.for_config(config, NO_SCENARIO)
-    host = TestHost(board, strict=strict, dictionary=build_dictionary("test", config.chip, families=(motion.FAMILY,)))
+    host = TestHost(board, strict=strict, dictionary=build_dictionary("test", config.chip, families=PRINTER_FAMILIES))
     return host, config
 
 

@@ -12,8 +12,9 @@ from tools.klipper_host.session import KLIPPY_VENV_ENV, venv_command
 
 pytestmark = pytest.mark.slow
 
-CONFIGS = ("printer-creality-ender3-2018.cfg",  # atmega1284p, with its st7920 display and encoder
-           "printer-anycubic-i3-mega-2017.cfg")  # atmega2560, two Z steppers with an endstop each
+CONFIGS = {"printer-creality-ender3-2018.cfg": ("atmega1284p", 16_000_000),  # with its st7920 display and encoder
+           "printer-anycubic-i3-mega-2017.cfg": ("atmega2560", 16_000_000),  # two Z steppers with an endstop each
+           "printer-creality-ender3-v2-2020.cfg": ("stm32f103xe", 72_000_000)}  # no chip comment: from its pins
 
 
 def example_config(name: str) -> Path:
@@ -35,6 +36,8 @@ def test_an_example_config_homes_and_heats(klipper, name):
     served = session.config_path.read_text()
     assert f"serial: {session.link}" in served
     api = session.api
+    constants = api.query("mcu")["mcu"]["mcu_constants"]
+    assert (constants["MCU"], constants["CLOCK_FREQ"]) == CONFIGS[name]
     api.gcode("G28")
     assert set(endstops(api).values()) == {"TRIGGERED"}, endstops(api)
     api.gcode("G1 X50 Y50 Z10 F3000")

@@ -97,7 +97,7 @@ def test_includes_and_the_save_config_block(tmp_path):
 
 @pytest.mark.parametrize(("change", "message"), [
     (("[mcu]\nserial: /dev/ttyUSB0\n", ""), "no [mcu] section"),
-    (("atmega1284p", "stm32f103"), "cannot serve an MCU compiled for stm32f103; it serves atmega2560"),
+    (("atmega1284p", "sam4e8e"), "cannot serve an MCU compiled for sam4e8e; it serves atmega2560"),
     (("PD7", "PL7"), "pins the atmega1284p does not have: PL7"),
     (("rotation_distance: 40", "rotation_distance: forty"), "[stepper_x] rotation_distance: 'forty' is not a number"),
     (("[printer]", "[printer"), "printer.cfg"),

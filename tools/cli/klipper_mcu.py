@@ -13,7 +13,7 @@ import signal
 import sys
 import textwrap
 
-from protocol.klipper_mcu.dictionary import CLOCK_FREQ, DEFAULT_SENSOR, build_dictionary
+from protocol.klipper_mcu.dictionary import DEFAULT_SENSOR, build_dictionary
 from protocol.klipper_mcu.mcu import KlipperMcu
 from protocol.klipper_mcu.server import McuServer
 from protocol.klipper_mcu.user_config import ConfigError
@@ -121,12 +121,12 @@ def served_config(address: str, board, config) -> str:
 
 
 def dictionary_for(config):
-    from protocol.klipper_mcu import motion
     from protocol.klipper_mcu.dictionary import BOARD_CHIP
+    from protocol.klipper_mcu.mcu import PRINTER_FAMILIES
 
     if config is None:
         return build_dictionary(VERSION, BOARD_CHIP)
-    return build_dictionary(VERSION, config.chip, families=(motion.FAMILY,))
+    return build_dictionary(VERSION, config.chip, families=PRINTER_FAMILIES)
 
 
 def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
@@ -140,8 +140,9 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         print(server.address, flush=True)  # before the twin's import: the port is there for klippy at once
         check_names(parser, args)
         board = build_board(args, config)
-        grace_clocks = round(LENIENT_GRACE_S * args.speed * CLOCK_FREQ)
-        mcu = KlipperMcu(board, dictionary_for(config), strict=args.strict, grace_clocks=grace_clocks)
+        dictionary = dictionary_for(config)
+        grace_clocks = dictionary.chip.clocks(LENIENT_GRACE_S * args.speed)
+        mcu = KlipperMcu(board, dictionary, strict=args.strict, grace_clocks=grace_clocks)
         print(served_config(server.address, board, config), flush=True)
         mode = "strict" if args.strict else "lenient"
         print(f"twin-klipper-mcu: {server.address}, speed {args.speed:g}, {mode} timing; Ctrl-C stops",

@@ -267,7 +267,7 @@ def _axes(parser: configparser.RawConfigParser, get: _Getter) -> list[AxisPins]:
     for section, stepper in steppers.items():
         if not parser.has_option(section, "endstop_pin"):
             continue
-        endstop = parse_pin(parser.get(section, "endstop_pin"))
+        endstop = _endstop_pin(parser, parser.get(section, "endstop_pin"))
         if endstop.mcu != "mcu":
             continue
         rail = _rail(parser, section)
@@ -276,6 +276,16 @@ def _axes(parser: configparser.RawConfigParser, get: _Getter) -> list[AxisPins]:
         axes.append(AxisPins(section, stepper.step_pin, stepper.dir_inverted, endstop, stepper.step_mm, at, low, high,
                              homes_positive, _terms(kinematics, section, steppers)))
     return axes
+
+
+def _endstop_pin(parser: configparser.RawConfigParser, text: str) -> Pin:
+    """An endstop_pin's pin; a TMC driver's virtual_endstop (sensorless homing) is its driver's diag_pin, which
+    the driver raises where the carriage stalls at the end of its travel (klippy/extras/tmc.py)."""
+    pin = parse_pin(text)
+    driver = pin.mcu.replace("_", " ", 1)  # "tmc2209_stepper_x" -> the section [tmc2209 stepper_x]
+    if pin.name == "virtual_endstop" and driver.startswith("tmc") and parser.has_option(driver, "diag_pin"):
+        return parse_pin(parser.get(driver, "diag_pin"))
+    return pin
 
 
 def _steppers(parser: configparser.RawConfigParser, get: _Getter) -> dict[str, StepperPins]:

@@ -5,6 +5,7 @@ closes is the first step that takes the rail there."""
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -60,6 +61,18 @@ def test_the_first_pressed_clock_is_the_first_step_that_gets_there(count_a, coun
     assert switch.pressed_from(0) == expected
 
 
+CORE = ENDER3.replace("[stepper_z]", """[stepper_y]
+step_pin: PC6
+dir_pin: !PC7
+microsteps: 16
+rotation_distance: 40
+endstop_pin: ^PC3
+position_endstop: 0
+position_max: 220
+
+[stepper_z]""")
+
+
 DELTA = ENDER3.replace("[stepper_x]", "[stepper_a]").replace("""[stepper_z]
 step_pin: PB3
 dir_pin: PB2
@@ -97,16 +110,7 @@ def test_a_deltas_towers_are_carriages_of_their_own_with_stepper_as_defaults(tmp
 
 
 def test_corexy_rails_from_the_config(tmp_path):
-    text = ENDER3.replace("kinematics: cartesian", "kinematics: corexy").replace("[stepper_z]", """[stepper_y]
-step_pin: PC6
-dir_pin: !PC7
-microsteps: 16
-rotation_distance: 40
-endstop_pin: ^PC3
-position_endstop: 0
-position_max: 220
-
-[stepper_z]""")
+    text = CORE.replace("kinematics: cartesian", "kinematics: corexy")
     x, y, z = read_user_config(write(tmp_path, text)).axes
     assert [(s.section, w) for s, w in x.terms] == [("stepper_x", 0.5), ("stepper_y", 0.5)]
     assert [(s.section, w) for s, w in y.terms] == [("stepper_x", 0.5), ("stepper_y", -0.5)]
@@ -118,3 +122,17 @@ position_max: 220
     assert switch_y.rail.at_mm(0) == 110 + 50 and not switch_y.pressed(0)
     board.carriage("PC6").position = -16000  # +200 mm of b: y = 110 + (100 - 200) / 2
     assert switch_y.rail.at_mm(0) == 60
+
+
+
+@pytest.mark.parametrize(("kinematics", "expected"), [
+    # klippy/kinematics/*.py calc_position, each rail's coordinate from the steppers' positions
+    ("cartesian", {"x": {"x": 1.0}, "y": {"y": 1.0}, "z": {"z": 1.0}}),
+    ("corexz", {"x": {"x": 0.5, "z": 0.5}, "y": {"y": 1.0}, "z": {"x": 0.5, "z": -0.5}}),
+    ("hybrid_corexy", {"x": {"x": 1.0, "y": 1.0}, "y": {"y": 1.0}, "z": {"z": 1.0}}),
+    ("hybrid_corexz", {"x": {"x": 1.0, "z": 1.0}, "y": {"y": 1.0}, "z": {"z": 1.0}}),
+])
+def test_each_kinematics_weights_its_rails(tmp_path, kinematics, expected):
+    config = read_user_config(write(tmp_path, CORE.replace("kinematics: cartesian", f"kinematics: {kinematics}")))
+    got = {axis.section[-1]: {s.section[-1]: w for s, w in axis.terms} for axis in config.axes}
+    assert got == expected

@@ -4,8 +4,9 @@ endstop.c and trsync.c as Klipper's firmware runs them, and the display and butt
 Steppers queue moves on their carriage (axes.py); an endstop samples its pin from the clock
 klippy gives, every rest_ticks, and on a match oversamples sample_count times sample_ticks apart
 before it triggers its trsync, which stops the steppers linked to it and reports. The twin
-samples only where the pin can change: the first clock the queued moves press the switch, or a
-new move (the same clocks a real MCU's sampling would find). A trsync reports every report_ticks
+samples only where the pin can change: the first clock the queued moves press the switch (its
+rail through the kinematics: axes.py), a new move of a stepper on that rail, or a command to a
+probe (probe.py) (the same clocks a real MCU's sampling would find). A trsync reports every report_ticks
 while it can trigger, and expires at the timeout klippy keeps moving. Step moves do not take move
 queue slots (the twin computes steps when asked, not one timer each). An st7920 display and
 buttons are accepted: what is sent to the display is dropped, and no button is ever pressed.

@@ -18,8 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_port.thermistor import KLIPPER_SENSORS, Divider
-from protocol.klipper_mcu.axes import Carriage
+from protocol.klipper_mcu.axes import Carriage, Switch
 from protocol.klipper_mcu.dictionary import BOARD_CHIP, DEFAULT_SENSOR, Chip
+from protocol.klipper_mcu.probe import Probe
 from protocol.klipper_mcu.user_config import ConfigError, UserConfig
 from twin.clock import TICK_S, EventQueue
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
@@ -156,7 +157,8 @@ class TwinBoard:
         self._by_sensor = {h.wiring.sensor_pin: h for h in self.heaters.values()}
         self._ambient_sensors: dict[str, SensorChain] = {}  # thermistors no simulated heater warms
         self._carriages: dict[str, Carriage] = {}  # by step pin
-        self._endstops: dict[str, tuple[Carriage, int]] = {}  # by pin: its carriage, the level when pressed
+        self._endstops: dict[str, tuple[Switch | Probe, int]] = {}  # by pin: its switch, the level when pressed
+        self.probe: Probe | None = None  # a BLTouch's control pin drives it
         self.tick = 0  # the plants' state is at this plant tick
         self.fan = PinWave(self.tick_clocks)
         self.fan_failed = False
@@ -179,10 +181,15 @@ class TwinBoard:
         for sensor in config.sensors:
             if sensor.sensor_type in KLIPPER_SENSORS:  # others (a PT100 amplifier, a chip sensor) read open
                 board._ambient_sensors[sensor.pin] = board._chain(sensor.sensor_type, sensor.pullup_ohm, None)
+        rails = [axis.rail for axis in config.axes] + ([config.probe.z] if config.probe and config.probe.z else [])
+        for rail in rails:
+            for stepper, _ in rail.terms:
+                board.carriage(stepper.step_pin).stepper = stepper
         for axis in config.axes:
-            carriage = board.carriage(axis.step_pin)
-            carriage.pins = axis
-            board._endstops[axis.endstop.name] = (carriage, 1 ^ int(axis.endstop.inverted))
+            board._endstops[axis.endstop.name] = (Switch(axis, board.carriage), 1 ^ int(axis.endstop.inverted))
+        if config.probe is not None:
+            board.probe = Probe(config.probe, board.carriage)
+            board._endstops[config.probe.sensor.name] = (board.probe, 1 ^ int(config.probe.sensor.inverted))
         return board
 
     def _chain(self, sensor_type: str | None, pullup_ohm: float, stream) -> SensorChain:
@@ -194,10 +201,10 @@ class TwinBoard:
 
     def carriage(self, step_pin: str) -> Carriage:
         """The carriage on a step pin (one with no endstop, an extruder's, is made on first use)."""
-        return self._carriages.setdefault(step_pin, Carriage(None))
+        return self._carriages.setdefault(step_pin, Carriage())
 
-    def endstop(self, pin: str) -> tuple[Carriage | None, int]:
-        """The carriage that presses the switch on ``pin`` and the pin's level when pressed (none: never)."""
+    def endstop(self, pin: str) -> tuple[Switch | Probe | None, int]:
+        """The switch (or probe) on ``pin`` and the pin's level when pressed (none: a pin never pressed)."""
         return self._endstops.get(pin, (None, 1))
 
     # -- what the MCU does to the pins ---------------------------------------------------------
@@ -226,6 +233,8 @@ class TwinBoard:
         elif pin == self.fan_pin:
             self.fan.drive(clock, on, period)
             self._actions.push(round(clock / self.tick_clocks), self._apply_fan)
+        elif self.probe is not None and pin == self.probe.pins.control_pin:
+            self.probe.command(on / period)
 
     def reset_pins(self, clock: int) -> None:
         """A board reset: every output low from ``clock`` on."""

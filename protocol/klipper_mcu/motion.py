@@ -4,8 +4,9 @@ endstop.c and trsync.c as Klipper's firmware runs them, and the display and butt
 Steppers queue moves on their carriage (axes.py); an endstop samples its pin from the clock
 klippy gives, every rest_ticks, and on a match oversamples sample_count times sample_ticks apart
 before it triggers its trsync, which stops the steppers linked to it and reports. The twin
-samples only where the pin can change: the first clock the queued moves press the switch, or a
-new move (the same clocks a real MCU's sampling would find). A trsync reports every report_ticks
+samples only where the pin can change: the first clock the queued moves press the switch (its
+rail through the kinematics: axes.py), a new move of a stepper on that rail, or a command to a
+probe (probe.py) (the same clocks a real MCU's sampling would find). A trsync reports every report_ticks
 while it can trigger, and expires at the timeout klippy keeps moving. Step moves do not take move
 queue slots (the twin computes steps when asked, not one timer each). An st7920 display and
 buttons are accepted: what is sent to the display is dropped, and no button is ever pressed.
@@ -17,9 +18,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from protocol.klipper_mcu import dictionary as d
-from protocol.klipper_mcu.axes import Carriage, Move
+from protocol.klipper_mcu.axes import Carriage, Move, Switch
 from protocol.klipper_mcu.codec import to_signed
 from protocol.klipper_mcu.dictionary import Chip, Shutdown
+from protocol.klipper_mcu.probe import Probe
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -71,7 +73,7 @@ class _Stepper:
 class _Endstop:
     oid: int
     pin: str
-    carriage: Carriage | None  # the switch's carriage (None: a switch the twin never presses)
+    switch: Switch | Probe | None  # what presses it (None: a switch the twin never presses)
     pressed_level: int  # the pin's level when pressed (the config's ``!`` inverts it)
     homing: bool = False
     pin_value: int = 0
@@ -85,7 +87,7 @@ class _Endstop:
     timer: int = 0
 
     def level(self, clock: int) -> int:
-        pressed = self.carriage is not None and self.carriage.endstop_pressed(clock)
+        pressed = self.switch is not None and self.switch.pressed(clock)
         return self.pressed_level if pressed else 1 - self.pressed_level
 
     def shutdown(self, clock: int) -> None:
@@ -145,7 +147,7 @@ class MotionCommands:
         interval = args["interval"]
         first = self.world_clock((stepper.last_clock32 + interval) & 0xFFFFFFFF)
         move = Move(first - interval, interval, count, to_signed(args["add"], 16), stepper.next_dir)
-        stepper.carriage.moves.append(move)
+        stepper.carriage.queue(move, self.now)
         stepper.last_clock32 = self.mcu_clock(move.step_clock(count))
         for endstop in self._endstops_on(stepper.carriage):
             self._endstop_rearm(endstop)
@@ -178,8 +180,11 @@ class MotionCommands:
     # -- src/endstop.c -------------------------------------------------------------------------------
     def _cmd_config_endstop(self, args: dict) -> None:
         pin = self._input_pin(args["pin"])
-        carriage, pressed_level = self.board.endstop(pin)
-        self._alloc(args["oid"], _Endstop(args["oid"] & 0xFF, pin, carriage, pressed_level))
+        switch, pressed_level = self.board.endstop(pin)
+        endstop = _Endstop(args["oid"] & 0xFF, pin, switch, pressed_level)
+        self._alloc(args["oid"], endstop)
+        if isinstance(switch, Probe):  # a command to the probe changes it: sample again from there
+            switch.on_change = lambda: self._endstop_rearm(endstop)
 
     def _cmd_endstop_home(self, args: dict) -> None:
         endstop = self._lookup(args["oid"], _Endstop)
@@ -198,7 +203,8 @@ class MotionCommands:
         self._endstop_rearm(endstop)
 
     def _endstops_on(self, carriage: Carriage) -> list[_Endstop]:
-        return [o for o in self._oids or () if isinstance(o, _Endstop) and o.homing and o.carriage is carriage]
+        return [o for o in self._oids or ()
+                if isinstance(o, _Endstop) and o.homing and o.switch is not None and o.switch.moves_with(carriage)]
 
     def _endstop_rearm(self, endstop: _Endstop) -> None:
         """The next sample at which the pin can match: where the queued moves press (or release) the
@@ -208,10 +214,10 @@ class MotionCommands:
         start = max(endstop.next_wake, self.now)
         if endstop.level(start) == endstop.pin_value:
             at: int | None = start
-        elif endstop.carriage is None or endstop.pressed_level != endstop.pin_value:
+        elif endstop.switch is None or endstop.pressed_level != endstop.pin_value:
             at = None  # a switch the twin never presses (or homing on release): it never matches
         else:
-            at = endstop.carriage.pressed_from(start)
+            at = endstop.switch.pressed_from(start)
         if at is None:
             return
         ticks = endstop.rest_ticks

@@ -60,9 +60,29 @@ class SensorPin:
 
 
 @dataclass(frozen=True)
+class StepperPins:
+    """A stepper on the main MCU: klippy's millimetres per MCU step, and its dir_pin's ``!``."""
+
+    section: str
+    step_pin: str
+    dir_inverted: bool
+    step_mm: float
+
+
+@dataclass(frozen=True)
+class RailPins:
+    """A coordinate of the printer: the middle of [min, max] where it starts, plus each stepper's millimetres
+    times its weight (klippy's kinematics: corexy x = (a + b) / 2)."""
+
+    position_min_mm: float
+    position_max_mm: float
+    terms: tuple[tuple[StepperPins, float], ...]
+
+
+@dataclass(frozen=True)
 class AxisPins:
-    """A stepper with an endstop, as klippy's PrinterRail sees it: millimetres per MCU step and the
-    direction in which it homes."""
+    """A stepper with an endstop, as klippy's PrinterRail sees it: millimetres per MCU step, the
+    direction in which it homes, and the steppers whose travel moves its switch (``terms``)."""
 
     section: str
     step_pin: str
@@ -73,6 +93,23 @@ class AxisPins:
     position_min_mm: float
     position_max_mm: float
     homes_positive: bool
+    terms: tuple[tuple[StepperPins, float], ...] = ()
+
+    @property
+    def rail(self) -> RailPins:
+        return RailPins(self.position_min_mm, self.position_max_mm, self.terms)
+
+
+@dataclass(frozen=True)
+class ProbePins:
+    """A [bltouch] or [probe] on the main MCU: its sensor pin, a BLTouch's servo control pin (None: a probe
+    that is always deployed), and the nozzle's height at which it triggers (z_offset)."""
+
+    section: str
+    sensor: Pin
+    control_pin: str | None
+    z_offset_mm: float
+    z: RailPins | None  # the nozzle's height (None: not a linear sum of steppers, as on a delta)
 
 
 @dataclass(frozen=True)
@@ -84,6 +121,7 @@ class UserConfig:
     fan_pin: str | None
     axes: tuple[AxisPins, ...]
     serial: str
+    probe: ProbePins | None = None
 
 
 def parse_pin(text: str) -> Pin:
@@ -162,7 +200,7 @@ def read_user_config(path: Path, chip_name: str | None = None) -> UserConfig:
             sensors.append(SensorPin(section, sensor_pin.name, sensor_type, pullup))
     fan = parse_pin(parser.get("fan", "pin")) if parser.has_option("fan", "pin") else None
     return UserConfig(path, chip, tuple(heaters), tuple(sensors), fan.name if fan and fan.mcu == "mcu" else None,
-                      tuple(_axes(parser, get)), parser.get("mcu", "serial", fallback="").strip())
+                      tuple(_axes(parser, get)), parser.get("mcu", "serial", fallback="").strip(), _probe(parser, get))
 
 
 def _main_mcu_pins(parser: configparser.RawConfigParser) -> list[str]:
@@ -222,30 +260,103 @@ class _Getter:
 
 def _axes(parser: configparser.RawConfigParser, get: _Getter) -> list[AxisPins]:
     """Each stepper_* section with an endstop on the main MCU (stepper_z1 & co. take stepper_z's
-    positions, as klippy's rail does)."""
+    positions, as klippy's rail does), with the steppers that move its switch."""
+    steppers = _steppers(parser, get)
+    kinematics = _kinematics(parser)
     axes = []
+    for section, stepper in steppers.items():
+        if not parser.has_option(section, "endstop_pin"):
+            continue
+        endstop = _endstop_pin(parser, parser.get(section, "endstop_pin"))
+        if endstop.mcu != "mcu":
+            continue
+        rail = _rail(parser, section)
+        low, high, at = _travel(parser, get, rail)
+        homes_positive = _homes_up(parser, rail) or at >= high - (high - low) / 4
+        axes.append(AxisPins(section, stepper.step_pin, stepper.dir_inverted, endstop, stepper.step_mm, at, low, high,
+                             homes_positive, _terms(kinematics, section, steppers)))
+    return axes
+
+
+def _endstop_pin(parser: configparser.RawConfigParser, text: str) -> Pin:
+    """An endstop_pin's pin; a TMC driver's virtual_endstop (sensorless homing) is its driver's diag_pin, which
+    the driver raises where the carriage stalls at the end of its travel (klippy/extras/tmc.py)."""
+    pin = parse_pin(text)
+    driver = pin.mcu.replace("_", " ", 1)  # "tmc2209_stepper_x" -> the section [tmc2209 stepper_x]
+    if pin.name == "virtual_endstop" and driver.startswith("tmc") and parser.has_option(driver, "diag_pin"):
+        return parse_pin(parser.get(driver, "diag_pin"))
+    return pin
+
+
+def _steppers(parser: configparser.RawConfigParser, get: _Getter) -> dict[str, StepperPins]:
+    """Each stepper_* section whose steps the main MCU makes, by section."""
+    steppers = {}
     for section in parser.sections():
         if not section.startswith("stepper_") or not parser.has_option(section, "step_pin"):
             continue
-        rail = _rail(parser, section)
-        if not parser.has_option(section, "endstop_pin"):
-            continue
-        endstop = parse_pin(parser.get(section, "endstop_pin"))
         step, direction = parse_pin(parser.get(section, "step_pin")), parse_pin(parser.get(section, "dir_pin"))
-        if endstop.mcu != "mcu" or step.mcu != "mcu":
+        if step.mcu != "mcu":
             continue
         step_mm = get.number(section, "rotation_distance") / (
             get.number(section, "full_steps_per_rotation", FULL_STEPS) * get.number(section, "microsteps"))
-        low = get.number(rail, "position_min", 0.0)
-        if parser.has_option(rail, "position_endstop"):  # klippy: position_max defaults to it (a delta's towers)
-            at = get.number(rail, "position_endstop")
-            high = get.number(rail, "position_max", at)
-        else:  # an endstop at the end homing_positive_dir names
-            high = get.number(rail, "position_max")
-            at = high if _homes_up(parser, rail) else low
-        homes_positive = _homes_up(parser, rail) or at >= high - (high - low) / 4
-        axes.append(AxisPins(section, step.name, direction.inverted, endstop, step_mm, at, low, high, homes_positive))
-    return axes
+        steppers[section] = StepperPins(section, step.name, direction.inverted, step_mm)
+    return steppers
+
+
+def _travel(parser: configparser.RawConfigParser, get: _Getter, rail: str) -> tuple[float, float, float]:
+    """(position_min, position_max, position_endstop) of a rail, with klippy's defaults."""
+    low = get.number(rail, "position_min", 0.0)
+    if parser.has_option(rail, "position_endstop"):  # klippy: position_max defaults to it (a delta's towers)
+        at = get.number(rail, "position_endstop")
+        return low, get.number(rail, "position_max", at), at
+    high = get.number(rail, "position_max")  # an endstop at the end homing_positive_dir names
+    return low, high, high if _homes_up(parser, rail) else low
+
+
+# klippy/kinematics/*.py calc_position: a rail's coordinate as weights of its axes' steppers' positions (any
+# other rail, and any other kinematics, is its own stepper's position: cartesian, a delta's tower carriages)
+KINEMATICS: dict[str, dict[str, dict[str, float]]] = {
+    "corexy": {"x": {"x": 0.5, "y": 0.5}, "y": {"x": 0.5, "y": -0.5}},
+    "corexz": {"x": {"x": 0.5, "z": 0.5}, "z": {"x": 0.5, "z": -0.5}},
+    "hybrid_corexy": {"x": {"x": 1.0, "y": 1.0}},
+    "hybrid_corexz": {"x": {"x": 1.0, "z": 1.0}},
+}
+
+
+def _kinematics(parser: configparser.RawConfigParser) -> str:
+    return parser.get("printer", "kinematics", fallback="cartesian").strip().lower()
+
+
+def _terms(kinematics: str, section: str, steppers: dict[str, StepperPins]) -> tuple[tuple[StepperPins, float], ...]:
+    """The steppers (with weights) whose positions make ``section``'s rail coordinate: the section itself
+    for its own axis (stepper_x1 stands for stepper_x on its rail), the other axes' first steppers."""
+    axis = re.sub(r"\d+$", "", section.removeprefix("stepper_"))
+    weights = KINEMATICS.get(kinematics, {}).get(axis, {axis: 1.0})
+    names = {other: section if other == axis else f"stepper_{other}" for other in weights}
+    return tuple((steppers[names[other]], weight) for other, weight in weights.items() if names[other] in steppers)
+
+
+def _probe(parser: configparser.RawConfigParser, get: _Getter) -> ProbePins | None:
+    """The [bltouch] (else [probe]) whose sensor is on the main MCU, with the nozzle height through stepper_z."""
+    for section, option in (("bltouch", "sensor_pin"), ("probe", "pin")):
+        if not parser.has_option(section, option):
+            continue
+        sensor = parse_pin(parser.get(section, option))
+        if sensor.mcu != "mcu":
+            return None
+        control = parse_pin(parser.get(section, "control_pin")).name if section == "bltouch" else None
+        return ProbePins(section, sensor, control, get.number(section, "z_offset"), _z_rail(parser, get))
+    return None
+
+
+def _z_rail(parser: configparser.RawConfigParser, get: _Getter) -> RailPins | None:
+    """The nozzle's height: stepper_z's rail through the kinematics (None on a delta, or without stepper_z)."""
+    steppers = _steppers(parser, get)
+    kinematics = _kinematics(parser)
+    if kinematics == "delta" or "stepper_z" not in steppers:
+        return None
+    low = get.number("stepper_z", "position_min", 0.0)
+    return RailPins(low, get.number("stepper_z", "position_max"), _terms(kinematics, "stepper_z", steppers))
 
 
 def _rail(parser: configparser.RawConfigParser, section: str) -> str:

@@ -130,3 +130,14 @@ def test_a_thermistor_the_twin_does_not_simulate_is_one_line(tmp_path):
                                                              "sensor_type: MAX6675\nsensor_pin: PA7")))
     with pytest.raises(ConfigError, match=r"\[extruder\] sensor_type 'MAX6675': the twin simulates these thermistors"):
         TwinBoard.for_config(config, NO_SCENARIO)
+
+
+def test_a_tmc_virtual_endstop_is_its_drivers_diag_pin(tmp_path):
+    """Sensorless homing: klippy homes on the driver's DIAG output, which rises where the carriage stalls."""
+    text = ENDER3.replace("endstop_pin: ^PC2", "endstop_pin: tmc2209_stepper_x:virtual_endstop") + """
+[tmc2209 stepper_x]
+uart_pin: PC6
+diag_pin: ^PC3
+"""
+    x, _ = read_user_config(write(tmp_path, text)).axes
+    assert (x.endstop.name, x.endstop.inverted, x.endstop.mcu, x.position_endstop_mm) == ("PC3", False, "mcu", 0)

@@ -73,16 +73,8 @@ position_max: 220
 [stepper_z]""")
 
 
-DELTA = ENDER3.replace("[stepper_x]", "[stepper_a]").replace("""[stepper_z]
-step_pin: PB3
-dir_pin: PB2
-enable_pin: !PA5
-microsteps: 16
-rotation_distance: 8
-endstop_pin: ^PC4
-position_endstop: 0.0
-position_max: 250
-""", """[stepper_b]
+ENDER3_Z = ENDER3[ENDER3.index("[stepper_z]"):ENDER3.index("\n[extruder]")]
+DELTA = ENDER3.replace("[stepper_x]", "[stepper_a]").replace(ENDER3_Z, """[stepper_b]
 step_pin: PB3
 dir_pin: PB2
 microsteps: 16

@@ -8,7 +8,9 @@ or inputs, checked as gpio_out_setup and gpio_in_setup check them) or uses one o
 - ``spi_transfer``: an SPI device answers as a TMC2130/2240/5160 on it would (``TmcSpi``), else zeros;
 - ``tmcuart_send``: a TMC2208/2209/2225 on the wire answers reads, counts writes in IFCNT (``TmcUart``), in
   klippy's bit-banged framing (src/tmcuart.c: 10 bits a byte, start 0, LSB first, stop 1);
-- ``i2c_read``: zeros of the length asked; ``neopixel_send``: success.
+- ``i2c_read``: zeros of the length asked; ``neopixel_send``: success;
+- ``query_counter`` (a fan's tachometer, a pulse counter): counter_state reports on src/pulse_counter.c's
+  schedule, counting nothing (no simulated pulses: a tachometer reads 0 RPM).
 The formats are those of klippy 0.12 (src/i2ccmds.c before i2c_transfer replaced i2c_write and i2c_read).
 """
 
@@ -17,7 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from protocol.klipper_mcu.dictionary import INVALID_OID, Shutdown
+from protocol.klipper_mcu.dictionary import INVALID_OID, RESCHEDULED_IN_PAST, Chip, Shutdown
+from protocol.klipper_mcu.motion import MIN_PERIOD_S
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -50,6 +53,8 @@ COMMANDS = (
     "config_neopixel oid=%c pin=%u data_size=%hu bit_max_ticks=%u reset_min_ticks=%u",
     "neopixel_update oid=%c pos=%hu data=%*s",
     "neopixel_send oid=%c",
+    "config_counter oid=%c pin=%u pull_up=%c",
+    "query_counter oid=%c clock=%u poll_ticks=%u sample_ticks=%u",
 )
 RESPONSES = (
     "buttons_state oid=%c ack_count=%c state=%*s",
@@ -57,6 +62,7 @@ RESPONSES = (
     "i2c_read_response oid=%c response=%*s",
     "tmcuart_response oid=%c read=%*s",
     "neopixel_result oid=%c success=%c",
+    "counter_state oid=%c next_clock=%u count=%u count_clock=%u",
 )
 FAMILY = (COMMANDS, RESPONSES)
 
@@ -95,6 +101,7 @@ ACCEPTED = {
     "config_tmcuart": Accepted("tmcuart", True, ("tx_pin",), ("rx_pin",)),
     "config_neopixel": Accepted("neopixel", True, ("pin",)),
     "neopixel_update": Accepted("neopixel"),
+    "config_counter": Accepted("counter", True, inputs=("pin",)),
 }
 
 
@@ -106,6 +113,7 @@ class Device:
     oid: int
     family: str
     tmc: dict[int, TmcRegisters] = field(default_factory=dict)
+    timer: int = 0  # the version of its pending timer (a counter's reports)
 
 
 @dataclass
@@ -205,6 +213,11 @@ class PeripheralCommands:
     """KlipperMcu's handlers for FAMILY's commands (a mixin: the oids and output are the MCU's)."""
 
     if TYPE_CHECKING:  # what the mixin uses of KlipperMcu
+        chip: Chip
+        now: int
+        def world_clock(self, clock32: int) -> int: ...
+        def mcu_clock(self, clock: int) -> int: ...
+        def _add_timer(self, clock: int, action: Callable, owner, *args) -> None: ...
         def _alloc(self, oid: int, obj: object) -> None: ...
         def _lookup(self, oid: int, kind: type): ...
         def _send(self, name: str, **values) -> None: ...
@@ -254,3 +267,21 @@ class PeripheralCommands:
     def _cmd_neopixel_send(self, args: dict) -> None:
         device = self._device(args["oid"], "neopixel")
         self._send("neopixel_result", oid=device.oid, success=1)
+
+    def _cmd_query_counter(self, args: dict) -> None:
+        """src/pulse_counter.c: polled every poll_ticks from ``clock``; a poll after the next sample time
+        reports (next_clock: the poll after it). The pin never changes, so only the reporting polls are run."""
+        counter = self._device(args["oid"], "counter")
+        poll, sample = args["poll_ticks"], args["sample_ticks"]
+        if poll < self.chip.clocks(MIN_PERIOD_S):
+            raise Shutdown(RESCHEDULED_IN_PAST)
+        start = self.world_clock(args["clock"])
+        self._add_timer(start + poll, self._counter_report, counter, start, poll, sample)
+
+    def _counter_report(self, counter: Device, version: int, start: int, poll: int, sample: int) -> None:
+        if version != counter.timer:
+            return
+        self._send("counter_state", oid=counter.oid, next_clock=self.mcu_clock(self.now + poll), count=0,
+                   count_clock=0)
+        polls = (self.now + sample - start) // poll + 1  # the first poll strictly after the next sample time
+        self._add_timer(start + polls * poll, self._counter_report, counter, start, poll, sample)

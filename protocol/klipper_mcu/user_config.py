@@ -7,7 +7,8 @@ relative to the including file, and the SAVE_CONFIG block (``#*# `` lines after 
 over the rest. Pins lose their ``^ ~ !`` modifiers (the MCU sees the bare pin; ``!`` is kept as
 ``inverted``). The chip: ``--mcu``, else the config's "compiled for ..." comment (Klipper's
 example configs say it), else the smallest AVR whose ports hold every pin, else the first STM32 of
-dictionary.CHIPS (the stm32f103 of most 32-bit printers' boards) that has them all.
+dictionary.CHIPS (the stm32f103 of most 32-bit printers' boards) that has them all; among those, one
+whose ADC reads every thermistor's pin, where one does (PF3 and PF4: an stm32f407).
 """
 
 from __future__ import annotations
@@ -182,7 +183,9 @@ def read_user_config(path: Path, chip_name: str | None = None) -> UserConfig:
     if not parser.has_section("mcu"):
         raise ConfigError(f"{path}: no [mcu] section: the twin serves the printer's main MCU")
     pins = _main_mcu_pins(parser)
-    chip = _chip(path, chip_name, pins)
+    analog = [parse_pin(parser.get(section, "sensor_pin")).name for section in parser.sections()
+              if parser.has_option(section, "sensor_pin") and parse_pin(parser.get(section, "sensor_pin")).mcu == "mcu"]
+    chip = _chip(path, chip_name, pins, analog)
     get = _Getter(parser, path)
     heaters, sensors = [], []
     for section in parser.sections():
@@ -214,7 +217,9 @@ def _main_mcu_pins(parser: configparser.RawConfigParser) -> list[str]:
     return names
 
 
-def _chip(path: Path, chip_name: str | None, pins: list[str]) -> Chip:
+def _chip(path: Path, chip_name: str | None, pins: list[str], analog: list[str]) -> Chip:
+    """The chip ``chip_name`` or the config's comment names, else one with every pin (its thermistors' on its
+    ADC where one has them all)."""
     if chip_name is None:
         said = COMPILED_FOR.search(" ".join(path.read_text(errors="replace").replace("#", " ").split()))
         chip_name = said.group(1).lower() if said is not None else None
@@ -223,6 +228,7 @@ def _chip(path: Path, chip_name: str | None, pins: list[str]) -> Chip:
         if not fitting:
             raise ConfigError(f"{path}: no chip the twin knows has every pin of [mcu] ({', '.join(sorted(set(pins)))}); "
                               f"the twin serves {', '.join(CHIPS)}")
+        fitting = [c for c in fitting if set(analog) <= set(c.adc_pins)] or fitting
         avrs = [c for c in fitting if c.port_pins == 8]
         return min(avrs, key=lambda c: len(c.ports)) if avrs else fitting[0]
     if chip_name not in CHIPS:

@@ -70,6 +70,8 @@ def test_a_32_bit_config_without_a_chip_comment_is_the_stm32f103(tmp_path):
     config = read_user_config(write(tmp_path, text.replace("pin: PB4", "pin: PA15")))  # the fan: no AVR has PA15
     assert config.chip is STM32F103 and config.fan_pin == "PA15"
     assert read_user_config(write(tmp_path, text), "stm32f407").chip.mcu_constant == "stm32f407xx"
+    on_adc3 = text.replace("pin: PB4", "pin: PA15").replace("sensor_pin: PA7", "sensor_pin: PF4")
+    assert read_user_config(write(tmp_path, on_adc3)).chip.name == "stm32f407"  # PF4: ADC3, not on an stm32f103
 
 
 def test_the_stm32_adc_reads_twelve_bits_of_the_same_divider():

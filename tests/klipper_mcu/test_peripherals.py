@@ -139,3 +139,19 @@ def test_the_buses_are_the_firmwares(chip, spi, i2c):
     assert doc["enumerations"]["spi_bus"] == spi and doc["enumerations"]["i2c_bus"] == i2c
     assert doc["config"]["BUS_PINS_" + next(iter(spi))] == {"stm32f103": "PB14,PB15,PB13",
                                                            "atmega2560": "PB3,PB2,PB1"}[chip]
+
+
+def test_a_counter_reports_on_the_firmwares_schedule():
+    """src/pulse_counter.c with a pin that never changes: the first poll after the clock reports, then the first
+    poll strictly after each next sample time (1 poll + 10 polls of sample later: the 12th); count 0."""
+    test_host = host()
+    send(test_host, f"config_counter oid=3 pin={STM32F103.pin_number('PE5')} pull_up=0")
+    start = STM32F103.clock_freq
+    send(test_host, f"query_counter oid=3 clock={start} poll_ticks=1000 sample_ticks=10000")
+    test_host.run(start + 30_000)
+    assert test_host.named("counter_state") == [
+        {"oid": 3, "next_clock": start + 2000, "count": 0, "count_clock": 0},
+        {"oid": 3, "next_clock": start + 13_000, "count": 0, "count_clock": 0},
+        {"oid": 3, "next_clock": start + 24_000, "count": 0, "count_clock": 0}]
+    send(test_host, f"query_counter oid=3 clock={start} poll_ticks=0 sample_ticks=10000")  # a poll that spins
+    assert test_host.named("shutdown")

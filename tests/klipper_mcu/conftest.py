@@ -9,36 +9,54 @@ A busy machine. At S x real time klippy's own windows shrink to 1/S of wall time
 the MCU and five unanswered clock queries become 0.5 s at 10 x, and a heater update is due 0.3 s
 after the report it answers, 30 ms. With other processes on both cores klippy misses them: it
 says "Timeout on connect" or "Lost communication", or the MCU forgives late events, which moves
-PID_CALIBRATE's relay. Such a run says nothing about the twin, so a test that fails where its
+PID_CALIBRATE's relay. Such a run says nothing about the twin, so an attempt that fails where its
 session missed the schedule (``KlipperSession.missed_schedule``) runs again, from the start, at
 the next of SPEEDS, with a warning that says why; at 1 x klippy has the windows a real printer
-gives it. A failure on schedule, or at the last speed, fails the test.
+gives it. A failure on schedule, or at the last speed, stands. One mechanism (``Klipper.attempt``)
+for both places a session starts: a test body that starts its own (pytest_pyfunc_call below), and a
+fixture that starts one with what runs on it (Moonraker, the agent: ``klipper.attempt(start)``),
+whose setup would otherwise fail before the body's re-run could help.
 """
 
 from __future__ import annotations
 
+import subprocess
 import warnings
+from collections.abc import Callable
+from typing import TypeVar
 
 import pytest
 
 from tests.conftest import unavailable
-from tools.klipper_host.session import KLIPPY_VENV_ENV, KlipperSession, Missing, faketime_env, venv_command
+from tools.klipper_host.session import (
+    KLIPPY_VENV_ENV,
+    KlipperSession,
+    Missing,
+    faketime_env,
+    stop_process,
+    venv_command,
+)
 
 SPEEDS = (10.0, 4.0, 1.0)
+T = TypeVar("T")
 
 
 class Klipper:
     """The ``klipper`` fixture: ``klipper(*mcu_args, **options)`` starts a session at the current speed
-    (stopped at teardown) and returns it."""
+    (stopped at teardown) and returns it; ``klipper.spawn(args, **popen_kwargs)`` starts a process that
+    runs on it (stopped before the sessions); ``klipper.attempt(what, start)`` runs ``start`` until it is not
+    off schedule. ``session_class`` is KlipperSession but in the mechanism's own tests."""
 
-    def __init__(self, tmp_path):
+    def __init__(self, tmp_path, session_class: Callable[..., KlipperSession] = KlipperSession):
         self.tmp_path = tmp_path
+        self.session_class = session_class
         self.speeds = list(SPEEDS)
-        self.sessions: list[KlipperSession] = []  # this attempt's
+        self.sessions: list[KlipperSession] = []  # the running attempts'
+        self.processes: list[subprocess.Popen] = []  # likewise
         self.started = 0  # in all attempts, for their folders
 
     def __repr__(self) -> str:
-        return f"Klipper({self.speed:g} x, {len(self.sessions)} sessions)"
+        return f"Klipper({self.speed:g} x, {len(self.sessions)} sessions, {len(self.processes)} processes)"
 
     @property
     def speed(self) -> float:
@@ -48,23 +66,46 @@ class Klipper:
         workdir = self.tmp_path / f"session{self.started}"
         workdir.mkdir()
         self.started += 1
-        self.sessions.append(KlipperSession(workdir, speed=self.speed, mcu_args=mcu_args, **options))
+        self.sessions.append(self.session_class(workdir, speed=self.speed, mcu_args=mcu_args, **options))
         return self.sessions[-1]
 
-    def close(self) -> None:
-        for session in self.sessions:
-            session.close()
+    def spawn(self, args: list[str], **popen_kwargs) -> subprocess.Popen:
+        self.processes.append(subprocess.Popen(args, **popen_kwargs))
+        return self.processes[-1]
 
-    def slow_down(self) -> str | None:
-        """After a failure: the sessions stopped; if one missed the MCU's schedule and a lower speed is
-        left, the next attempt takes it, and this says why (None: the failure stands)."""
-        self.close()
-        missed = [why for session in self.sessions if (why := session.missed_schedule())]
+    def attempt(self, what: str, start: Callable[[], T]) -> T:
+        """``start()``'s value. While it raises off schedule with a lower speed left, what it started is
+        stopped and it runs again at the next speed, with a pytest warning that says why (``what`` runs)."""
+        while True:
+            sessions, processes = len(self.sessions), len(self.processes)
+            try:
+                return start()
+            except Exception:
+                why = self.slow_down(sessions, processes)
+                if why is None:
+                    raise
+                warnings.warn(f"{why}: {what} runs again at {self.speed:g} x", pytest.PytestWarning, stacklevel=2)
+
+    def slow_down(self, sessions: int = 0, processes: int = 0) -> str | None:
+        """After a failed attempt: what it started (the sessions and processes from these indices on) is
+        stopped; if one of its sessions missed the MCU's schedule and a lower speed is left, the next
+        attempt takes it, and this says what was missed at which speed (None: the failure stands)."""
+        self._stop(sessions, processes)
+        missed = [why for session in self.sessions[sessions:] if (why := session.missed_schedule())]
         if not missed or len(self.speeds) == 1:
             return None
         was = self.speeds.pop(0)
-        self.sessions = []
-        return f"{missed[0]} at {was:g} x real time: the test runs again at {self.speed:g} x"
+        del self.sessions[sessions:], self.processes[processes:]
+        return f"{missed[0]} at {was:g} x real time"
+
+    def close(self) -> None:
+        self._stop(0, 0)
+
+    def _stop(self, sessions: int, processes: int) -> None:
+        for proc in reversed(self.processes[processes:]):  # what runs on the sessions first
+            stop_process(proc)
+        for session in self.sessions[sessions:]:
+            session.close()
 
 
 @pytest.fixture
@@ -86,12 +127,5 @@ def pytest_pyfunc_call(pyfuncitem):
     if not isinstance(runner, Klipper) or runner.sessions:  # none, or a fixture started one: once, as usual
         return None
     args = {name: pyfuncitem.funcargs[name] for name in pyfuncitem._fixtureinfo.argnames}
-    while True:
-        try:
-            pyfuncitem.obj(**args)
-            return True
-        except Exception:
-            why = runner.slow_down()
-            if why is None:
-                raise
-            warnings.warn(why, pytest.PytestWarning, stacklevel=1)
+    runner.attempt("the test", lambda: pyfuncitem.obj(**args))
+    return True

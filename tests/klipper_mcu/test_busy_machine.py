@@ -1,6 +1,7 @@
 """The klipper fixture on a busy machine: a failure off the MCU's schedule runs again slower, once per speed;
 a failure on schedule, or at the last speed, stands (conftest.py), whether a test's body or a fixture
-started the session. No klippy needed: the sessions here are files a run left, or fakes."""
+started the session, and whether its start failed or what ran on it. No klippy needed: the sessions
+here are fakes that leave the files a run leaves."""
 
 from __future__ import annotations
 
@@ -11,65 +12,79 @@ import pytest
 from tests.klipper_mcu.conftest import SPEEDS, Klipper
 from tools.klipper_host import api as api_module
 from tools.klipper_host.api import KlippyApi, KlippyError
-from tools.klipper_host.session import KlipperSession
-
-
-def stopped_session(tmp_path, klippy_log: str, mcu_err: str) -> KlipperSession:
-    """A session's files as a run left them, without its processes."""
-    tmp_path.mkdir(exist_ok=True)
-    (tmp_path / "klippy.log").write_text(klippy_log)
-    (tmp_path / "mcu.err").write_text(mcu_err)
-    session = object.__new__(KlipperSession)
-    session.workdir, session.log_path, session._processes = tmp_path, tmp_path / "klippy.log", []
-    return session
-
+from tools.klipper_host.session import missed_schedule
 
 ON_TIME = "twin-klipper-mcu: lenient timing: 0 late events (up to 0.0 ms late), 0 max_duration misses forgiven " \
     "(up to 0.0 ms after it); MCU clock\n"
 LATE = "twin-klipper-mcu: WARNING: lenient timing: 12 late events (up to 3611.0 ms late), 0 max_duration misses " \
     "forgiven (up to 0.0 ms after it); MCU clock\n"
+TIMEOUT = "mcu 'mcu': Timeout on connect\n"
+
+
+def leave_files(folder, klippy_log: str, mcu_err: str) -> None:
+    """A session's files as a run left them."""
+    folder.mkdir(exist_ok=True)
+    (folder / "klippy.log").write_text(klippy_log)
+    (folder / "mcu.err").write_text(mcu_err)
 
 
 @pytest.mark.parametrize(("klippy_log", "mcu_err", "why"), [
     ("Configured MCU 'mcu' (1024 moves)\n", ON_TIME, None),
     ("", LATE + ON_TIME.replace("0 late", "1 late"), "the MCU: 1 late events, 0 max_duration misses forgiven"),
     ("", ON_TIME.replace("0 max_duration", "3 max_duration"), "the MCU: 0 late events, 3 max_duration misses forgiven"),
-    ("mcu 'mcu': Timeout on connect\n", ON_TIME, "klippy: Timeout on connect"),
+    (TIMEOUT, ON_TIME, "klippy: Timeout on connect"),
     ("Transition to shutdown state: Lost communication with MCU 'mcu'\n", ON_TIME,
      "klippy: Lost communication with MCU"),
 ])
 def test_missed_schedule_reads_klippy_and_the_mcu(tmp_path, klippy_log, mcu_err, why):
-    assert stopped_session(tmp_path, klippy_log, mcu_err).missed_schedule() == why
+    leave_files(tmp_path, klippy_log, mcu_err)
+    assert missed_schedule(tmp_path) == why
 
 
-def test_a_run_off_schedule_runs_again_slower_until_the_last_speed(tmp_path):
-    runner = Klipper(tmp_path)
-    for slower in SPEEDS[1:]:
-        runner.sessions = [stopped_session(tmp_path / f"s{slower}", "", LATE)]
-        was = runner.speed
-        assert runner.slow_down() == f"the MCU: 12 late events, 0 max_duration misses forgiven at {was:g} x real time"
-        assert runner.speed == slower
-    runner.sessions = [stopped_session(tmp_path / "last", "", LATE)]
-    assert runner.slow_down() is None and runner.speed == SPEEDS[-1]
-
-
-def test_a_failure_on_schedule_stands(tmp_path):
-    runner = Klipper(tmp_path)
-    runner.sessions = [stopped_session(tmp_path, "", ON_TIME)]
-    assert runner.slow_down() is None and runner.speed == SPEEDS[0]
+def test_a_start_that_failed_before_klippy_wrote_is_on_schedule(tmp_path):
+    assert missed_schedule(tmp_path) is None
 
 
 class FakeSession:
-    """A session that starts nothing; off the MCU's schedule (klippy timed out) above 1 x real time."""
+    """Starts nothing; leaves the files of a run with ``mcu_err`` (LATE above 1 x real time, else ON_TIME) and
+    ``klippy_log``; raises as KlipperSession does when klippy never got ready, if ``start_fails``."""
 
-    def __init__(self, workdir, *, speed: float, mcu_args: tuple[str, ...] = (), on_schedule: bool = False):
-        self.workdir, self.speed, self.on_schedule, self.closed = workdir, speed, on_schedule, False
-
-    def missed_schedule(self) -> str | None:
-        return None if self.on_schedule or self.speed == 1 else "klippy: Timeout on connect"
+    def __init__(self, workdir, *, speed: float, mcu_args: tuple[str, ...] = (), klippy_log: str = "",
+                 mcu_err: str | None = None, start_fails: bool = False):
+        self.workdir, self.speed, self.closed = workdir, speed, False
+        leave_files(workdir, klippy_log, mcu_err or (LATE if speed > 1 else ON_TIME))
+        if start_fails:
+            raise KlippyError("klippy is error: mcu 'mcu': Unable to connect")
 
     def close(self) -> None:
         self.closed = True
+
+
+def test_a_run_off_schedule_runs_again_slower_until_the_last_speed(tmp_path):
+    runner = Klipper(tmp_path, session_class=FakeSession)
+    for slower in SPEEDS[1:]:
+        mark, was = runner.mark(), runner.speed
+        runner(mcu_err=LATE)
+        assert runner.slow_down(mark) == f"the MCU: 12 late events, 0 max_duration misses forgiven at {was:g} x real time"
+        assert runner.speed == slower and runner.sessions == []
+    mark = runner.mark()
+    runner(mcu_err=LATE)
+    assert runner.slow_down(mark) is None and runner.speed == SPEEDS[-1]
+
+
+def test_a_failure_on_schedule_stands(tmp_path):
+    runner = Klipper(tmp_path, session_class=FakeSession)
+    runner(mcu_err=ON_TIME)
+    assert runner.slow_down() is None and runner.speed == SPEEDS[0]
+
+
+def test_only_the_failed_attempts_sessions_count(tmp_path):
+    """A session late before the attempt began (a fixture's, say) is not the attempt's, and stays up."""
+    runner = Klipper(tmp_path, session_class=FakeSession)
+    earlier = runner(mcu_err=LATE)
+    mark = runner.mark()
+    runner(mcu_err=ON_TIME)
+    assert runner.slow_down(mark) is None and runner.speed == SPEEDS[0] and not earlier.closed
 
 
 class FakeStart:
@@ -82,8 +97,8 @@ class FakeStart:
         self.value: FakeSession | None = None  # what the fixture returned
 
     def __call__(self) -> FakeSession:
-        self.sessions.append(self.runner(**self.options))
         self.processes.append(self.runner.spawn([sys.executable, "-c", "import time; time.sleep(600)"]))
+        self.sessions.append(self.runner(**self.options))
         assert self.sessions[-1].speed == 1, "Moonraker never saw klippy ready"
         return self.sessions[-1]
 
@@ -109,13 +124,27 @@ def test_a_fixture_session_off_schedule_starts_again_slower(late_fixture, fake_k
     assert [session.closed for session in late_fixture.sessions] == [True, True, False]  # until teardown
     assert [proc.poll() is None for proc in late_fixture.processes] == [False, False, True]
     assert [str(warning.message) for warning in recwarn if warning.category is pytest.PytestWarning] == [
-        "klippy: Timeout on connect at 10 x real time: the late fixture runs again at 4 x",
-        "klippy: Timeout on connect at 4 x real time: the late fixture runs again at 1 x"]
+        "the MCU: 12 late events, 0 max_duration misses forgiven at 10 x real time: the late fixture runs again at 4 x",
+        "the MCU: 12 late events, 0 max_duration misses forgiven at 4 x real time: the late fixture runs again at 1 x"]
     assert fake_klipper.sessions == [late_fixture.value]
 
 
+def test_a_session_whose_start_failed_off_schedule_starts_again_slower(fake_klipper, recwarn):
+    """klippy's 'Timeout on connect' until it gave up: the session raised, and was never returned or held."""
+    speeds: list[float] = []
+
+    def start() -> FakeSession:
+        speeds.append(fake_klipper.speed)
+        return fake_klipper(klippy_log=TIMEOUT if fake_klipper.speed > 1 else "", start_fails=fake_klipper.speed > 1)
+
+    assert fake_klipper.attempt("the fixture", start).speed == 1 and speeds == list(SPEEDS)
+    assert [str(warning.message) for warning in recwarn if warning.category is pytest.PytestWarning] == [
+        "klippy: Timeout on connect at 10 x real time: the fixture runs again at 4 x",
+        "klippy: Timeout on connect at 4 x real time: the fixture runs again at 1 x"]
+
+
 def test_a_fixture_session_failing_on_schedule_fails_once(fake_klipper, recwarn):
-    start = FakeStart(fake_klipper, on_schedule=True)
+    start = FakeStart(fake_klipper, mcu_err=ON_TIME)
     with pytest.raises(AssertionError, match="Moonraker never saw klippy ready"):
         fake_klipper.attempt("the fixture", start)
     assert [session.speed for session in start.sessions] == [SPEEDS[0]] and start.sessions[0].closed

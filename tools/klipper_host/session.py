@@ -70,6 +70,22 @@ def stop_process(proc: subprocess.Popen, timeout_s: float = STOP_TIMEOUT_S) -> N
         proc.wait(timeout=timeout_s)
 
 
+def missed_schedule(workdir: Path) -> str | None:
+    """Why the session run in ``workdir`` did not follow the MCU's schedule, or None, from the files it left (a
+    start that failed too): klippy's own timing failure, or the events lenient mode forgave (twin-klipper-mcu's
+    last lateness line, final once it is stopped)."""
+    log, err = workdir / "klippy.log", workdir / "mcu.err"
+    klippy_log = log.read_text() if log.exists() else ""
+    for failure in KLIPPY_TIMING_FAILURES:
+        if failure in klippy_log:
+            return f"klippy: {failure}"
+    lateness = LATENESS_LINE.findall(err.read_text() if err.exists() else "")
+    if lateness and lateness[-1] != ("0", "0"):
+        late, forgiven = lateness[-1]
+        return f"the MCU: {late} late events, {forgiven} max_duration misses forgiven"
+    return None
+
+
 class KlipperSession:
     """twin-klipper-mcu and klippy, started in ``workdir``; ``api`` is klippy's API socket once ready.
 
@@ -147,19 +163,6 @@ class KlipperSession:
     def mcu_stderr(self) -> str:
         """What twin-klipper-mcu logged: its start line, shutdowns, lenient lateness."""
         return (self.workdir / "mcu.err").read_text()
-
-    def missed_schedule(self) -> str | None:
-        """Why this run did not follow the MCU's schedule, or None: klippy's own timing failure, or the
-        events lenient mode forgave (twin-klipper-mcu's last lateness line, final once it is stopped)."""
-        log = self.klippy_log()
-        for failure in KLIPPY_TIMING_FAILURES:
-            if failure in log:
-                return f"klippy: {failure}"
-        lateness = LATENESS_LINE.findall(self.mcu_stderr())
-        if lateness and lateness[-1] != ("0", "0"):
-            late, forgiven = lateness[-1]
-            return f"the MCU: {late} late events, {forgiven} max_duration misses forgiven"
-        return None
 
     def kill_klippy(self) -> None:
         """kill -9 klippy (a host that dies), leaving the MCU running."""

@@ -152,6 +152,38 @@ def test_a_fixture_session_failing_on_schedule_fails_once(fake_klipper, recwarn)
     assert not [warning for warning in recwarn if warning.category is pytest.PytestWarning]
 
 
+class BodyRuns(Klipper):
+    """The ``klipper`` runner on fake sessions, with the speeds a test's body ran at."""
+
+    def __init__(self, tmp_path):
+        super().__init__(tmp_path, session_class=FakeSession)
+        self.body_speeds: list[float] = []
+
+
+@pytest.fixture
+def klipper(tmp_path):
+    """conftest.py's runner (and its pytest_pyfunc_call) on fake sessions: late above 1 x real time."""
+    runner = BodyRuns(tmp_path)
+    yield runner
+    runner.close()
+
+
+@pytest.fixture
+def fake_printer(klipper) -> FakeSession:
+    return klipper.fixture("the fake printer fixture", klipper)
+
+
+def test_a_body_failing_off_schedule_starts_its_fixtures_session_again_slower(fake_printer, klipper, recwarn):
+    """The body fails while the fixture's session was late (above 1 x): the fixture's session starts again
+    slower, and the body runs again on it."""
+    klipper.body_speeds.append(fake_printer.speed)
+    assert fake_printer.speed == 1, "what the twin did, late"
+    assert klipper.body_speeds == list(SPEEDS) and klipper.sessions == [fake_printer]
+    assert [str(warning.message) for warning in recwarn if warning.category is pytest.PytestWarning] == [
+        "the MCU: 12 late events, 0 max_duration misses forgiven at 10 x real time: the test runs again at 4 x",
+        "the MCU: 12 late events, 0 max_duration misses forgiven at 4 x real time: the test runs again at 1 x"]
+
+
 class SteppingClock:
     """``time`` for api.py: each reading 10 s after the last, sleeps free (no wall clock in the test)."""
 

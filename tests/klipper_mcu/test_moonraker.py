@@ -59,7 +59,7 @@ def moonraker(klipper):
         command = venv_command(MOONRAKER_VENV_ENV)
     except Missing as exc:
         unavailable(str(exc))
-    return klipper.attempt("the moonraker fixture",
+    return klipper.fixture("the moonraker fixture",
                            lambda: start_moonraker(command, klipper(), klipper.spawn, START_TIMEOUT_S))
 
 

@@ -95,7 +95,7 @@ def printer(klipper) -> Printer:
         unavailable(str(exc))
     except ImportError:
         unavailable("no websocket-client for twin-moonraker-agent: pip install -e '.[moonraker]'")
-    return klipper.attempt("the printer fixture", lambda: start_printer(klipper, command))
+    return klipper.fixture("the printer fixture", lambda: start_printer(klipper, command))
 
 
 def start_printer(klipper, moonraker_command: Path) -> Printer:

@@ -54,33 +54,47 @@ def http(url: str, body: dict | None = None) -> dict:
 
 
 @pytest.fixture
-def moonraker(klipper, spawn, tmp_path):
+def moonraker(klipper):
     try:
         command = venv_command(MOONRAKER_VENV_ENV)
     except Missing as exc:
         unavailable(str(exc))
-    return start_moonraker(command, klipper(), spawn, tmp_path, START_TIMEOUT_S)
+    return klipper.fixture("the moonraker fixture",
+                           lambda: start_moonraker(command, klipper(), klipper.spawn, START_TIMEOUT_S))
 
 
-def start_moonraker(command, session, spawn, folder, wait_s: float) -> str:
-    """Moonraker on a free port in ``folder``, on the session's klippy socket; its base URL once it sees klippy
-    ready (a hang guard of ``wait_s``)."""
+def start_moonraker(command, session, spawn, guard_s: float) -> str:
+    """Moonraker on a free port, its files in the session's folder, on the session's klippy socket; its base
+    URL once it sees klippy ready. It fails at once if Moonraker sees klippy shut down or in error (final: no
+    one restarts it here), and after ``guard_s`` without progress (a new answer, or Moonraker's log growing)."""
+    folder = session.workdir
     port = free_port()
     (folder / "moonraker.conf").write_text(CONFIG.format(port=port, socket=session.api_path))
     with open(folder / "moonraker.out", "w") as out:
         proc = spawn([str(command), "-d", str(folder / "data"), "-c", str(folder / "moonraker.conf"),
                       "-l", str(folder / "moonraker.log")], stdout=out, stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + wait_s
-    while True:
-        try:
-            if http(base + "/printer/info")["state"] == "ready":
-                return base
-        except (OSError, urllib.error.URLError, KeyError):
-            pass
+    seen, deadline = None, 0.0
+    while (state := klippy_state(base)) != "ready":
         assert proc.poll() is None, (folder / "moonraker.out").read_text()
-        assert time.monotonic() < deadline, "Moonraker never saw klippy ready"
+        assert state.split(":")[0] not in ("shutdown", "error"), f"Moonraker sees klippy {state}"
+        progress = state, sum(path.stat().st_size for path in folder.glob("moonraker.*") if path.is_file())
+        if progress != seen:
+            seen, deadline = progress, time.monotonic() + guard_s
+        assert time.monotonic() < deadline, f"Moonraker never saw klippy ready: {state}, nothing new for {guard_s:g} s"
         time.sleep(0.2)
+    return base
+
+
+def klippy_state(base: str) -> str:
+    """klippy's state as Moonraker says it (``ready``, ``startup``, ``shutdown: its message``), or why Moonraker
+    gave none."""
+    try:
+        info = http(base + "/printer/info")
+    except (OSError, urllib.error.URLError, KeyError) as exc:
+        return f"no answer ({exc})"
+    message = info.get("state_message", "").strip()
+    return info.get("state", "") + (f": {message}" if info.get("state") != "ready" and message else "")
 
 
 def test_moonraker_sets_a_target_and_the_twin_heats(moonraker):

@@ -36,9 +36,9 @@ NUMBER = re.compile(r"\d+(\.\d+)?")
 class Printer:
     """klippy on the twin MCU, Moonraker and the agent; the console as the front ends see it."""
 
-    def __init__(self, session, base: str, spawn, workdir: Path):
-        self.session, self.base, self.spawn, self.workdir = session, base, spawn, workdir
-        self.state_dir = workdir / "agent-state"
+    def __init__(self, session, base: str, spawn):
+        self.session, self.base, self.spawn, self.workdir = session, base, spawn, session.workdir
+        self.state_dir = self.workdir / "agent-state"
         self.agent: subprocess.Popen | None = None
         self.agents = 0
 
@@ -87,7 +87,7 @@ class Printer:
 
 
 @pytest.fixture
-def printer(klipper, spawn, tmp_path) -> Printer:
+def printer(klipper) -> Printer:
     try:
         command = venv_command(MOONRAKER_VENV_ENV)
         import websocket  # noqa: F401  the agent's client: the 'moonraker' extra
@@ -95,9 +95,13 @@ def printer(klipper, spawn, tmp_path) -> Printer:
         unavailable(str(exc))
     except ImportError:
         unavailable("no websocket-client for twin-moonraker-agent: pip install -e '.[moonraker]'")
+    return klipper.fixture("the printer fixture", lambda: start_printer(klipper, command))
+
+
+def start_printer(klipper, moonraker_command: Path) -> Printer:
+    """A session with the macros, Moonraker on it and the agent (their processes the session's runner's)."""
     session = klipper(extra_config=f"[include {MACROS}]\n")
-    base = start_moonraker(command, session, spawn, tmp_path, WAIT_S)
-    printer = Printer(session, base, spawn, tmp_path)
+    printer = Printer(session, start_moonraker(moonraker_command, session, klipper.spawn, WAIT_S), klipper.spawn)
     printer.start_agent()
     return printer
 

@@ -20,6 +20,7 @@ import select
 import socket
 import sys
 import time
+from collections.abc import Callable
 
 from tools.entry import OneLineParser, run_cli
 from twin.limits import UserError
@@ -83,14 +84,17 @@ class KlippyApi:
     def info(self) -> dict:
         return self.call("info")
 
-    def wait_ready(self, timeout_s: float = 60.0) -> dict:
+    def wait_ready(self, timeout_s: float = 60.0, progress: Callable[[], object] = lambda: None) -> dict:
         """Poll ``info`` until klippy's state is ready; KlippyError with its state message if it
-        reaches shutdown or error, or on the timeout."""
-        deadline = time.monotonic() + timeout_s
+        reaches shutdown or error, or after ``timeout_s`` in which ``progress()`` did not change
+        (a sign of life, such as klippy.log's size; by default the timeout counts from the call)."""
+        seen, deadline = progress(), time.monotonic() + timeout_s
         while True:
             info = self.info()
             if info.get("state") == "ready":
                 return info
+            if (now := progress()) != seen:
+                seen, deadline = now, time.monotonic() + timeout_s
             if info.get("state") in ("shutdown", "error") or time.monotonic() > deadline:
                 raise KlippyError(f"klippy is {info.get('state')}: {info.get('state_message', '').strip()}")
             time.sleep(0.1)

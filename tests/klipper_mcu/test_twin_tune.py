@@ -17,7 +17,7 @@ import pytest
 
 from tests.conftest import unavailable
 from tests.klipper_mcu.test_moonraker import http, start_moonraker
-from tools.klipper_host.session import MOONRAKER_VENV_ENV, ROOT, Missing, venv_command
+from tools.klipper_host.session import MOONRAKER_VENV_ENV, ROOT, Missing, missed_schedule, venv_command
 
 pytestmark = pytest.mark.slow
 
@@ -66,7 +66,7 @@ class Printer:
         """The console from line ``first`` on, once a line there contains ``text``. A hang guard of WAIT_S
         without a new console line: the agent prints each of twin-tune's steps, and on a busy machine a
         tune (at nice 10) takes what it takes."""
-        deadline, seen = time.monotonic() + WAIT_S, 0
+        deadline, seen, polls = time.monotonic() + WAIT_S, 0, 0
         while True:
             lines = self.console()[first:]
             if any(text in line for line in lines if not line.startswith("RESPOND ")):  # not the agent's command
@@ -75,6 +75,10 @@ class Printer:
             if len(lines) > seen:
                 deadline, seen = time.monotonic() + WAIT_S, len(lines)
             assert time.monotonic() < deadline, f"no console line with {text!r}, none new for {WAIT_S:g} s: {lines[-20:]}"
+            polls += 1
+            if polls % 25 == 0:  # klippy lost the MCU (a busy machine): fail now, the runner starts it again slower
+                lost = missed_schedule(self.workdir)
+                assert lost is None or not lost.startswith("klippy:"), f"{lost} while waiting for {text!r}"
             time.sleep(0.2)
 
     def agent_err(self) -> str:

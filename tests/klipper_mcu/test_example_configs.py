@@ -24,3 +24,12 @@ def test_the_counts_say_how_far_the_served_configs_got(tmp_path, monkeypatch, ca
     lines = capsys.readouterr().out.splitlines()
     assert lines[2] == "c.cfg: ready: No trigger on x"
     assert lines[-1] == "5 configs: 1 refused, 4 served; of those 3 reached ready, 2 reached home, 1 reached heat (at 10 x)"
+
+
+def test_klippys_exception_is_named(tmp_path):
+    log = tmp_path / "klippy.log"
+    assert example_configs.klippy_exception(log) == ""
+    log.write_text("Start\nTraceback (most recent call last):\n  File \"x.py\", line 1, in f\n    g()\n"
+                   "TypeError: initializer for ctype 'struct serialqueue *' must be a cdata pointer\nmore\n")
+    assert example_configs.klippy_exception(log) == (
+        " [klippy.log: TypeError: initializer for ctype 'struct serialqueue *' must be a cdata pointer]")

@@ -50,8 +50,18 @@ def run_config(path: Path, speed: float) -> tuple[str, str]:
                     session.api.gcode(line, timeout_s=900)
                 reached = "heat"
         except (KlippyError, TimeoutError, RuntimeError, OSError) as exc:
-            why = " ".join(str(exc).split())[:160]
+            why = " ".join(str(exc).split())[:160] + klippy_exception(Path(folder) / "klippy.log")
         return reached or "failed", why
+
+
+def klippy_exception(log: Path) -> str:
+    """klippy's last exception line (its type and message) where klippy.log has a traceback, else ''."""
+    lines = log.read_text(errors="replace").splitlines() if log.exists() else []
+    starts = [i for i, line in enumerate(lines) if line.startswith("Traceback")]
+    if not starts:
+        return ""
+    error = next((line for line in lines[starts[-1] + 1:] if not line.startswith((" ", "Traceback"))), "")
+    return f" [klippy.log: {error[:200]}]"
 
 
 def main(argv: list[str] | None = None) -> int:

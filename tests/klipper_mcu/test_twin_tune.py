@@ -64,16 +64,17 @@ class Printer:
 
     def wait_line(self, text: str, first: int) -> list[str]:
         """The console from line ``first`` on, once a line there contains ``text``. A hang guard of WAIT_S
-        without a new console line: the agent prints each of twin-tune's steps, and on a busy machine a
-        tune (at nice 10) takes what it takes."""
-        deadline, seen, polls = time.monotonic() + WAIT_S, 0, 0
+        without a sign of progress: a new console line (the agent prints each of twin-tune's steps) or CPU time
+        spent by the agent and its twin-tune; on a busy machine a tune at nice 10 takes what it takes."""
+        deadline, seen, polls = time.monotonic() + WAIT_S, (0, 0), 0
         while True:
             lines = self.console()[first:]
             if any(text in line for line in lines if not line.startswith("RESPOND ")):  # not the agent's command
                 return lines
             assert self.agent is None or self.agent.poll() is None, self.agent_err()
-            if len(lines) > seen:
-                deadline, seen = time.monotonic() + WAIT_S, len(lines)
+            progress = (len(lines), 0 if self.agent is None else cpu_ticks(self.agent.pid))
+            if progress != seen:
+                deadline, seen = time.monotonic() + WAIT_S, progress
             assert time.monotonic() < deadline, f"no console line with {text!r}, none new for {WAIT_S:g} s: {lines[-20:]}"
             polls += 1
             if polls % 25 == 0:  # klippy lost the MCU (a busy machine): fail now, the runner starts it again slower
@@ -198,6 +199,15 @@ def test_a_log_without_a_heat_up_is_one_line(printer):
     lines = printer.wait_line("!!", first)
     assert len(errors(lines)) == 1 and errors(lines)[0].startswith("!! TWIN_TUNE: stopped: twin-tune exited 2: ")
     assert printer.session.config_path.read_text() == original
+
+
+def cpu_ticks(pid: int) -> int:
+    """CPU clock ticks (user and system) a process and its living descendants have spent; 0 once it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return int(fields[11]) + int(fields[12]) + sum(cpu_ticks(child) for child in children(pid))
+    except (OSError, IndexError, ValueError):
+        return 0
 
 
 def children(pid: int) -> list[int]:

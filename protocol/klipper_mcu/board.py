@@ -19,6 +19,7 @@ import numpy as np
 
 from firmware_port.thermistor import KLIPPER_SENSORS, Divider
 from protocol.klipper_mcu.axes import Carriage, Switch
+from protocol.klipper_mcu.chip_temperature import CHIP_ABOVE_AMBIENT_C, TEMPERATURE_PIN_NAME, chip_sensor
 from protocol.klipper_mcu.dictionary import BOARD_CHIP, DEFAULT_SENSOR, Chip
 from protocol.klipper_mcu.probe import Probe
 from protocol.klipper_mcu.user_config import ConfigError, UserConfig
@@ -216,6 +217,8 @@ class TwinBoard:
         heater = self._by_sensor.get(pin)
         tick = max(round(clock / self.tick_clocks), self.tick)
         self.advance(tick)
+        if pin == TEMPERATURE_PIN_NAME and (sensor := chip_sensor(self.chip.mcu_constant)) is not None:
+            return sensor.adc(self.ambient_c + CHIP_ABOVE_AMBIENT_C, self.chip.adc_max)
         if heater is None:
             ambient = self._ambient_sensors.get(pin)
             if ambient is not None:

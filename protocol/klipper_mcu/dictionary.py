@@ -14,6 +14,7 @@ import json
 import zlib
 from dataclasses import dataclass, field
 
+from protocol.klipper_mcu.chip_temperature import TEMPERATURE_PIN, TEMPERATURE_PIN_NAME, chip_sensor
 from protocol.klipper_mcu.codec import MessageFormat
 
 # The heater-only board: an ATmega2560 as Klipper builds it (src/avr): 16 MHz timer, 10-bit ADC, 8-bit PWM.
@@ -69,7 +70,14 @@ class Chip:
         raise ValueError(f"no pin {name!r} on the {self.name} (P<port><0-{self.port_pins - 1}>, ports "
                          f"{', '.join(self.ports)})")
 
+    @property
+    def has_temperature(self) -> bool:
+        """Whether the chip reads its own temperature on ADC_TEMPERATURE (chip_temperature.py)."""
+        return chip_sensor(self.mcu_constant) is not None
+
     def pin_name(self, number: int) -> str:
+        if number == TEMPERATURE_PIN and self.has_temperature:
+            return TEMPERATURE_PIN_NAME
         port, bit = divmod(number, self.port_pins)
         return f"P{chr(ord('A') + port)}{bit}"
 
@@ -104,8 +112,8 @@ def _stm32(name: str, mcu: str, clock_mhz: int, ports: str, adc: str = "PA0-7 PB
     """An STM32 as src/stm32 builds it: 16 pins a port, a 12-bit ADC (ADC_MAX 4095) on ``adc``'s pins
     (src/stm32/adc.c, stm32f0_adc.c, stm32h7_adc.c adc_pins), hardware PWM to 1 << 15 (hard_pwm.c MAX_PWM), the
     SPI and I2C buses klippy 0.12's firmware names."""
-    return Chip(name, ports, _pins(adc), clock_freq=clock_mhz * 1_000_000, adc_max=4095, pwm_max=1 << 15,
-                port_pins=16, mcu=mcu, buses=_buses(spi, i2c))
+    return Chip(name, ports, (*_pins(adc), TEMPERATURE_PIN_NAME), clock_freq=clock_mhz * 1_000_000, adc_max=4095,
+                pwm_max=1 << 15, port_pins=16, mcu=mcu, buses=_buses(spi, i2c))
 
 
 ATMEGA2560_PORTS = "ABCDEFGHJKL"
@@ -141,6 +149,7 @@ COMMANDS = (
     "reset",
     "config_reset",
     "debug_nop",
+    "debug_read order=%c addr=%u",
     "config_analog_in oid=%c pin=%u",
     "query_analog_in oid=%c clock=%u sample_ticks=%u sample_count=%c rest_ticks=%u min_value=%hu"
     " max_value=%hu range_check_count=%c",
@@ -162,6 +171,7 @@ RESPONSES = (
     "shutdown clock=%u static_string_id=%hu",
     "is_shutdown static_string_id=%hu",
     "stats count=%u sum=%u sumsq=%u",
+    "debug_result val=%u",
     "starting",
 )
 # Commands a shut-down MCU still runs (DECL_COMMAND_FLAGS(..., HF_IN_SHUTDOWN, ...)); the others
@@ -243,7 +253,9 @@ class Dictionary:
             "responses": {fmt.text: fmt.msg_id for fmt in self.responses.values()},
             "output": {},
             "enumerations": {
-                "pin": {f"P{port}0": [self.chip.pin_number(f"P{port}0"), self.chip.port_pins] for port in self.chip.ports},
+                "pin": {**{f"P{port}0": [self.chip.pin_number(f"P{port}0"), self.chip.port_pins]
+                           for port in self.chip.ports},
+                        **({TEMPERATURE_PIN_NAME: TEMPERATURE_PIN} if self.chip.has_temperature else {})},
                 "static_string_id": self.static_string_ids,
                 **self.chip.bus_enumerations(),
             },

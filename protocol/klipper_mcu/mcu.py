@@ -46,6 +46,7 @@ from protocol.klipper_mcu.codec import (
 from protocol.klipper_mcu.dictionary import Dictionary, Shutdown
 from protocol.klipper_mcu.lateness import Lateness
 from protocol.klipper_mcu import motion, peripherals
+from protocol.klipper_mcu.chip_temperature import chip_sensor
 from protocol.klipper_mcu.motion import MotionCommands
 from protocol.klipper_mcu.peripherals import PeripheralCommands
 
@@ -381,6 +382,11 @@ class KlipperMcu(MotionCommands, PeripheralCommands):
 
     def _cmd_debug_nop(self, args: dict) -> None:
         pass
+
+    def _cmd_debug_read(self, args: dict) -> None:
+        """src/basecmd.c: a word of memory; the twin has only an STM32's temperature calibration (else 0)."""
+        sensor = chip_sensor(self.chip.mcu_constant)
+        self._send("debug_result", val=0 if sensor is None else sensor.read(args["addr"]))
 
     # -- src/adccmds.c ---------------------------------------------------------------------------------
     def _cmd_config_analog_in(self, args: dict) -> None:

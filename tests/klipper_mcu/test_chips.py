@@ -120,3 +120,46 @@ def test_the_heater_warms_the_same_plant_whatever_the_clock():
         host.board.advance(round(21 / TICK_S))
         temps.append(host.board.temps_c("hotend")[0])
     assert temps[0] > 45 and np.isclose(temps[0], temps[1], atol=1e-6), temps
+
+
+@pytest.mark.parametrize("name", ["stm32f103", "stm32f070", "stm32f407", "stm32g0b1", "stm32h743"])
+def test_the_chips_own_temperature_reads_back_as_klippys_temperature_mcu_computes_it(name):
+    """debug_read of the calibration half-words and a conversion of ADC_TEMPERATURE (pin 0xfe), put through
+    klippy/extras/temperature_mcu.py's laws (written out here, per family), give the twin chip's temperature
+    (ambient + 10 C) within a few LSB of its 12-bit ADC (0.3-0.8 C)."""
+    chip = CHIPS[name]
+    host = TestHost(TwinBoard(NO_SCENARIO, (), wirings=(), fan_pin=None, chip=chip),
+                    dictionary=build_dictionary("test", chip))
+    s = chip.clock_freq
+
+    def read16(addr: int) -> int:
+        host.send(0, f"debug_read order=1 addr={addr}")
+        return host.named("debug_result")[-1]["val"]
+
+    host.send(0, "allocate_oids count=1", "config_analog_in oid=0 pin=254", "finalize_config crc=1")
+    host.send(0, f"query_analog_in oid=0 clock={s} sample_ticks={s // 1000} sample_count=8 rest_ticks={s // 3}"
+                 " min_value=0 max_value=32760 range_check_count=0")
+    host.run(2 * s)
+    frac = host.named("analog_in_state")[0]["value"] / (8 * 4095)
+    if name == "stm32f103":
+        slope, at_c, cal = 3.3 / -0.0043, 25.0, 1.43 / 3.3
+    elif name == "stm32f070":
+        slope, at_c, cal = 3.3 / -0.0043, 30.0, read16(0x1FFFF7B8) / 4095
+    elif name == "stm32f407":
+        cal, hot = read16(0x1FFF7A2C) / 4095, read16(0x1FFF7A2E) / 4095
+        slope, at_c = (110 - 30) / (hot - cal), 30.0
+    elif name == "stm32g0b1":
+        cal, hot = (read16(a) * 3.0 / (3.3 * 4095) for a in (0x1FFF75A8, 0x1FFF75CA))
+        slope, at_c = (130 - 30) / (hot - cal), 30.0
+    else:
+        cal, hot = read16(0x1FF1E820) / 65535, read16(0x1FF1E840) / 65535
+        slope, at_c = (110 - 30) / (hot - cal), 30.0
+    temp_c = at_c - cal * slope + frac * slope
+    assert abs(temp_c - (NO_SCENARIO.ambient_c + 10.0)) < 1.0, temp_c
+    assert not host.named("shutdown")
+
+
+def test_an_avr_has_no_temperature_channel():
+    host = TestHost(dictionary=build_dictionary("test", CHIPS["atmega2560"]))
+    host.send(0, "allocate_oids count=1", "config_analog_in oid=0 pin=254")
+    assert host.named("shutdown")  # "Not a valid ADC pin", as src/avr/adc.c answers

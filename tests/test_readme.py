@@ -35,6 +35,7 @@ import serial
 
 from protocol.klipper_mcu.printer_cfg import CONFIG_END
 from tests.helpers.serial_host import START_TIMEOUT_S, expect
+from tools.tuning.answer import CANNOT_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -275,7 +276,8 @@ def check_kalico_tune(c: Command) -> None:
     done = run(c.runs, c.folder)
     assert done.returncode == 0, done.stderr
     answers = [line for line in done.stdout.splitlines() if line.startswith("answer: ")]
-    assert len(answers) == 1 and "loop kalico" in done.stdout, done.stdout
+    # the Ender 5's hotend: no plant reproduces its PID_CALIBRATE, so keep your gains before any loop runs
+    assert len(answers) == 1 and ("loop kalico" in done.stdout or CANNOT_MODEL in answers[0]), done.stdout
     if answers[0].startswith("answer: new gains"):
         assert re.search(r"^Kalico printer.cfg .*\n  \[extruder\]\n  pid_version: 1\n  control: pid\n  pid_kp: \S+\n",
                          done.stdout, re.M), done.stdout

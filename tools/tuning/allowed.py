@@ -28,7 +28,17 @@ One fit of one structure is one answer to "what plant made this log"; the data u
    /compare.py goals: heat-up time 10 %, overshoot 1.5 C, hold 1 C RMS), an open-loop trace by its
    RMSE (3 C, the open-loop goal). An M303 replay that misses says whether the fit itself misses the
    printed cycles (tools/validation/m303_bias.py ``own_relay_note``: the plant's own relay at their levels).
-5. Alike members fold: one whose FOPDT equivalent (gain, time constant, dead time) lies within
+5. The printer's own calibration: where a klippy.log's saved gains are PID_CALIBRATE's
+   (tools/tuning/calibration.py: Kd Ki = Kp^2 / 4 within their printed rounding), the relay's Ku and Tu
+   they imply are evidence the 1 Hz Stats trace lacks (it cannot show the sub-second lags that set a
+   hotend's relay period). Each plant that replays the log runs the port's PID_CALIBRATE with the heater's
+   settings at the ends of docs/validation.md's band (tools/tuning/relay_evidence.py); one whose Tu misses
+   the saved Tu by more than 15 % (or Ku by more than 30 %) everywhere in the band is dropped, the reason
+   naming both. Where some miss, each structure that replayed is refitted with the lag that sets its relay
+   period held where the period is the saved one (tools/tuning/relay_refit.py), then replayed and checked
+   as the others; its trace evidence is not compared (the relay's evidence chose it). ``Allowed.calibration``
+   says whether the check ran and what it found.
+6. Alike members fold: one whose FOPDT equivalent (gain, time constant, dead time) lies within
    ALIKE_REL of a member kept before it adds no plant the loop behaves differently on.
 
 The fits and the replays run in forked worker processes (tools/forked.py).
@@ -51,6 +61,10 @@ from tools.ident.lsq import LINEAR_PARAMS
 from tools.ident.result import FitResult
 from tools.ident.segments import NotFittable
 from tools.logs import Log, M303Log, StatsLog
+from firmware_port.klipper.heater import PID_PARAM_BASE
+from tools.tuning import relay_evidence, relay_refit
+from tools.tuning.calibration import SavedCalibration, from_config
+from tools.tuning.relay_evidence import RelayCheck
 from tools.validation import compare, m303_compare
 from tools.validation.m303_bias import own_relay_note
 from twin.klipper_twin import KlipperTwin, extruder_setup
@@ -86,6 +100,7 @@ class AllowedPlant:
     replay: Replay | None = None
     dropped: str | None = None
     held: int = 0
+    calibration: RelayCheck | None = None  # its PID_CALIBRATE against the printer's saved one, where checked
 
     @property
     def result(self) -> FitResult:
@@ -105,6 +120,7 @@ class Allowed:
     first: LogFit  # the default fit (twin-fit's), whether or not it is a member
     members: list[AllowedPlant]
     dropped: list[AllowedPlant] = field(default_factory=list)
+    calibration: str = ""  # what the check against the printer's PID_CALIBRATE found ("": not a klippy.log)
 
     @property
     def best(self) -> LogFit:
@@ -116,6 +132,9 @@ class Allowed:
         their profiles were tried."""
         if not self.dropped:
             return "no fit"
+        relays = [p.calibration for p in self.dropped if p.calibration is not None and not p.calibration.passed]
+        if relays:
+            return no_relay_reason(relays)
         tried = [p for p in self.dropped if not p.held]
         profiles = len(self.dropped) - len(tried)
         each = "; ".join(f"{p.label}: {p.dropped}" for p in tried)
@@ -127,9 +146,13 @@ class Allowed:
         out = [f"the plants {self.log_name} allows ({len(self.members)} of {len(self.members) + len(self.dropped)} "
                f"fits considered; evidence: Akaike's criterion against the best, kept within {EVIDENCE_MARGIN:g}; "
                "each member replays the log):"]
+        if self.calibration:
+            out.append(f"  check against your PID_CALIBRATE: {self.calibration}")
         for plant in self.members:
-            out.append(f"  member {plant.label}: delta {plant.delta:.1f}, "
-                       f"{plant.replay.text() if plant.replay else 'no replay'}")
+            check = f"; {plant.calibration.text()}" if plant.calibration else ""
+            delta = f"delta {plant.delta:.1f}" if math.isfinite(plant.delta) else "the trace's evidence not compared"
+            out.append(f"  member {plant.label}: {delta}, "
+                       f"{plant.replay.text() if plant.replay else 'no replay'}{check}")
         for plant in self.dropped:
             out.append(f"  dropped {plant.label}: {plant.dropped}")
         return out
@@ -357,17 +380,89 @@ def allowed_plants(log: Log, log_name: str, options: LogFitOptions | None = None
     info = heater_settings(log, first.heater)
     replays = forked_map(lambda p: replay(log, p.fitted, info), candidates,
                          on_done=_step(on_step, "replaying the log on each plant", len(candidates)))
-    members: list[AllowedPlant] = []
+    replaying: list[AllowedPlant] = []
     for plant, r in sorted(zip(candidates, replays), key=lambda pr: pr[0].delta):
         plant = dataclasses.replace(plant, replay=r)
         if not r.passed:
             dropped.append(dataclasses.replace(plant, dropped=f"does not replay the log: {r.text()}"))
-        elif (twin := _alike(plant, members)) is not None:
+        else:
+            replaying.append(plant)
+    found, replaying, missed = calibration_check(log, first.heater, info, replaying, on_step, base)
+    dropped += missed
+    members: list[AllowedPlant] = []
+    for plant in replaying:
+        if (twin := _alike(plant, members)) is not None:
             dropped.append(dataclasses.replace(plant, dropped=f"alike {twin.label} (FOPDT equivalents within "
                                                               f"{ALIKE_REL:.0%})"))
         else:
             members.append(plant)
-    return Allowed(log_name, first.heater, first, members, dropped)
+    return Allowed(log_name, first.heater, first, members, dropped, found)
+
+
+def calibration_check(log: Log, heater: str, info: compare.HeaterInfo | None, plants: list[AllowedPlant],
+                      on_step: Callable[[str, int], Callable[[], None]] | None = None,
+                      options: LogFitOptions | None = None) -> tuple[str, list[AllowedPlant], list[AllowedPlant]]:
+    """The plants against the printer's PID_CALIBRATE (module docstring, 5): what was found, the plants that
+    reproduce it (each with its check) and those dropped with the reason; "" and the plants as they are for a
+    log that is no klippy.log. Where some miss and ``options`` are given, their structures are refitted to
+    relay at the saved period (tools/tuning/relay_refit.py) and judged as the others."""
+    if not isinstance(log, StatsLog) or info is None:
+        return "", plants, []
+    saved, found = from_config(log.meta["config"].get(heater, {}))
+    if saved is None or not plants:
+        return f"{found}; not checked" if saved is None else f"{found}; no plant to check", plants, []
+    checks = forked_map(lambda p: relay_evidence.check(p.result, info, heater, saved), plants,
+                        on_done=_step(on_step, "replaying the log on each plant: your PID_CALIBRATE", len(plants)))
+    kept = [dataclasses.replace(p, calibration=c) for p, c in zip(plants, checks) if c.passed]
+    missed = [dataclasses.replace(p, calibration=c, dropped=f"does not reproduce your PID_CALIBRATE: {c.text()}")
+              for p, c in zip(plants, checks) if not c.passed]
+    line = f"{found}; {len(kept)} of {len(plants)} plants that replay the log reproduce it"
+    if missed and options is not None:
+        refits = _refits(log, options, info, saved, [p for p in plants if not p.held], on_step)
+        kept += [p for p in refits if p.dropped is None]
+        missed += [p for p in refits if p.dropped is not None]
+        line += (f"; refitted to relay at its period: {sum(p.dropped is None for p in refits)} of {len(refits)} "
+                 "structures replay the log and reproduce it")
+    return line, kept, missed
+
+
+def _refits(log: Log, options: LogFitOptions, info: compare.HeaterInfo, saved: SavedCalibration,
+            structures: list[AllowedPlant], on_step: Callable[[str, int], Callable[[], None]] | None
+            ) -> list[AllowedPlant]:
+    """Each structure refitted to relay at the saved period, replayed and checked; a dropped one says why."""
+    def run(plant: AllowedPlant) -> AllowedPlant:
+        got = relay_refit.refit(log, options, plant.fitted, info, saved)
+        if isinstance(got, str):
+            return AllowedPlant(f"{plant.label}: refit", plant.fitted, math.inf, dropped=f"no refit: {got}", held=1)
+        label, fitted = got
+        r = replay(log, fitted, info)
+        check = relay_evidence.check(fitted.result, info, fitted.heater, saved)
+        why = None if r.passed and check.passed else \
+            f"does not replay the log: {r.text()}" if not r.passed else \
+            f"does not reproduce your PID_CALIBRATE: {check.text()}"
+        return AllowedPlant(label, fitted, math.inf, r, why, 1, check)
+
+    return forked_map(run, structures, on_done=_step(on_step, "replaying the log on each plant: refits",
+                                                       len(structures)))
+
+
+def no_relay_reason(checks: list[RelayCheck]) -> str:
+    """Why no plant is a member where plants replayed the log but none reproduced the printer's PID_CALIBRATE:
+    the saved Tu against the range the plants relay at over the band, and where some relay at the saved
+    period (a refit), their Ku against the saved one."""
+    saved = checks[0].saved
+    band = "..".join(f"{t:g}" for t in checks[0].band_c)
+    tus = [t for c in checks for t in c.tu_s if math.isfinite(t)]
+    span = f"their own relay at {band} C at {min(tus):.3g}..{max(tus):.3g} s" if tus else \
+        f"none of them finishes a PID_CALIBRATE at {band} C"
+    on_period = [k * PID_PARAM_BASE for c in checks if c.tu_ok for k in c.ku if math.isfinite(k)]
+    kus = (f"; those at its period relay at Ku {min(on_period):.3g}..{max(on_period):.3g} against its "
+           f"{saved.ku * PID_PARAM_BASE:.3g}") if on_period else ""
+    head = f"at the {saved.tu_s:.3g} s" if not on_period else \
+        f"as your PID_CALIBRATE did (Tu {saved.tu_s:.3g} s, Ku {saved.ku * PID_PARAM_BASE:.3g})"
+    return (f"no fitted plant relays {head}{' your PID_CALIBRATE saw' if not on_period else ''}: {len(checks)} "
+            f"plants checked, {span}{kus} (goal: Tu within {relay_evidence.TU_GOAL_REL:.0%}, "
+            f"Ku within {relay_evidence.KU_GOAL_REL:.0%})")
 
 
 def _profiles(log: Log, ends: list[_End], best: FitResult,

@@ -76,11 +76,19 @@ class SteinhartHart:
         inv_t = 1.0 / (np.asarray(temp_c, dtype=float) + KELVIN_OFFSET)
         if self.c3 == 0.0:
             return np.exp((inv_t - self.c1) / self.c2)
-        # c3*x^3 + c2*x + (c1 - 1/T) = 0, one real root since c2, c3 > 0.
+        # c3*x^3 + c2*x + (c1 - 1/T) = 0: one real root where c2, c3 > 0 (Cardano)
         p = self.c2 / self.c3
         q = (self.c1 - inv_t) / self.c3
-        disc = np.sqrt(q * q / 4.0 + p**3 / 27.0)
-        return np.exp(np.cbrt(-q / 2.0 + disc) + np.cbrt(-q / 2.0 - disc))
+        if self.c3 > 0.0:
+            disc = np.sqrt(q * q / 4.0 + p**3 / 27.0)
+            return np.exp(np.cbrt(-q / 2.0 + disc) + np.cbrt(-q / 2.0 - disc))
+        # c3 < 0 (a curve through three points can bend that way): three real roots; the part's is the one
+        # nearest the beta curve's ln R (the trigonometric form of the roots)
+        beta_ln_r = (inv_t - self.c1) / self.c2
+        arg = np.clip(1.5 * q / p * np.sqrt(-3.0 / p), -1.0, 1.0)
+        roots = [2.0 * np.sqrt(-p / 3.0) * np.cos(np.arccos(arg) / 3.0 - 2.0 * np.pi * k / 3.0) for k in range(3)]
+        nearest = np.argmin(np.abs(np.array(roots) - beta_ln_r), axis=0)
+        return np.exp(np.choose(nearest, roots))
 
 
 # Klipper's built-in sensors (klippy/extras/temperature_sensors.cfg): (temp_c, resistance_ohm).

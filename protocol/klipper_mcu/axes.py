@@ -118,6 +118,9 @@ class Rail:
         self.start_mm = (pins.position_min_mm + pins.position_max_mm) / 2
         self.terms = [(carriage(stepper.step_pin), weight) for stepper, weight in pins.terms]
 
+    def __repr__(self) -> str:
+        return f"Rail(from {self.start_mm:g} mm, {len(self.terms)} steppers)"
+
     def at_mm(self, clock: int) -> float:
         return self.start_mm + sum(weight * c.travel_mm(clock) for c, weight in self.terms)
 
@@ -158,6 +161,9 @@ class Switch:
 
     def __init__(self, axis: AxisPins, carriage: Callable[[str], Carriage]):
         self.axis, self.rail = axis, Rail(axis.rail, carriage)
+
+    def __repr__(self) -> str:
+        return f"Switch({self.axis.endstop.name} of {self.axis.section}, {self.rail!r})"
 
     def pressed(self, clock: int) -> bool:
         return self._reached(self.rail.at_mm(clock))

@@ -17,12 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_port.thermistor import KLIPPER_SENSORS, Divider
+from firmware_port.thermistor import KLIPPER_SENSORS, Divider, SteinhartHart
 from protocol.klipper_mcu.axes import Carriage, Switch
 from protocol.klipper_mcu.chip_temperature import CHIP_ABOVE_AMBIENT_C, TEMPERATURE_PIN_NAME, chip_sensor
 from protocol.klipper_mcu.dictionary import BOARD_CHIP, DEFAULT_SENSOR, Chip
 from protocol.klipper_mcu.probe import Probe
-from protocol.klipper_mcu.user_config import ConfigError, UserConfig
+from protocol.klipper_mcu.user_config import ConfigError, ThermistorSpec, UserConfig
 from twin.clock import TICK_S, EventQueue
 from twin.engine import DISCONNECTED, NORMAL, STUCK_ON
 from twin.linear import SENSOR
@@ -128,18 +128,31 @@ class _Heater:
         return self.pin.fractions(first_tick, n_ticks)
 
 
+def _part(config: UserConfig, spec: ThermistorSpec) -> SteinhartHart:
+    """A config's own thermistor as klippy computes it (ConfigError: points no curve passes through)."""
+    try:
+        if spec.beta is not None:
+            (temp_c, ohm), = spec.points
+            return SteinhartHart.from_beta(ohm, spec.beta, temp_c)
+        return SteinhartHart.from_points(spec.points)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # a singular system, a log of 0 ohm
+        raise ConfigError(f"{config.path}: [{spec.section}]: not a thermistor: {exc}") from None
+
+
 class TwinBoard:
     """The twin's heaters behind the MCU's pins; the MCU calls ``adc`` and ``drive`` with world clocks."""
 
     def __init__(self, scenario: Scenario, heaters: tuple[str, ...] = ("hotend", "bed"),
                  sensor_type: str = DEFAULT_SENSOR, noise_lsb: float = 0.0, wirings: tuple[Wiring, ...] = WIRING,
-                 fan_pin: str | None = FAN_PIN, chip: Chip = BOARD_CHIP):
+                 fan_pin: str | None = FAN_PIN, chip: Chip = BOARD_CHIP,
+                 thermistors: dict[str, SteinhartHart] | None = None):
         """The heaters named in ``heaters`` on their ``wirings`` (a printer.cfg's: ``for_config``), behind the
-        ``chip``'s ADC and clock."""
+        ``chip``'s ADC and clock; ``thermistors``: the sensor types by name (Klipper's, and a config's own)."""
+        self.thermistors = KLIPPER_SENSORS if thermistors is None else thermistors
         for wiring in wirings:
-            if (wiring.sensor_type or sensor_type) not in KLIPPER_SENSORS:
+            if (wiring.sensor_type or sensor_type) not in self.thermistors:
                 raise ValueError(f"unknown sensor_type {wiring.sensor_type or sensor_type!r}; valid: "
-                                 f"{', '.join(KLIPPER_SENSORS)}")
+                                 f"{', '.join(self.thermistors)}")
         self.scenario, self.sensor_type, self.noise_lsb = scenario, sensor_type, noise_lsb
         self.ambient_c = scenario.ambient_c
         self.chip, self.tick_clocks = chip, tick_clocks(chip)
@@ -171,16 +184,17 @@ class TwinBoard:
     @classmethod
     def for_config(cls, config: UserConfig, scenario: Scenario, noise_lsb: float = 0.0) -> TwinBoard:
         """The board a user's printer.cfg describes: its heaters, thermistors, fan and axes on their pins."""
+        thermistors = {**KLIPPER_SENSORS, **{name: _part(config, spec) for name, spec in config.thermistors.items()}}
         for heater in config.heaters:
-            if heater.sensor_type not in KLIPPER_SENSORS:
+            if heater.sensor_type not in thermistors:
                 raise ConfigError(f"{config.path}: [{heater.section}] sensor_type {heater.sensor_type!r}: the twin "
-                                  f"simulates these thermistors: {', '.join(KLIPPER_SENSORS)}")
+                                  f"simulates these thermistors: {', '.join(thermistors)}")
         wirings = tuple(Wiring(h.heater, h.heater_pin, h.sensor_pin, h.section, h.max_temp_c, h.sensor_type,
                                h.pullup_ohm) for h in config.heaters)
         board = cls(scenario, tuple(w.heater for w in wirings), noise_lsb=noise_lsb, wirings=wirings,
-                    fan_pin=config.fan_pin, chip=config.chip)
+                    fan_pin=config.fan_pin, chip=config.chip, thermistors=thermistors)
         for sensor in config.sensors:
-            if sensor.sensor_type in KLIPPER_SENSORS:  # others (a PT100 amplifier, a chip sensor) read open
+            if sensor.sensor_type in thermistors:  # others (a PT100 amplifier, a chip sensor) read open
                 board._ambient_sensors[sensor.pin] = board._chain(sensor.sensor_type, sensor.pullup_ohm, None)
         rails = [axis.rail for axis in config.axes] + ([config.probe.z] if config.probe and config.probe.z else [])
         for rail in rails:
@@ -194,7 +208,7 @@ class TwinBoard:
         return board
 
     def _chain(self, sensor_type: str | None, pullup_ohm: float, stream) -> SensorChain:
-        divider = Divider(KLIPPER_SENSORS[sensor_type or self.sensor_type], pullup_ohm)
+        divider = Divider(self.thermistors[sensor_type or self.sensor_type], pullup_ohm)
         chain = SensorChain(divider, noise_lsb=self.noise_lsb if stream is not None else 0.0,
                             rng=np.random.default_rng(stream), adc_counts=self.chip.adc_max + 1)
         chain.set_ambient(self.ambient_c, 0)

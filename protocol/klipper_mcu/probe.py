@@ -48,6 +48,9 @@ class Probe:
         self.commands: list[str] = []  # what it was told, in order (for a reader of the twin's log)
         self.on_change: Callable[[], None] | None = None  # the MCU's: an endstop sampling it looks again
 
+    def __repr__(self) -> str:
+        return f"Probe({self.pins.sensor.name}, {self.state})"
+
     def command(self, duty: float) -> None:
         """A duty on the control pin from now on: a pulse that names a command acts on it."""
         name = command_of(duty)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import configparser
 import glob
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from protocol.klipper_mcu.dictionary import CHIPS, DEFAULT_SENSOR, Chip
@@ -114,6 +114,15 @@ class ProbePins:
 
 
 @dataclass(frozen=True)
+class ThermistorSpec:
+    """A config's [thermistor NAME]: (temperature C, resistance ohm) points, three, or one with ``beta``."""
+
+    section: str
+    points: tuple[tuple[float, float], ...]
+    beta: float | None = None
+
+
+@dataclass(frozen=True)
 class UserConfig:
     path: Path
     chip: Chip
@@ -123,6 +132,7 @@ class UserConfig:
     axes: tuple[AxisPins, ...]
     serial: str
     probe: ProbePins | None = None
+    thermistors: dict[str, ThermistorSpec] = field(default_factory=dict)  # the config's own [thermistor NAME]s
 
 
 def parse_pin(text: str) -> Pin:
@@ -203,7 +213,22 @@ def read_user_config(path: Path, chip_name: str | None = None) -> UserConfig:
             sensors.append(SensorPin(section, sensor_pin.name, sensor_type, pullup))
     fan = parse_pin(parser.get("fan", "pin")) if parser.has_option("fan", "pin") else None
     return UserConfig(path, chip, tuple(heaters), tuple(sensors), fan.name if fan and fan.mcu == "mcu" else None,
-                      tuple(_axes(parser, get)), parser.get("mcu", "serial", fallback="").strip(), _probe(parser, get))
+                      tuple(_axes(parser, get)), parser.get("mcu", "serial", fallback="").strip(), _probe(parser, get),
+                      _thermistors(parser, get))
+
+
+def _thermistors(parser: configparser.RawConfigParser, get: _Getter) -> dict[str, ThermistorSpec]:
+    """[thermistor NAME] sections as klippy/extras/thermistor.py reads them: three (temperature, resistance)
+    points, or one and a beta."""
+    specs = {}
+    for section in parser.sections():
+        if section.startswith("thermistor "):
+            points = [(get.number(section, "temperature1"), get.number(section, "resistance1"))]
+            beta = get.number(section, "beta") if parser.has_option(section, "beta") else None
+            if beta is None:
+                points += [(get.number(section, f"temperature{k}"), get.number(section, f"resistance{k}")) for k in (2, 3)]
+            specs[section.split(None, 1)[1]] = ThermistorSpec(section, tuple(points), beta)
+    return specs
 
 
 def _main_mcu_pins(parser: configparser.RawConfigParser) -> list[str]:

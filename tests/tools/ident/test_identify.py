@@ -230,8 +230,10 @@ def test_twin_fit_klipper_stats_bed_and_extruder(capsys, hardware_logs):
     assert code == 0, err
     assert re.search(r"^  delay_s\s+\S+\s+(\+- \S+|at its bound)\s+(poorly |not )?identified$", out, re.M)
     assert _rmse(out) < 3.0
-    kp = float(re.search(r"pid_Kp: (\S+)", out).group(1))
-    assert 10 < kp < 150  # twin-tune's proven answer (91.6 here); the printer's own PID_CALIBRATE gave 24.8
+    # twin-tune's answer: the printer's gains are its PID_CALIBRATE's (Tu 36.9 s), and no plant fitted to the 1 Hz
+    # Stats relays there (12-17 s; the refits that do miss its Ku): keep them (issue 38 item 5)
+    assert "answer: keep your gains (Kp 24.83" in out, out[-1500:]
+    assert "no fitted plant relays as your PID_CALIBRATE did (Tu 36.9 s, Ku 41.4)" in out
 
 
 def test_twin_fit_marlin_m303_trace(capsys, hardware_logs):

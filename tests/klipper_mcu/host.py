@@ -28,13 +28,15 @@ class TestHost:
         self._reader = BlockReader()
         self._by_id = {f.msg_id: f for f in self.dictionary.responses.values()}
 
-    def send(self, clock: int, *commands: str) -> None:
-        """Commands in one block ("name key=value ..."), arriving at world clock ``clock``."""
+    def send(self, clock: int, *commands: str, **data: bytes) -> None:
+        """Commands in one block ("name key=value ..."), arriving at world clock ``clock``; ``data``: the
+        byte-string arguments (%*s fields) of a single command."""
         payload = b""
         for command in commands:
             name, *args = command.split()
-            values = {key: int(value) for key, value in (arg.split("=") for arg in args)}
-            payload += self.dictionary.commands[name].encode(**values)
+            values: dict[str, int | bytes] = {key: int(value) for key, value in (arg.split("=") for arg in args)}
+            fmt = self.dictionary.commands[name]
+            payload += fmt.encode(**values, **data)
         self.raw(clock, frame(self.sequence, payload))
         self.sequence = (self.sequence + 1) & MESSAGE_SEQ_MASK
 

@@ -29,23 +29,6 @@ def host() -> TestHost:
     return test_host
 
 
-def send(test_host: TestHost, command: str, **data: bytes) -> None:
-    """A command with byte-string arguments (TestHost.send takes integers only)."""
-    name, *args = command.split()
-    values: dict[str, int | bytes] = {key: int(value) for key, value in (arg.split("=") for arg in args)}
-    fmt = test_host.dictionary.commands[name]
-    test_host.mcu.receive(_frame(test_host, fmt.encode(**values, **data)), 0)
-    test_host.run(0)
-
-
-def _frame(test_host: TestHost, payload: bytes) -> bytes:
-    from protocol.klipper_mcu.codec import MESSAGE_SEQ_MASK, frame
-
-    block = frame(test_host.sequence, payload)
-    test_host.sequence = (test_host.sequence + 1) & MESSAGE_SEQ_MASK
-    return block
-
-
 def uart_datagram(address: int, register: int, value: int | None = None) -> bytes:
     """What klippy's tmc_uart.py sends: sync 0xf5, address, register (bit 7: write), data, CRC8, on the wire."""
     message = bytes([0xF5, address, register]) + (b"" if value is None else value.to_bytes(4, "big"))
@@ -53,7 +36,7 @@ def uart_datagram(address: int, register: int, value: int | None = None) -> byte
 
 
 def uart_read(test_host: TestHost, register: int, address: int = 0) -> int | None:
-    send(test_host, "tmcuart_send oid=0 read=10", write=uart_datagram(address, register))
+    test_host.send(0, "tmcuart_send oid=0 read=10", write=uart_datagram(address, register))
     reply = uart_bytes(test_host.named("tmcuart_response")[-1]["read"])
     if reply is None or len(reply) != 8 or crc8_atm(reply[:7]) != reply[7] or reply[:3] != bytes([5, 0xFF, register]):
         return None
@@ -79,53 +62,53 @@ def test_the_wire_framing_round_trips(data):
 
 def test_a_tmc_uart_write_reads_back_and_counts_in_ifcnt():
     test_host = host()
-    send(test_host, f"config_tmcuart oid=0 rx_pin={STM32F103.pin_number('PC11')} pull_up=1 "
+    test_host.send(0, f"config_tmcuart oid=0 rx_pin={STM32F103.pin_number('PC11')} pull_up=1 "
                     f"tx_pin={STM32F103.pin_number('PC10')} bit_time=1000")
     assert uart_read(test_host, IFCNT) == 0
-    send(test_host, "tmcuart_send oid=0 read=0", write=uart_datagram(0, GCONF | 0x80, 0x1C1))
+    test_host.send(0, "tmcuart_send oid=0 read=0", write=uart_datagram(0, GCONF | 0x80, 0x1C1))
     assert test_host.named("tmcuart_response")[-1]["read"] == b""
     assert uart_read(test_host, GCONF) == 0x1C1 and uart_read(test_host, IFCNT) == 1
-    send(test_host, "tmcuart_send oid=0 read=0", write=uart_datagram(0, IHOLD_IRUN | 0x80, 0x0001_1F08))
+    test_host.send(0, "tmcuart_send oid=0 read=0", write=uart_datagram(0, IHOLD_IRUN | 0x80, 0x0001_1F08))
     assert uart_read(test_host, DRV_STATUS) == 0x1F << 16  # cs_actual = irun: not "Reset?"
     assert uart_read(test_host, GCONF, address=3) == 0  # another driver on the wire, never written
     bad = bytearray(uart_datagram(0, GCONF))
     bad[-1] ^= 0x40  # a CRC bit flipped: the driver stays silent, the line idles high
-    send(test_host, "tmcuart_send oid=0 read=10", write=bytes(bad))
+    test_host.send(0, "tmcuart_send oid=0 read=10", write=bytes(bad))
     assert test_host.named("tmcuart_response")[-1]["read"] == b"\xff" * 10
 
 
 def test_tmc_spi_answers_the_previous_datagram_down_a_chain():
     test_host = host()
-    send(test_host, f"config_spi oid=1 pin={STM32F103.pin_number('PB12')} cs_active_high=0")
+    test_host.send(0, f"config_spi oid=1 pin={STM32F103.pin_number('PB12')} cs_active_high=0")
     write = bytes([GCONF | 0x80, 0, 0, 0x01, 0x04])
-    send(test_host, "spi_transfer oid=1", data=write)
-    send(test_host, "spi_transfer oid=1", data=bytes(5))  # klippy's dummy read after a write
+    test_host.send(0, "spi_transfer oid=1", data=write)
+    test_host.send(0, "spi_transfer oid=1", data=bytes(5))  # klippy's dummy read after a write
     assert test_host.named("spi_transfer_response")[-1]["response"] == bytes([0, 0, 0, 0x01, 0x04])
-    send(test_host, f"config_spi oid=2 pin={STM32F103.pin_number('PB11')} cs_active_high=0")
+    test_host.send(0, f"config_spi oid=2 pin={STM32F103.pin_number('PB11')} cs_active_high=0")
     second = bytes(5) + bytes([GCONF | 0x80, 0, 0, 0, 0x07])  # two drivers: write the second's GCONF ...
-    send(test_host, "spi_send oid=2", data=second)
+    test_host.send(0, "spi_send oid=2", data=second)
     read = bytes(5) + bytes([GCONF, 0, 0, 0, 0])  # ... read it, and the next transfer brings it
-    send(test_host, "spi_send oid=2", data=read)
-    send(test_host, "spi_transfer oid=2", data=read)
+    test_host.send(0, "spi_send oid=2", data=read)
+    test_host.send(0, "spi_transfer oid=2", data=read)
     assert test_host.named("spi_transfer_response")[-1]["response"] == bytes(5) + bytes([0, 0, 0, 0, 0x07])
-    send(test_host, "spi_transfer oid=1", data=b"\x01\x02\x03")  # not a TMC datagram: zeros
+    test_host.send(0, "spi_transfer oid=1", data=b"\x01\x02\x03")  # not a TMC datagram: zeros
     assert test_host.named("spi_transfer_response")[-1]["response"] == bytes(3)
 
 
 def test_accepted_commands_keep_their_family_and_check_their_pins():
     test_host = host()
-    send(test_host, "config_neopixel oid=2 pin=0 data_size=12 bit_max_ticks=100 reset_min_ticks=100")
-    send(test_host, "neopixel_update oid=2 pos=0", data=b"\x10\x20\x30")
-    send(test_host, "neopixel_send oid=2")
+    test_host.send(0, "config_neopixel oid=2 pin=0 data_size=12 bit_max_ticks=100 reset_min_ticks=100")
+    test_host.send(0, "neopixel_update oid=2 pos=0", data=b"\x10\x20\x30")
+    test_host.send(0, "neopixel_send oid=2")
     assert test_host.named("neopixel_result") == [{"oid": 2, "success": 1}]
     assert not test_host.named("shutdown")
-    send(test_host, "i2c_write oid=2", data=b"\x00")  # a neopixel's oid is no I2C device
+    test_host.send(0, "i2c_write oid=2", data=b"\x00")  # a neopixel's oid is no I2C device
     assert test_host.named("shutdown")[-1]["static_string_id"] == test_host.dictionary.static_string_ids[INVALID_OID]
 
 
 def test_a_bad_input_pin_shuts_down_as_gpio_in_setup_does():
     test_host = host()
-    send(test_host, f"config_tmcuart oid=0 rx_pin={7 * 16} pull_up=1 tx_pin=0 bit_time=1000")  # past port G
+    test_host.send(0, f"config_tmcuart oid=0 rx_pin={7 * 16} pull_up=1 tx_pin=0 bit_time=1000")  # past port G
     assert test_host.named("shutdown")[-1]["static_string_id"] == test_host.dictionary.static_string_ids[
         NOT_INPUT_PIN]
 
@@ -145,13 +128,13 @@ def test_a_counter_reports_on_the_firmwares_schedule():
     """src/pulse_counter.c with a pin that never changes: the first poll after the clock reports, then the first
     poll strictly after each next sample time (1 poll + 10 polls of sample later: the 12th); count 0."""
     test_host = host()
-    send(test_host, f"config_counter oid=3 pin={STM32F103.pin_number('PE5')} pull_up=0")
+    test_host.send(0, f"config_counter oid=3 pin={STM32F103.pin_number('PE5')} pull_up=0")
     start = STM32F103.clock_freq
-    send(test_host, f"query_counter oid=3 clock={start} poll_ticks=1000 sample_ticks=10000")
+    test_host.send(0, f"query_counter oid=3 clock={start} poll_ticks=1000 sample_ticks=10000")
     test_host.run(start + 30_000)
     assert test_host.named("counter_state") == [
         {"oid": 3, "next_clock": start + 2000, "count": 0, "count_clock": 0},
         {"oid": 3, "next_clock": start + 13_000, "count": 0, "count_clock": 0},
         {"oid": 3, "next_clock": start + 24_000, "count": 0, "count_clock": 0}]
-    send(test_host, f"query_counter oid=3 clock={start} poll_ticks=0 sample_ticks=10000")  # a poll that spins
+    test_host.send(0, f"query_counter oid=3 clock={start} poll_ticks=0 sample_ticks=10000")  # a poll that spins
     assert test_host.named("shutdown")

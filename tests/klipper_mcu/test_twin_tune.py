@@ -31,6 +31,7 @@ TEMPERATURES = "B:... T0:... (PID_CALIBRATE's temperatures, one line a second)"
 # a line of twin-tune's progress: how many a run prints turns on its plants, so the doc's are not compared
 PROGRESS_LINE = re.compile(r"^// TWIN_TUNE: [^:]+ \d+/\d+$")
 NUMBER = re.compile(r"\d+(\.\d+)?")
+UNCHANGED = re.compile(r"unchanged \(N( C)?\)")
 
 
 class Printer:
@@ -128,8 +129,10 @@ def transcript(console: list[str]) -> list[str]:
 
 def comparable(lines: list[str]) -> list[str]:
     """Lines to compare with the doc's: numbers masked (gains, temperatures and dates differ run to run within
-    the band test_klippy.py holds them to), progress lines out."""
-    return [NUMBER.sub("N", line) for line in lines if not PROGRESS_LINE.match(line)]
+    the band test_klippy.py holds them to), progress lines out. A term that changes by less than its last digit
+    reads "unchanged (N C)" rather than "N -> N C": which one a run prints is a number too."""
+    masked = (NUMBER.sub("N", line) for line in lines if not PROGRESS_LINE.match(line))
+    return [UNCHANGED.sub(r"N -> N\1", line) for line in masked]
 
 
 def doc_transcript() -> list[str]:

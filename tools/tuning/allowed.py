@@ -26,8 +26,10 @@ One fit of one structure is one answer to "what plant made this log"; the data u
    its target (Tu and swing, the result lines' goals), a Klipper Stats heater by the twin's closed loop
    with the printer's own gains and settings through the logged targets of a heat-up (tools/validation
    /compare.py goals: heat-up time 10 %, overshoot 1.5 C, hold 1 C RMS), an open-loop trace by its
-   RMSE (3 C, the open-loop goal). An M303 replay that misses says whether the fit itself misses the
-   printed cycles (tools/validation/m303_bias.py ``own_relay_note``: the plant's own relay at their levels).
+   RMSE (3 C, the open-loop goal); so is a Stats heater without a heat-up under the printer's own loop
+   (a log of PID_CALIBRATE alone: its relay, not the PID, drove the heater). An M303 replay that
+   misses says whether the fit itself misses the printed cycles (tools/validation/m303_bias.py
+   ``own_relay_note``: the plant's own relay at their levels).
 5. The printer's own calibration: where a klippy.log's saved gains are PID_CALIBRATE's
    (tools/tuning/calibration.py: Kd Ki = Kp^2 / 4 within their printed rounding), the relay's Ku and Tu
    they imply are evidence the 1 Hz Stats trace lacks (it cannot show the sub-second lags that set a
@@ -250,7 +252,9 @@ def replay(log: Log, fitted: LogFit, info: compare.HeaterInfo | None) -> Replay:
     if isinstance(log, list) and fitted.points:
         return _pid_calibrate_replay(fitted)
     if isinstance(log, StatsLog) and info is not None:
-        return _closed_loop_replay(log, fitted, info)
+        closed = _closed_loop_replay(log, fitted, info)
+        if closed is not None:
+            return closed
     residuals = fitted.trace_residuals_c()
     rmse = float(np.sqrt(np.mean(residuals ** 2))) if residuals.size else math.inf
     goal = compare.GOAL_OPEN_LOOP_RMSE_C
@@ -276,13 +280,15 @@ def _pid_calibrate_replay(fitted: LogFit) -> Replay:
         ("swing C", point.swing_c, got.peak_to_peak_c, f"within {goal_swing:.0%}")), tu_ok and swing_ok)
 
 
-def _closed_loop_replay(log: StatsLog, fitted: LogFit, info: compare.HeaterInfo) -> Replay:
+def _closed_loop_replay(log: StatsLog, fitted: LogFit, info: compare.HeaterInfo) -> Replay | None:
+    """The twin's closed loop through a heat-up of the log; None if the printer's loop drove none (a log of
+    PID_CALIBRATE alone, whose relay moves the target between target and target - 5 C)."""
     try:
         _, windows = compare.heatup_windows(log, fitted.heater)
     except compare.Unusable as exc:
         return Replay("the twin's closed loop", (), False, str(exc))
     if not windows:
-        return Replay("the twin's closed loop", (), False, "no heat-up to replay")
+        return None
     seg = fitted.segment
     own = [w for w in windows if seg is not None and compare.overlaps(w, seg)]
     window = (own or windows)[0]

@@ -37,8 +37,9 @@ UNCHANGED = re.compile(r"unchanged \(N( C)?\)")
 class Printer:
     """klippy on the twin MCU, Moonraker and the agent; the console as the front ends see it."""
 
-    def __init__(self, session, base: str, spawn):
+    def __init__(self, session, base: str, spawn, section: str = SECTION):
         self.session, self.base, self.spawn, self.workdir = session, base, spawn, session.workdir
+        self.section = section  # the tuned heater's printer.cfg section
         self.state_dir = self.workdir / "agent-state"
         self.agent: subprocess.Popen | None = None
         self.agents = 0
@@ -88,12 +89,12 @@ class Printer:
 
     def gains(self) -> dict:
         query = self.base + "/printer/objects/query?configfile=settings"
-        settings = http(query)["status"]["configfile"]["settings"][SECTION]
+        settings = http(query)["status"]["configfile"]["settings"][self.section]
         return {k: settings[k] for k in ("control", "pid_kp", "pid_ki", "pid_kd")}
 
 
-@pytest.fixture
-def printer(klipper) -> Printer:
+def moonraker_command() -> Path:
+    """Moonraker's console script; unavailable (a failure under CI=true) without it or the agent's client."""
     try:
         command = venv_command(MOONRAKER_VENV_ENV)
         import websocket  # noqa: F401  the agent's client: the 'moonraker' extra
@@ -101,13 +102,21 @@ def printer(klipper) -> Printer:
         unavailable(str(exc))
     except ImportError:
         unavailable("no websocket-client for twin-moonraker-agent: pip install -e '.[moonraker]'")
+    return command
+
+
+@pytest.fixture
+def printer(klipper) -> Printer:
+    command = moonraker_command()
     return klipper.fixture("the printer fixture", lambda: start_printer(klipper, command))
 
 
-def start_printer(klipper, moonraker_command: Path) -> Printer:
-    """A session with the macros, Moonraker on it and the agent (their processes the session's runner's)."""
-    session = klipper(extra_config=f"[include {MACROS}]\n")
-    printer = Printer(session, start_moonraker(moonraker_command, session, klipper.spawn, WAIT_S), klipper.spawn)
+def start_printer(klipper, moonraker_command: Path, *mcu_args: str, section: str = SECTION) -> Printer:
+    """A session (twin-klipper-mcu given ``mcu_args``) with the macros, Moonraker on it and the agent (their
+    processes the session's runner's); ``section`` is the heater whose gains ``Printer.gains`` reads."""
+    session = klipper(*mcu_args, extra_config=f"[include {MACROS}]\n")
+    base = start_moonraker(moonraker_command, session, klipper.spawn, WAIT_S)
+    printer = Printer(session, base, klipper.spawn, section)
     printer.start_agent()
     return printer
 
@@ -141,6 +150,12 @@ def doc_transcript() -> list[str]:
     return text[start:text.index(TRANSCRIPT_END)].splitlines()
 
 
+def answer_gains(lines: list[str]) -> dict[str, str]:
+    """The gains of the console's answer line as printed: {'pid_Kp': '8.629', 'pid_Ki': ..., 'pid_Kd': ...}."""
+    answer_line = next(line for line in lines if "TWIN_TUNE: answer:" in line)
+    return dict(part.split("=") for part in answer_line.split(": ")[2].split()[:3])
+
+
 def errors(lines: list[str]) -> list[str]:
     return [line for line in lines if line.startswith("!!")]
 
@@ -156,8 +171,7 @@ def test_twin_tune_then_twin_apply_holds_the_gains(printer):
     assert "// TWIN_TUNE: verdict: new gains" in lines
     assert printer.gains() == before  # nothing applied yet
     assert printer.session.config_path.read_text() == original
-    answer_line = next(line for line in lines if "TWIN_TUNE: answer:" in line)
-    answer = dict(part.split("=") for part in answer_line.split(": ")[2].split()[:3])
+    answer = answer_gains(lines)
 
     first = printer.send("TWIN_APPLY")
     lines = printer.wait_line("TWIN_APPLY: after the restart", first)

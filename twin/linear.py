@@ -28,7 +28,7 @@ import numpy as np
 
 from twin.clock import TICK_S
 
-MAX_CACHED_MODELS = 8  # discretisations a LinearPlant keeps (LRU): a few fan x flow x radiation-bin states
+MAX_CACHED_MODELS = 64  # discretisations a LinearPlant keeps (LRU): fan x flow x radiation-bin states (a relay spans 20+ 0.5-C bins)
 MAX_CACHED_RUNS = 48  # run shapes (n_ticks, offsets) a TickModel keeps (LRU): the control period's few, and some
 SENSOR, BLOCK = 0, 1  # output rows
 

@@ -25,6 +25,8 @@ MACROS = ROOT / "tools" / "klipper_host" / "twin_tune.cfg"
 WAIT_S = 900.0  # hang guard: PID_CALIBRATE at 10 x, or the longest step of a twin-tune, on a loaded 2-core machine
 SECTION = "heater_generic hotend"
 READY_LINE = "ready for TWIN_TUNE and TWIN_APPLY"
+# the agent's twin-tune at a small budget: these tests are of the console's loop, the tune's search has its own
+TUNE_ARGS = ("--tune-arg=--budget=90", "--tune-arg=--proof=2")
 DOC = ROOT / "docs" / "klipper.md"
 TRANSCRIPT_BEGIN, TRANSCRIPT_END = "<!-- twin_tune transcript: begin -->\n```text\n", "```\n<!-- twin_tune transcript: end -->"
 TEMPERATURES = "B:... T0:... (PID_CALIBRATE's temperatures, one line a second)"
@@ -50,7 +52,7 @@ class Printer:
         self.agents += 1
         with open(self.workdir / f"agent{self.agents}.err", "w") as err:
             self.agent = self.spawn([sys.executable, "-m", "tools.klipper_host.agent", "--moonraker", self.base,
-                                     "--state-dir", str(self.state_dir)], stderr=err, cwd=ROOT)
+                                     "--state-dir", str(self.state_dir), *TUNE_ARGS], stderr=err, cwd=ROOT)
         self.wait_line(READY_LINE, first)
 
     def send(self, script: str) -> int:

@@ -27,6 +27,7 @@ SIGMAS = 3.0
 ONION = "klipper_heattest_onionheater_heattest_200.csv"
 CHES = "klippy_stats_chesleavens_cartesian_stm32f103.csv"
 ENDER5 = "klippy_stats_icodextrin_ender5_creality427.csv"
+QUICK = ("--budget", "90", "--proof", "2")  # the tune at a small budget where its verdict, not its search, is tested
 
 
 def _staircase() -> tuple[np.ndarray, np.ndarray]:
@@ -216,9 +217,9 @@ def test_twin_fit_onionheater_two_node(capsys, hardware_logs):
                      r"  pid_Ki: [\d.]+\n  pid_Kd: [\d.]+$", out, re.M) and "M301" not in out
 
 
-@pytest.mark.slow  # 57 s of CPU: twin-fit on two heaters of a capture
+@pytest.mark.slow  # twin-fit on two heaters of a capture (the tune at QUICK: its verdict, not its search, is tested)
 def test_twin_fit_klipper_stats_bed_and_extruder(capsys, hardware_logs):
-    code, out, err = twin_fit(capsys, str(hardware_logs / CHES), "--heater", "heater_bed")
+    code, out, err = twin_fit(capsys, str(hardware_logs / CHES), "--heater", "heater_bed", *QUICK)
     assert code == 0, err
     assert "power_w 220 W assumed" in out and "the pwm Klipper last sent" in " ".join(out.split())
     assert _rmse(out) < 1.0
@@ -226,7 +227,7 @@ def test_twin_fit_klipper_stats_bed_and_extruder(capsys, hardware_logs):
     assert "\n  [heater_bed]\n  control: pid\n" in out or "keep your gains (Kp 54.03" in out
     assert "M306 P" not in out and "M304" not in out  # a klippy.log: Klipper's section, from the Klipper loop
     assert "the log's own gains: pid_Kp 54.027" in out
-    code, out, err = twin_fit(capsys, str(hardware_logs / ENDER5), "--model", "fopdt", "--segment", "0")
+    code, out, err = twin_fit(capsys, str(hardware_logs / ENDER5), "--model", "fopdt", "--segment", "0", *QUICK)
     assert code == 0, err
     assert re.search(r"^  delay_s\s+\S+\s+(\+- \S+|at its bound)\s+(poorly |not )?identified$", out, re.M)
     assert _rmse(out) < 3.0

@@ -29,11 +29,11 @@ def _twin_fit(capsys, *argv):
 @pytest.mark.slow
 @pytest.mark.each_hardware_log("*", exclude=["README.md"])
 def test_twin_fit_on_every_capture(capsys, hardware_log):
-    """Every capture in hardware_logs: an answer (twin-tune's, here at --budget 90 --proof 2: new gains or
+    """Every capture in hardware_logs: an answer (twin-tune's, here at --budget 40 --proof 1: new gains or
     "keep your gains" and why; exit 0, or 1 where no gains are known and nothing safe was found), or refused
     with one line on stderr: 2 a log that cannot be fitted, 3 neither a plant it allows nor gains; never a
     traceback; a refused one prints no gains."""
-    code, out, err = _twin_fit(capsys, str(hardware_log), "--budget", "90", "--proof", "2")
+    code, out, err = _twin_fit(capsys, str(hardware_log), "--budget", "40", "--proof", "1")
     assert "Traceback" not in err
     if code in (0, 1):
         assert re.search(r"^answer: (new gains \(|keep )", out, re.M) and err == "", out

@@ -2,9 +2,10 @@
 
     python -m tools.klipper_host.soak [--speed 10] [--runs 10]
 
-Each run is a fresh session on the heater-only board: SET_HEATER_TEMPERATURE to 200 C, 150 s of printer time
-to settle, a 3-minute hold that must stay within 1 C (docs/klipper.md's example gains on hotend_stock), then
-PID_CALIBRATE at 200 C, whose gains must fall in the twin port's band (tools/klipper_host/calibration.py).
+Each run is a fresh session on the heater-only board: PID_CALIBRATE at 200 C from rest, whose gains must fall
+in the twin port's band (tools/klipper_host/calibration.py: the port's relay from rest; after a hold the relay
+starts elsewhere and takes other cycles), then SET_HEATER_TEMPERATURE to 200 C, 150 s of printer time to
+settle and a 3-minute hold that must stay within 1 C (docs/klipper.md's example gains on hotend_stock).
 One line per run (what failed, and what lenient mode forgave), then the count. Run it with the load you want
 to know about beside it (two busy loops: ``python3 -c "while True: pass" &`` twice); no retry at a slower speed.
 """
@@ -47,9 +48,9 @@ def run_once(speed: float) -> tuple[bool, str]:
     with tempfile.TemporaryDirectory() as folder:
         try:
             with KlipperSession(Path(folder), speed=speed) as session:
-                worst_c = hold(session.api)
                 gains = parse_pid_reply(session.api.gcode(f"PID_CALIBRATE HEATER=hotend TARGET={TARGET_C:g}",
-                                                          timeout_s=HANG_S))
+                                                          timeout_s=HANG_S))  # from rest, as the port's band
+                worst_c = hold(session.api)
         except (KlippyError, TimeoutError, RuntimeError, OSError) as exc:
             off = missed_schedule(Path(folder))
             return False, "failed: " + " ".join(str(exc).split())[:200] + (f" (off schedule: {off})" if off else "")

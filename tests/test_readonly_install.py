@@ -56,6 +56,7 @@ def _writable_again(target: Path) -> None:
         path.chmod(stat.S_IMODE(path.stat().st_mode) | stat.S_IWUSR)
 
 
+@pytest.mark.slow  # every CLI started once: 13 s on a quiet 2-core machine
 def test_every_cli_runs_without_a_writable_install_or_home(tmp_path):
     install, home, temp, out = tmp_path / "install", tmp_path / "home", tmp_path / "tmp", tmp_path / "out"
     install.mkdir()

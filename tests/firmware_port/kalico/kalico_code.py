@@ -16,7 +16,6 @@ import importlib
 import sys
 import types
 from email.parser import Parser
-from pathlib import Path
 from typing import Any
 
 from firmware_port.kalico import KalicoHeaterConfig

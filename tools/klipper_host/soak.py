@@ -6,13 +6,16 @@ Each run is a fresh session on the heater-only board: PID_CALIBRATE at 200 C fro
 in the twin port's band (tools/klipper_host/calibration.py: the port's relay from rest; after a hold the relay
 starts elsewhere and takes other cycles), then SET_HEATER_TEMPERATURE to 200 C, 150 s of printer time to
 settle and a 3-minute hold that must stay within 1 C (docs/klipper.md's example gains on hotend_stock).
-One line per run (what failed, and what lenient mode forgave), then the count. Run it with the load you want
-to know about beside it (two busy loops: ``python3 -c "while True: pass" &`` twice); no retry at a slower speed.
+One line per run (what failed, and what lenient mode forgave), then the count; a failed run's session folder
+(klippy.log, the MCU's log, printer.cfg) is kept under ``--keep`` and its line says where. Run it with the load
+you want to know about beside it (two busy loops: ``python3 -c "while True: pass" &`` twice); no retry at a
+slower speed.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import tempfile
 import time
@@ -43,18 +46,26 @@ def hold(api: KlippyApi) -> float:
     return worst
 
 
-def run_once(speed: float) -> tuple[bool, str]:
-    """(held and calibrated, what happened)."""
+def run_once(speed: float, keep: Path) -> tuple[bool, str]:
+    """(held and calibrated, what happened); a failed run's session folder is copied to ``keep``."""
     with tempfile.TemporaryDirectory() as folder:
-        try:
-            with KlipperSession(Path(folder), speed=speed) as session:
-                gains = parse_pid_reply(session.api.gcode(f"PID_CALIBRATE HEATER=hotend TARGET={TARGET_C:g}",
-                                                          timeout_s=HANG_S))  # from rest, as the port's band
-                worst_c = hold(session.api)
-        except (KlippyError, TimeoutError, RuntimeError, OSError) as exc:
-            off = missed_schedule(Path(folder))
-            return False, "failed: " + " ".join(str(exc).split())[:200] + (f" (off schedule: {off})" if off else "")
-        forgiven = missed_schedule(Path(folder)) or "nothing late"  # the MCU's last lateness line, once stopped
+        ok, what = _session(Path(folder), speed)
+        if not ok:
+            shutil.copytree(folder, keep, dirs_exist_ok=True)
+            what += f" (its logs: {keep})"
+    return ok, what
+
+
+def _session(folder: Path, speed: float) -> tuple[bool, str]:
+    try:
+        with KlipperSession(folder, speed=speed) as session:
+            gains = parse_pid_reply(session.api.gcode(f"PID_CALIBRATE HEATER=hotend TARGET={TARGET_C:g}",
+                                                      timeout_s=HANG_S))  # from rest, as the port's band
+            worst_c = hold(session.api)
+    except (KlippyError, TimeoutError, RuntimeError, OSError) as exc:
+        off = missed_schedule(folder)
+        return False, "failed: " + " ".join(str(exc).split())[:200] + (f" (off schedule: {off})" if off else "")
+    forgiven = missed_schedule(folder) or "nothing late"  # the MCU's last lateness line, once stopped
     twin = twin_pid_calibrate(TARGET_C)
     held, calibrated = worst_c < HOLD_BAND_C, within_band(gains, twin)
     what = (f"hold within {worst_c:.2f} C ({'ok' if held else 'out of band'}), PID_CALIBRATE "
@@ -67,12 +78,14 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--speed", type=float, default=10.0, help="x real time (default 10)")
     parser.add_argument("--runs", type=int, default=10)
+    parser.add_argument("--keep", type=Path, default=Path("twin-out/soak"),
+                        help="a failed run's logs go to KEEP/run-N (default twin-out/soak)")
     args = parser.parse_args(argv)
     if not args.speed > 0 or args.runs < 1:
         parser.error("--speed must be above 0 and --runs at least 1")
     passed = 0
     for k in range(1, args.runs + 1):
-        ok, what = run_once(args.speed)
+        ok, what = run_once(args.speed, args.keep / f"run-{k}")
         passed += ok
         print(f"run {k}: {what}", flush=True)
     print(f"{passed} of {args.runs} runs held {HOLD_S:g} s within {HOLD_BAND_C:g} C and calibrated at "

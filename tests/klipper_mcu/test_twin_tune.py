@@ -72,14 +72,15 @@ class Printer:
     def wait_line(self, text: str, first: int) -> list[str]:
         """The console from line ``first`` on, once a line there contains ``text``. A hang guard of WAIT_S
         without a sign of progress: a new console line (the agent prints each of twin-tune's steps) or CPU time
-        spent by the agent and its twin-tune; on a busy machine a tune at nice 10 takes what it takes."""
+        spent by the agent's twin-tune; on a busy machine a tune at nice 10 takes what it takes. Not the agent's
+        own CPU time: it spends some on every notification Moonraker sends, so a stuck job would never time out."""
         deadline, seen, polls = time.monotonic() + WAIT_S, (0, 0), 0
         while True:
             lines = self.console()[first:]
             if any(text in line for line in lines if not line.startswith("RESPOND ")):  # not the agent's command
                 return lines
             assert self.agent is None or self.agent.poll() is None, self.agent_err()
-            progress = (len(lines), 0 if self.agent is None else cpu_ticks(self.agent.pid))
+            progress = (len(lines), 0 if self.agent is None else cpu_ticks(self.agent.pid, own=False))
             if progress != seen:
                 deadline, seen = time.monotonic() + WAIT_S, progress
             assert time.monotonic() < deadline, f"no console line with {text!r}, none new for {WAIT_S:g} s: {lines[-20:]}"
@@ -231,11 +232,13 @@ def test_a_log_without_a_heat_up_is_one_line(printer):
     assert printer.session.config_path.read_text() == original
 
 
-def cpu_ticks(pid: int) -> int:
-    """CPU clock ticks (user and system) a process and its living descendants have spent; 0 once it is gone."""
+def cpu_ticks(pid: int, own: bool = True) -> int:
+    """CPU clock ticks (user and system) a process (unless not ``own``) and its living descendants have spent;
+    0 once it is gone."""
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return int(fields[11]) + int(fields[12]) + sum(cpu_ticks(child) for child in children(pid))
+        mine = int(fields[11]) + int(fields[12]) if own else 0
+        return mine + sum(cpu_ticks(child) for child in children(pid))
     except (OSError, IndexError, ValueError):
         return 0
 

